@@ -1,0 +1,219 @@
+"""Shader node trees for the two modalities.
+
+RGB surfaces are Principled BSDFs with a procedural texture. Thermal surfaces are pure
+emitters whose strength is the in-band radiance leaving them, `eps*L(T) + (1-eps)*L(T_sky)`,
+precomputed by the generator as a curve over the texture factor (the texture also
+modulates temperature). Cycles then adds nothing but geometry, occlusion and smoke
+transmittance, so a thermal pixel is radiance in W m^-2 sr^-1.
+"""
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import bpy
+
+
+def _tree(name: str) -> tuple[bpy.types.Material, bpy.types.NodeTree]:
+    mat = bpy.data.materials.new(name)
+    mat.use_fake_user = True  # unassigned between renders, yet must survive a save for resume
+    mat.use_nodes = True
+    tree = mat.node_tree
+    tree.nodes.clear()
+    return mat, tree
+
+
+def _texture(tree: bpy.types.NodeTree, tex: dict[str, Any]) -> bpy.types.Node | None:
+    """The texture node driven by object coordinates, or None for a plain material."""
+    kind = tex["kind"]
+    if kind == "none":
+        return None
+    coords = tree.nodes.new("ShaderNodeTexCoord")
+    node = tree.nodes.new({
+        "noise": "ShaderNodeTexNoise", "checker": "ShaderNodeTexChecker", "brick": "ShaderNodeTexBrick",
+        "wave": "ShaderNodeTexWave", "voronoi": "ShaderNodeTexVoronoi", "magic": "ShaderNodeTexMagic",
+    }[kind])
+    tree.links.new(coords.outputs["Object"], node.inputs["Vector"])
+    node.inputs["Scale"].default_value = tex["scale"]
+    if "Detail" in node.inputs:
+        node.inputs["Detail"].default_value = tex["detail"]
+    return node
+
+
+def _factor(node: bpy.types.Node) -> bpy.types.NodeSocket:
+    """The texture's scalar output: mortar mask for bricks, Fac or Distance otherwise."""
+    for name in ("Fac", "Distance"):
+        if name in node.outputs:
+            return node.outputs[name]
+    raise KeyError(f"texture node {node.bl_idname} has no scalar output")
+
+
+def _curve(tree: bpy.types.NodeTree, points: Sequence[Sequence[float]], source: bpy.types.NodeSocket,
+           ) -> bpy.types.NodeSocket:
+    """A piecewise-linear lookup y(x) on x in [0,1] (the radiance tabulation), scaled back up."""
+    ys = [p[1] for p in points]
+    scale = max(max(ys), 1e-30)
+    node = tree.nodes.new("ShaderNodeFloatCurve")
+    mapping = node.mapping
+    mapping.use_clip = False
+    curve = mapping.curves[0]
+    while len(curve.points) > 2:
+        curve.points.remove(curve.points[-1])
+    curve.points[0].location = (points[0][0], points[0][1] / scale)
+    curve.points[1].location = (points[-1][0], points[-1][1] / scale)
+    for x, y in points[1:-1]:
+        curve.points.new(x, y / scale)
+    for pt in curve.points:
+        pt.handle_type = "VECTOR"
+    mapping.update()
+    tree.links.new(source, node.inputs["Value"])
+    node.inputs["Factor"].default_value = 1.0
+    mul = tree.nodes.new("ShaderNodeMath")
+    mul.operation = "MULTIPLY"
+    tree.links.new(node.outputs["Value"], mul.inputs[0])
+    mul.inputs[1].default_value = scale
+    return mul.outputs["Value"]
+
+
+def rgb_surface(spec: dict[str, Any]) -> bpy.types.Material:
+    mat, tree = _tree(f"{spec['name']}.rgb")
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    bsdf = tree.nodes.new("ShaderNodeBsdfPrincipled")
+    bsdf.inputs["Roughness"].default_value = spec["roughness"]
+    bsdf.inputs["Metallic"].default_value = spec["metallic"]
+    base = (*spec["base_color"], 1.0)
+    tex_spec = spec["texture"]
+    tex = _texture(tree, tex_spec)
+    if tex is None:
+        bsdf.inputs["Base Color"].default_value = base
+    elif tex_spec["kind"] == "brick":
+        tex.inputs["Color1"].default_value = base
+        tex.inputs["Color2"].default_value = (*tex_spec["color2"], 1.0)
+        tex.inputs["Mortar"].default_value = (*tex_spec["mortar_color"], 1.0)
+        tree.links.new(tex.outputs["Color"], bsdf.inputs["Base Color"])
+    else:
+        mix = tree.nodes.new("ShaderNodeMix")
+        mix.data_type = "RGBA"
+        tree.links.new(_factor(tex), mix.inputs["Factor"])
+        mix.inputs["A"].default_value = base
+        mix.inputs["B"].default_value = (*tex_spec["color2"], 1.0)
+        tree.links.new(mix.outputs["Result"], bsdf.inputs["Base Color"])
+    tree.links.new(bsdf.outputs["BSDF"], out.inputs["Surface"])
+    return mat
+
+
+def thermal_surface(spec: dict[str, Any]) -> bpy.types.Material:
+    """Emission = tabulated radiance over the texture factor (constant without a texture)."""
+    mat, tree = _tree(f"{spec['name']}.thermal")
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    emission = tree.nodes.new("ShaderNodeEmission")
+    emission.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    points = spec["thermal_curve"]
+    tex = _texture(tree, spec["texture"])
+    if tex is None or len(points) == 1:
+        emission.inputs["Strength"].default_value = points[0][1]
+    else:
+        tree.links.new(_curve(tree, points, _factor(tex)), emission.inputs["Strength"])
+    tree.links.new(emission.outputs["Emission"], out.inputs["Surface"])
+    return mat
+
+
+def _density(tree: bpy.types.NodeTree, per_unit: float) -> bpy.types.NodeSocket:
+    attr = tree.nodes.new("ShaderNodeAttribute")
+    attr.attribute_name = "density"
+    mul = tree.nodes.new("ShaderNodeMath")
+    mul.operation = "MULTIPLY"
+    tree.links.new(attr.outputs["Fac"], mul.inputs[0])
+    mul.inputs[1].default_value = per_unit
+    return mul.outputs["Value"]
+
+
+def _flame_temperature(tree: bpy.types.NodeTree, ambient_k: float, flame_k: float) -> bpy.types.NodeSocket:
+    attr = tree.nodes.new("ShaderNodeAttribute")
+    attr.attribute_name = "flame"
+    remap = tree.nodes.new("ShaderNodeMapRange")
+    tree.links.new(attr.outputs["Fac"], remap.inputs["Value"])
+    remap.inputs["To Min"].default_value = ambient_k
+    remap.inputs["To Max"].default_value = flame_k
+    return remap.outputs["Result"]
+
+
+def _add(tree: bpy.types.NodeTree, a: bpy.types.NodeSocket, b: bpy.types.NodeSocket) -> bpy.types.NodeSocket:
+    node = tree.nodes.new("ShaderNodeAddShader")
+    tree.links.new(a, node.inputs[0])
+    tree.links.new(b, node.inputs[1])
+    return node.outputs["Shader"]
+
+
+def rgb_smoke(spec: dict[str, Any]) -> bpy.types.Material:
+    """Mie-derived per-channel scattering and absorption, Henyey-Greenstein with Mie's g.
+
+    Volume Scatter's coefficient is colour*density and Volume Absorption's is
+    (1-colour)*density, so the two colours encode the per-channel coefficients exactly.
+    """
+    mat, tree = _tree("smoke.rgb")
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    scatter = tree.nodes.new("ShaderNodeVolumeScatter")
+    scatter.inputs["Color"].default_value = (*spec["scatter_color"], 1.0)
+    scatter.inputs["Anisotropy"].default_value = spec["anisotropy"]
+    tree.links.new(_density(tree, spec["scatter_density"]), scatter.inputs["Density"])
+    absorb = tree.nodes.new("ShaderNodeVolumeAbsorption")
+    absorb.inputs["Color"].default_value = (*spec["absorb_color"], 1.0)
+    tree.links.new(_density(tree, spec["absorb_density"]), absorb.inputs["Density"])
+    shader = _add(tree, scatter.outputs["Volume"], absorb.outputs["Volume"])
+    if spec.get("fire"):
+        fire = spec["fire"]
+        glow = tree.nodes.new("ShaderNodeEmission")
+        body = tree.nodes.new("ShaderNodeBlackbody")
+        tree.links.new(_flame_temperature(tree, fire["ambient_k"], fire["flame_k"]), body.inputs["Temperature"])
+        tree.links.new(body.outputs["Color"], glow.inputs["Color"])
+        flame = tree.nodes.new("ShaderNodeAttribute")
+        flame.attribute_name = "flame"
+        gain = tree.nodes.new("ShaderNodeMath")
+        gain.operation = "MULTIPLY"
+        tree.links.new(flame.outputs["Fac"], gain.inputs[0])
+        gain.inputs[1].default_value = fire["visible_strength"]
+        tree.links.new(gain.outputs["Value"], glow.inputs["Strength"])
+        shader = _add(tree, shader, glow.outputs["Emission"])
+    tree.links.new(shader, out.inputs["Volume"])
+    return mat
+
+
+def thermal_smoke(spec: dict[str, Any]) -> bpy.types.Material:
+    """LWIR: absorption with the Mie extinction; emission only where the scene has fire.
+
+    With fire, emission per unit length is sigma_a * L_band(T(flame)) (Kirchhoff), T from
+    the flame grid, L_band from the generator's tabulation. Without fire the isothermal
+    ambient emission (1-tau)*L_band(T_amb) is added exactly by the generator afterwards.
+    """
+    mat, tree = _tree("smoke.thermal")
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    absorb = tree.nodes.new("ShaderNodeVolumeAbsorption")
+    absorb.inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
+    sigma = _density(tree, spec["absorption_per_density"])
+    tree.links.new(sigma, absorb.inputs["Density"])
+    shader = absorb.outputs["Volume"]
+    if spec.get("fire"):
+        fire = spec["fire"]
+        flame = tree.nodes.new("ShaderNodeAttribute")
+        flame.attribute_name = "flame"
+        radiance = _curve(tree, fire["radiance_curve"], flame.outputs["Fac"])
+        strength = tree.nodes.new("ShaderNodeMath")
+        strength.operation = "MULTIPLY"
+        tree.links.new(sigma, strength.inputs[0])
+        tree.links.new(radiance, strength.inputs[1])
+        glow = tree.nodes.new("ShaderNodeEmission")
+        glow.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+        tree.links.new(strength.outputs["Value"], glow.inputs["Strength"])
+        shader = _add(tree, shader, glow.outputs["Emission"])
+    tree.links.new(shader, out.inputs["Volume"])
+    return mat
+
+
+def world(name: str, color: Sequence[float], strength: float) -> bpy.types.World:
+    w = bpy.data.worlds.new(name)
+    w.use_fake_user = True
+    w.use_nodes = True
+    bg = w.node_tree.nodes["Background"]
+    bg.inputs["Color"].default_value = (*color, 1.0)
+    bg.inputs["Strength"].default_value = strength
+    return w

@@ -1,0 +1,125 @@
+"""Per-pass render configuration and a single render-to-file call.
+
+Every pass of a modality renders the same baked scene: the passes differ only in
+what is visible, which objects are holdouts, the film, the samples and the output.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Any
+
+import bpy
+from mathutils import Matrix
+
+from blender.scene import BuiltScene
+
+
+@dataclass(frozen=True)
+class PassSetup:
+    """How one (modality, pass) renders: output format and which scene parts take part."""
+
+    smoke_visible: bool
+    holdout_surfaces: bool
+    samples: int
+    max_bounces: int
+    point_filter: bool
+    file_format: str  # "PNG" (8-bit sRGB) or "EXR" (float32, linear)
+    depth_pass: bool = False
+
+
+def pass_setup(modality: str, name: str, samples: int) -> PassSetup:
+    if name == "depth":
+        return PassSetup(False, False, 1, 0, True, "EXR", depth_pass=True)
+    if name == "smoke_alpha":
+        return PassSetup(True, True, max(4, samples // 2), 0, False, "EXR")
+    fmt = "PNG" if modality == "rgb" else "EXR"
+    bounces = 4 if modality == "rgb" else 0
+    return PassSetup(name == "smoky", False, samples, bounces, False, fmt)
+
+
+def configure_engine(seed: int, threads: int) -> None:
+    scene = bpy.context.scene
+    scene.render.engine = "CYCLES"
+    cycles = scene.cycles
+    cycles.device = "CPU"
+    cycles.seed = seed
+    cycles.use_animated_seed = False
+    cycles.use_denoising = False
+    cycles.use_adaptive_sampling = False
+    cycles.volume_biased = True
+    cycles.volume_bounces = 1
+    cycles.transparent_max_bounces = 8
+    cycles.caustics_reflective = False
+    cycles.caustics_refractive = False
+    scene.render.threads_mode = "FIXED"
+    scene.render.threads = threads
+    scene.render.use_persistent_data = False
+    scene.render.resolution_percentage = 100
+    scene.render.pixel_aspect_x = scene.render.pixel_aspect_y = 1.0
+    scene.render.use_file_extension = False
+    scene.display_settings.display_device = "sRGB"
+    scene.view_settings.view_transform = "Standard"
+    scene.view_settings.look = "None"
+    scene.view_settings.exposure = 0.0
+    scene.view_settings.gamma = 1.0
+    scene.sequencer_colorspace_settings.name = "sRGB"
+
+
+def select_modality(modality: str, built: BuiltScene) -> None:
+    """Swap every material and the world to the modality's set; lights only light RGB."""
+    scene = bpy.context.scene
+    slot = 0 if modality == "rgb" else 1
+    for obj_name, names in built.surfaces.items():
+        obj = bpy.data.objects[obj_name]
+        obj.data.materials.clear()
+        obj.data.materials.append(bpy.data.materials[names[slot]])
+    scene.world = bpy.data.worlds[f"world.{modality}"]
+    if built.sun:
+        bpy.data.objects[built.sun].hide_render = modality != "rgb"
+    if built.domain:
+        dom = bpy.data.objects[built.domain]
+        dom.data.materials.clear()
+        dom.data.materials.append(bpy.data.materials[f"smoke.{modality}"])
+
+
+def apply_pass(setup: PassSetup, built: BuiltScene, camera: dict[str, Any]) -> None:
+    scene = bpy.context.scene
+    render, cycles = scene.render, scene.cycles
+    render.resolution_x, render.resolution_y = camera["width"], camera["height"]
+    cam = scene.camera
+    cam.data.lens = camera["fl_x"] * cam.data.sensor_width / camera["width"]
+    cycles.samples = setup.samples
+    cycles.max_bounces = setup.max_bounces
+    cycles.diffuse_bounces = cycles.glossy_bounces = min(setup.max_bounces, 4)
+    cycles.transmission_bounces = min(setup.max_bounces, 4)
+    cycles.filter_width = 0.01 if setup.point_filter else 1.5
+    render.film_transparent = setup.holdout_surfaces
+    for obj_name in built.surfaces:
+        bpy.data.objects[obj_name].is_holdout = setup.holdout_surfaces
+    if built.domain:
+        bpy.data.objects[built.domain].hide_render = not setup.smoke_visible
+    scene.view_layers[0].use_pass_z = setup.depth_pass
+    settings = render.image_settings
+    if setup.file_format == "PNG":
+        settings.file_format = "PNG"
+        settings.color_mode = "RGB"
+        settings.color_depth = "8"
+        settings.compression = 15
+    else:
+        settings.file_format = "OPEN_EXR_MULTILAYER" if setup.depth_pass else "OPEN_EXR"
+        settings.color_mode = "RGBA"
+        settings.color_depth = "32"
+        settings.exr_codec = "ZIP"
+
+
+def render_to(path: str, c2w: list[list[float]], blender_frame: int) -> None:
+    """Render one image; write aside and rename so a crash never leaves a partial file."""
+    scene = bpy.context.scene
+    if scene.frame_current != blender_frame:
+        scene.frame_set(blender_frame)
+    scene.camera.matrix_world = Matrix(c2w)
+    tmp = f"{path}.tmp{os.path.splitext(path)[1]}"
+    scene.render.filepath = tmp
+    bpy.ops.render.render(write_still=True)
+    os.replace(tmp, path)

@@ -1,0 +1,192 @@
+"""Builds the Blender scene described by a worker job: objects, both material sets,
+lights, worlds, cameras and the Mantaflow domain with its flows."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import bpy
+import numpy as np
+
+from blender import materials
+from blender.recipes import RECIPES, mesh_from_arrays
+
+
+@dataclass
+class BuiltScene:
+    """Handles to what renders switch between; names survive a save and reload."""
+
+    surfaces: dict[str, tuple[str, str]] = field(default_factory=dict)
+    domain: str | None = None
+    sun: str | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"surfaces": self.surfaces, "domain": self.domain, "sun": self.sun}
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> "BuiltScene":
+        return cls({k: tuple(v) for k, v in data["surfaces"].items()}, data["domain"], data["sun"])
+
+
+def reset() -> None:
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+
+
+def _place(obj: bpy.types.Object, spec: dict[str, Any]) -> None:
+    obj.location = spec["location"]
+    obj.rotation_euler = [math.radians(a) for a in spec["rotation_deg"]]
+    obj.scale = spec["scale"]
+
+
+def _make_object(spec: dict[str, Any]) -> bpy.types.Object:
+    asset = spec["asset"]
+    if asset["kind"] == "file":
+        with np.load(asset["mesh_npz"]) as data:
+            obj = mesh_from_arrays(spec["name"], data["vertices"], data["faces"])
+    else:
+        obj = RECIPES[asset["recipe"]](spec["name"], {**asset.get("params", {}), **spec.get("params", {})})
+    _place(obj, spec)
+    return obj
+
+
+def _assign(obj: bpy.types.Object, mat: bpy.types.Material) -> None:
+    obj.data.materials.clear()
+    obj.data.materials.append(mat)
+    for child in obj.children_recursive:
+        if child.type == "MESH":
+            child.data.materials.clear()
+            child.data.materials.append(mat)
+
+
+def build_surfaces(job: dict[str, Any], built: BuiltScene) -> None:
+    rgb_mats = {n: materials.rgb_surface(m) for n, m in job["materials"].items()}
+    thermal_mats = {n: materials.thermal_surface(m) for n, m in job["materials"].items()}
+    for spec in job["objects"]:
+        obj = _make_object(spec)
+        _assign(obj, rgb_mats[spec["material"]])
+        built.surfaces[obj.name] = (rgb_mats[spec["material"]].name, thermal_mats[spec["material"]].name)
+
+
+def build_lights(job: dict[str, Any], built: BuiltScene) -> None:
+    w = job["world"]
+    materials.world("world.rgb", w["sky_color"], w["sky_strength"])
+    materials.world("world.thermal", (1.0, 1.0, 1.0), w["thermal_sky_radiance"])
+    if w["sun_strength"] > 0:
+        data = bpy.data.lights.new("sun", "SUN")
+        data.energy = w["sun_strength"]
+        data.angle = math.radians(1.0)
+        sun = bpy.data.objects.new("sun", data)
+        bpy.context.scene.collection.objects.link(sun)
+        elevation, azimuth = math.radians(w["sun_elevation_deg"]), math.radians(w["sun_azimuth_deg"])
+        sun.rotation_euler = (math.pi / 2 - elevation, 0.0, azimuth + math.pi / 2)
+        built.sun = sun.name
+
+
+def build_camera() -> bpy.types.Object:
+    cam = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
+    bpy.context.scene.collection.objects.link(cam)
+    cam.data.sensor_fit = "HORIZONTAL"
+    cam.data.sensor_width = 36.0
+    cam.data.clip_start = 0.01
+    cam.data.clip_end = 10000.0
+    bpy.context.scene.camera = cam
+    return cam
+
+
+def build_smoke(job: dict[str, Any], built: BuiltScene) -> None:
+    """The gas domain and its inflows; bake settings follow docs/scene-spec.md."""
+    sim, scene = job["sim"], bpy.context.scene
+    bpy.ops.mesh.primitive_cube_add(size=1.0, location=sim["center"])
+    dom = bpy.context.object
+    dom.name = "smoke_domain"
+    dom.scale = sim["size"]
+    bpy.ops.object.transform_apply(scale=True)
+    mod = dom.modifiers.new("Fluid", "FLUID")
+    mod.fluid_type = "DOMAIN"
+    ds = mod.domain_settings
+    ds.domain_type = "GAS"
+    ds.resolution_max = sim["resolution"]
+    ds.use_adaptive_domain = False
+    ds.vorticity = sim["vorticity"]
+    ds.alpha = sim["buoyancy_density"]
+    ds.beta = sim["buoyancy_heat"]
+    ds.cache_type = "ALL"
+    ds.cache_directory = job["cache_dir"]
+    ds.cache_frame_start = 1
+    ds.cache_frame_end = sim["frame_end"]
+    if sim["dissolve_frames"] > 0:
+        ds.use_dissolve_smoke = True
+        ds.dissolve_speed = sim["dissolve_frames"]
+    if sim["noise_upres"] > 0:
+        ds.use_noise = True
+        ds.noise_scale = sim["noise_upres"]
+    ds.flame_max_temp = 1.75
+    scene.frame_start, scene.frame_end = 1, sim["frame_end"]
+    scene.render.fps = sim["fps"]
+    for i, src in enumerate(job["sources"]):
+        bpy.ops.mesh.primitive_ico_sphere_add(radius=src["radius"], subdivisions=2, location=src["position"])
+        flow_obj = bpy.context.object
+        flow_obj.name = f"smoke_source_{i}"
+        fmod = flow_obj.modifiers.new("Fluid", "FLUID")
+        fmod.fluid_type = "FLOW"
+        fs = fmod.flow_settings
+        fs.flow_type = {"smoke": "SMOKE", "fire": "FIRE", "both": "BOTH"}[src["kind"]]
+        fs.flow_behavior = "INFLOW"
+        fs.flow_source = "MESH"
+        fs.volume_density = 1.0
+        fs.surface_distance = 0.5
+        fs.density = src["rate"]
+        fs.temperature = src["heat"]
+        if src["kind"] != "smoke":
+            fs.fuel_amount = 1.0
+        if any(abs(v) > 0 for v in src["velocity"]):
+            fs.use_initial_velocity = True
+            fs.velocity_coord = src["velocity"]
+        flow_obj.hide_render = True
+    wind = np.asarray(sim["wind"], dtype=float)
+    if np.linalg.norm(wind) > 0:
+        bpy.ops.object.effector_add(type="WIND", location=sim["center"])
+        field_obj = bpy.context.object
+        field_obj.name = "wind"
+        field_obj.field.strength = float(np.linalg.norm(wind))
+        field_obj.rotation_mode = "QUATERNION"
+        field_obj.rotation_quaternion = _z_to(wind / np.linalg.norm(wind))
+    built.domain = dom.name
+
+
+def _z_to(direction: np.ndarray) -> tuple[float, float, float, float]:
+    """Quaternion (w, x, y, z) turning +Z onto `direction`: wind blows along its local Z."""
+    z = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(z, direction)
+    s, c = np.linalg.norm(axis), float(np.dot(z, direction))
+    if s < 1e-9:
+        return (1.0, 0.0, 0.0, 0.0) if c > 0 else (0.0, 1.0, 0.0, 0.0)
+    angle = math.atan2(s, c)
+    axis = axis / s * math.sin(angle / 2)
+    return (math.cos(angle / 2), *axis)
+
+
+def bake(domain_name: str) -> None:
+    dom = bpy.data.objects[domain_name]
+    bpy.context.view_layer.objects.active = dom
+    with bpy.context.temp_override(active_object=dom, object=dom):
+        result = bpy.ops.fluid.bake_all()
+    if "FINISHED" not in result:
+        raise RuntimeError(f"Mantaflow bake did not finish: {result}")
+
+
+def build(job: dict[str, Any]) -> BuiltScene:
+    reset()
+    scene = bpy.context.scene
+    scene.unit_settings.system = "METRIC"
+    scene.unit_settings.scale_length = 1.0
+    built = BuiltScene()
+    build_surfaces(job, built)
+    build_lights(job, built)
+    build_camera()
+    if job["sources"]:
+        build_smoke(job, built)
+        materials.rgb_smoke(job["smoke_rgb"])
+        materials.thermal_smoke(job["smoke_thermal"])
+    return built

@@ -1,0 +1,116 @@
+"""The Blender worker process: `python -m blender.worker JOB.json`.
+
+It builds the scene, bakes Mantaflow once (saving the baked .blend so a resumed run
+skips the bake), then renders every requested pass of every frame from that bake.
+It talks to the parent through `@@` lines on stdout and ends with os._exit, because
+a baked Mantaflow interpreter aborts at normal exit ("can't clean grid cache").
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+
+def emit(kind: str, **payload: Any) -> None:
+    sys.stdout.write(f"@@{kind} {json.dumps(payload)}\n")
+    sys.stdout.flush()
+
+
+def _prepare(job: dict[str, Any]):
+    import bpy
+
+    from blender import scene as scene_mod
+
+    blend = Path(job["blend_path"])
+    built_path = blend.with_suffix(".built.json")
+    timings: dict[str, float] = {}
+    if blend.exists() and built_path.exists():
+        bpy.ops.wm.open_mainfile(filepath=str(blend))
+        built = scene_mod.BuiltScene.from_json(json.loads(built_path.read_text()))
+        emit("stage", name="bake", status="reused")
+        return built, timings
+    t0 = time.perf_counter()
+    built = scene_mod.build(job)
+    timings["build"] = time.perf_counter() - t0
+    if built.domain:
+        emit("stage", name="bake", status="start", frames=job["sim"]["frame_end"])
+        t0 = time.perf_counter()
+        scene_mod.bake(built.domain)
+        timings["bake"] = time.perf_counter() - t0
+        emit("stage", name="bake", status="done", seconds=timings["bake"])
+    tmp = blend.with_name(blend.stem + ".tmp.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp), compress=False)
+    os.replace(tmp, blend)
+    tmp_json = built_path.with_suffix(".tmp")
+    tmp_json.write_text(json.dumps(built.to_json()))
+    os.replace(tmp_json, built_path)
+    return built, timings
+
+
+def _render_all(job: dict[str, Any], built, timings: dict[str, float]) -> dict[str, Any]:
+    from blender import render
+
+    render.configure_engine(job["seed"], job["threads"])
+    per_pass: dict[str, dict[str, float]] = {}
+    for modality, passes in job["passes"].items():
+        camera = job["cameras"][modality]
+        render.select_modality(modality, built)
+        for name in passes:
+            setup = render.pass_setup(modality, name, camera["samples"])
+            cam = camera["depth"] if name == "depth" else camera["render"]
+            render.apply_pass(setup, built, cam)
+            folder = Path(job["raw_dir"]) / modality / name
+            folder.mkdir(parents=True, exist_ok=True)
+            ext = "png" if setup.file_format == "PNG" else "exr"
+            key = f"{modality}.{name}"
+            frames = camera["frames"]
+            done, seconds = 0, 0.0
+            for frame in frames:
+                path = folder / f"{frame['stem']}.{ext}"
+                if not path.exists():
+                    t0 = time.perf_counter()
+                    render.render_to(str(path), frame["c2w"], frame["blender_frame"])
+                    seconds += time.perf_counter() - t0
+                    done += 1
+                emit("progress", item=key, frame=frame["stem"], total=len(frames))
+            per_pass[key] = {"rendered": done, "seconds": seconds,
+                             "seconds_per_frame": seconds / done if done else None}
+    return {"timings": timings, "passes": per_pass}
+
+
+def main(argv: list[str]) -> None:
+    if len(argv) != 2:
+        sys.stderr.write("usage: python -m blender.worker JOB.json\n")
+        os._exit(2)
+    job = json.loads(Path(argv[1]).read_text())
+    try:
+        import bpy  # noqa: F401  (loads the manta module the repair patches)
+
+        from blender.manta_repair import repair_manta_hierarchy
+
+        relinked = repair_manta_hierarchy()
+        emit("stage", name="manta_repair", relinked=relinked)
+        built, timings = _prepare(job)
+        summary = _render_all(job, built, timings)
+        summary["grids"] = sorted(job["grids"])
+        summary["bpy"] = bpy.app.version_string
+        Path(job["summary_path"]).write_text(json.dumps(summary, indent=2))
+        emit("done", summary=job["summary_path"])
+        code = 0
+    except Exception as exc:  # the parent turns this into one clear line plus the log path
+        traceback.print_exc()
+        sys.stderr.flush()
+        emit("error", message=f"{type(exc).__name__}: {exc}")
+        code = 1
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
+if __name__ == "__main__":
+    main(sys.argv)

@@ -1,0 +1,25 @@
+"""Python entry point for generating a dataset (what `generate-scene` runs)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from generator.pipeline import generate as _generate
+from generator.presets import PRESET_DIR, load_preset
+from generator.spec import Overrides, SceneSpec, apply_overrides, load_spec_file
+
+
+def resolve_spec(preset_or_spec: str | Path, overrides: Overrides | None = None) -> tuple[SceneSpec, str]:
+    """A preset name or a YAML path, with overrides applied; also returns the source name."""
+    path = Path(preset_or_spec)
+    if path.suffix in (".yaml", ".yml") or path.is_file():
+        spec, source = load_spec_file(path), str(path)
+    else:
+        spec, source = load_preset(str(preset_or_spec)), str(PRESET_DIR / f"{preset_or_spec}.yaml")
+    return apply_overrides(spec, overrides or Overrides()), source
+
+
+def generate(preset_or_spec: str | Path, out: Path, *, force: bool = False, show_progress: bool = True,
+             threads: int | None = None, **overrides: object) -> Path:
+    """Generate a dataset; keyword overrides are the CLI's (frames, resolution, samples, ...)."""
+    spec, source = resolve_spec(preset_or_spec, Overrides(**overrides))  # type: ignore[arg-type]
+    return _generate(spec, Path(out), source=source, force=force, show_progress=show_progress, threads=threads)

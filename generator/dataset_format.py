@@ -1,0 +1,176 @@
+"""The dataset format of docs/dataset-format.md, as code: file layout and a validator."""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from generator.errors import DatasetError
+from generator.imageio import read_exr_channel, read_png
+
+FORMAT = "smokeseer-synth-dataset"
+FORMAT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class PassFile:
+    folder: str
+    ext: str
+    dtype: type
+    channels: int  # 3 = H×W×3, 1 = H×W
+    exr_channel: str | None = None
+
+
+# (modality, pass) -> the files that pass puts in the dataset.
+PASS_FILES: dict[tuple[str, str], tuple[PassFile, ...]] = {
+    ("rgb", "smoky"): (PassFile("rgb/smoky", "png", np.uint8, 3),),
+    ("rgb", "clean"): (PassFile("rgb/clean", "png", np.uint8, 3),),
+    ("rgb", "depth"): (PassFile("rgb/depth", "exr", np.float32, 1, "Z"),),
+    ("rgb", "smoke_alpha"): (PassFile("rgb/smoke_alpha", "exr", np.float32, 1, "A"),
+                             PassFile("rgb/smoke_mask", "png", np.uint8, 1)),
+    ("thermal", "smoky"): (PassFile("thermal/smoky_radiance", "exr", np.float32, 1, "L"),
+                           PassFile("thermal/smoky", "png", np.uint16, 1)),
+    ("thermal", "clean"): (PassFile("thermal/clean_radiance", "exr", np.float32, 1, "L"),
+                           PassFile("thermal/clean", "png", np.uint16, 1)),
+    ("thermal", "depth"): (PassFile("thermal/depth", "exr", np.float32, 1, "Z"),),
+    ("thermal", "smoke_alpha"): (PassFile("thermal/smoke_alpha", "exr", np.float32, 1, "A"),
+                                 PassFile("thermal/smoke_mask", "png", np.uint8, 1)),
+}
+
+
+def file_path(root: Path, pf: PassFile, stem: str) -> Path:
+    return root / pf.folder / f"{stem}.{pf.ext}"
+
+
+def transforms_name(modality: str) -> str:
+    return f"transforms_{modality}.json"
+
+
+def _load_json(path: Path) -> dict[str, Any]:
+    if not path.is_file():
+        raise DatasetError(f"{path}: missing")
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise DatasetError(f"{path}: malformed JSON at line {exc.lineno}: {exc.msg}") from None
+    if not isinstance(data, dict):
+        raise DatasetError(f"{path}: must hold a JSON object")
+    return data
+
+
+def _need(data: dict[str, Any], key: str, path: Path, kind: type | tuple[type, ...]) -> Any:
+    if key not in data:
+        raise DatasetError(f"{path}: field {key!r} is missing")
+    if not isinstance(data[key], kind) or isinstance(data[key], bool) and kind is not bool:
+        raise DatasetError(f"{path}: field {key!r} has the wrong type ({type(data[key]).__name__})")
+    return data[key]
+
+
+def check_pose(matrix: Any, where: str) -> np.ndarray:
+    """A 4×4 rigid c2w: finite, orthonormal rotation with det +1, last row 0 0 0 1."""
+    try:
+        m = np.asarray(matrix, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise DatasetError(f"{where}: transform_matrix is not numeric") from None
+    if m.shape != (4, 4):
+        raise DatasetError(f"{where}: transform_matrix must be 4x4, got shape {m.shape}")
+    if not np.isfinite(m).all():
+        raise DatasetError(f"{where}: transform_matrix holds NaN or Inf")
+    r = m[:3, :3]
+    if not np.allclose(r.T @ r, np.eye(3), atol=1e-4) or abs(np.linalg.det(r) - 1) > 1e-4:
+        raise DatasetError(f"{where}: transform_matrix rotation is not orthonormal with det +1")
+    if not np.allclose(m[3], [0, 0, 0, 1], atol=1e-6):
+        raise DatasetError(f"{where}: transform_matrix last row must be 0 0 0 1")
+    return m
+
+
+def load_transforms(root: Path, modality: str) -> dict[str, Any]:
+    path = root / transforms_name(modality)
+    data = _load_json(path)
+    for key in ("w", "h"):
+        if _need(data, key, path, int) <= 0:
+            raise DatasetError(f"{path}: field {key!r} must be positive")
+    for key in ("fl_x", "fl_y", "cx", "cy"):
+        value = _need(data, key, path, (int, float))
+        if not math.isfinite(value) or (key.startswith("fl") and value <= 0):
+            raise DatasetError(f"{path}: field {key!r} must be finite{' and positive' if key.startswith('fl') else ''}")
+    frames = _need(data, "frames", path, list)
+    for i, frame in enumerate(frames):
+        where = f"{path}: frames[{i}]"
+        if not isinstance(frame, dict):
+            raise DatasetError(f"{where}: must be an object")
+        for key, kind in (("file_stem", str), ("time", (int, float)), ("timestamp_s", (int, float)),
+                          ("sim_frame", int), ("split", str)):
+            if key not in frame or not isinstance(frame[key], kind):
+                raise DatasetError(f"{where}: field {key!r} missing or of the wrong type")
+        if not (0.0 <= frame["time"] <= 1.0):
+            raise DatasetError(f"{where}: time {frame['time']} is outside [0, 1]")
+        if frame["split"] not in ("train", "test"):
+            raise DatasetError(f"{where}: split must be 'train' or 'test'")
+        check_pose(frame.get("transform_matrix"), where)
+    return data
+
+
+def _check_image(path: Path, pf: PassFile, shape: tuple[int, int]) -> np.ndarray:
+    if not path.is_file():
+        raise DatasetError(f"{path}: missing")
+    image = read_exr_channel(path, pf.exr_channel) if pf.ext == "exr" else read_png(path)
+    expected = shape + ((3,) if pf.channels == 3 else ())
+    if image.shape != expected:
+        raise DatasetError(f"{path}: shape {image.shape}, expected {expected}")
+    if image.dtype != pf.dtype:
+        raise DatasetError(f"{path}: dtype {image.dtype}, expected {np.dtype(pf.dtype)}")
+    if pf.ext == "exr" and not np.isfinite(image).all():
+        raise DatasetError(f"{path}: holds NaN or Inf")
+    return image
+
+
+def _check_values(path: Path, pf: PassFile, image: np.ndarray) -> None:
+    if pf.exr_channel == "A" and (image.min() < -1e-4 or image.max() > 1 + 1e-4):
+        raise DatasetError(f"{path}: smoke alpha outside [0, 1]")
+    if pf.exr_channel in ("Z", "L") and image.min() < 0:
+        raise DatasetError(f"{path}: negative {'depth' if pf.exr_channel == 'Z' else 'radiance'}")
+    if pf.folder.endswith("smoke_mask") and not np.isin(image, (0, 255)).all():
+        raise DatasetError(f"{path}: mask values must be 0 or 255")
+
+
+def validate_dataset(root: Path, check_images: bool = True) -> dict[str, Any]:
+    """Raise DatasetError on the first problem; return dataset.json on success."""
+    root = Path(root)
+    if not root.is_dir():
+        raise DatasetError(f"{root}: not a directory")
+    meta_path = root / "dataset.json"
+    meta = _load_json(meta_path)
+    if meta.get("format") != FORMAT:
+        raise DatasetError(f"{meta_path}: field 'format' must be {FORMAT!r}")
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise DatasetError(f"{meta_path}: unsupported format_version {meta.get('format_version')!r}")
+    for key, kind in (("scene", str), ("seed", int), ("passes", dict), ("smoke", dict), ("versions", dict),
+                      ("duration_s", (int, float)), ("sim_fps", int)):
+        _need(meta, key, meta_path, kind)
+    for modality, passes in meta["passes"].items():
+        if modality not in ("rgb", "thermal") or not isinstance(passes, list):
+            raise DatasetError(f"{meta_path}: field 'passes' has a bad entry {modality!r}")
+        if not passes:
+            continue
+        transforms = load_transforms(root, modality)
+        shape = (transforms["h"], transforms["w"])
+        for name in passes:
+            if (modality, name) not in PASS_FILES:
+                raise DatasetError(f"{meta_path}: unknown pass {modality}.{name}")
+            for pf in PASS_FILES[(modality, name)]:
+                for frame in transforms["frames"]:
+                    path = file_path(root, pf, frame["file_stem"])
+                    if check_images:
+                        _check_values(path, pf, _check_image(path, pf, shape))
+                    elif not path.is_file():
+                        raise DatasetError(f"{path}: missing")
+    if "thermal" in meta["passes"] and meta["passes"]["thermal"]:
+        sensor = _need(meta, "thermal_sensor", meta_path, dict)
+        for key in ("gain", "offset", "bits"):
+            _need(sensor, key, meta_path, (int, float))
+    return meta

@@ -1,0 +1,164 @@
+"""Turns a validated spec into the worker's job: all physics numbers are computed here,
+so the Blender side only wires nodes and renders."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from generator.assets import Manifest, load_mesh
+from generator.optics.mie import ORGANIC_SMOKE, SOOT, SmokeOptics, smoke_optics
+from generator.optics.planck import band_radiance
+from generator.rig import FrameSample, Intrinsics, Timeline, intrinsics, rgb_frames, thermal_frames, timeline
+from generator.spec import MaterialSpec, SceneSpec
+
+POPULATIONS = {"organic_smoke": ORGANIC_SMOKE, "soot": SOOT}
+FIRE_VISIBLE_STRENGTH = 8.0
+THERMAL_CURVE_POINTS = 17
+
+
+@dataclass(frozen=True)
+class Plan:
+    """Everything the pipeline needs besides the job: frames, intrinsics, optics."""
+
+    timeline: Timeline
+    frames: dict[str, list[FrameSample]]
+    intrinsics: dict[str, Intrinsics]
+    optics: SmokeOptics
+    render_passes: dict[str, tuple[str, ...]]
+
+
+def make_plan(spec: SceneSpec) -> Plan:
+    line = timeline(spec)
+    frames = {"rgb": rgb_frames(spec, line), "thermal": thermal_frames(spec, line)}
+    k = {"rgb": intrinsics(spec.rig.rgb), "thermal": intrinsics(spec.rig.thermal)}
+    optics = smoke_optics(POPULATIONS[spec.smoke.particles])
+    render_passes = {m: tuple(p) for m, p in spec.passes.items()}
+    if (spec.has_smoke and not spec.has_fire and "smoky" in render_passes.get("thermal", ())
+            and "smoke_alpha" not in render_passes["thermal"]):
+        # The isothermal smoke emission (1-tau)*L(T_amb) is composited from the LWIR alpha.
+        render_passes["thermal"] = render_passes["thermal"] + ("smoke_alpha",)
+    if not spec.has_smoke:
+        render_passes = {m: tuple(p for p in ps if p != "smoke_alpha") for m, ps in render_passes.items()}
+    return Plan(line, frames, k, optics, render_passes)
+
+
+def surface_radiance_curve(mat: MaterialSpec, sky_k: float) -> list[list[float]]:
+    """(texture factor, leaving radiance) pairs: eps*L(T) + (1-eps)*L(T_sky), T set by the factor."""
+    if mat.texture.kind == "none" or mat.temperature_variation_k == 0:
+        factors = np.array([0.0])
+    else:
+        factors = np.linspace(0.0, 1.0, THERMAL_CURVE_POINTS)
+    temps = mat.temperature_k + mat.temperature_variation_k * (factors - 0.5) * (len(factors) > 1)
+    radiance = mat.emissivity * band_radiance(temps) + (1 - mat.emissivity) * band_radiance(sky_k)
+    return [[float(f), float(r)] for f, r in zip(factors, np.atleast_1d(radiance))]
+
+
+def smoke_coefficients(spec: SceneSpec, optics: SmokeOptics) -> dict[str, Any]:
+    """Per-unit-grid-density coefficients (1/m). The luminance-weighted visible extinction is
+    density*extinction_per_m; every other coefficient keeps Mie's ratio to it. The whole LWIR
+    extinction is treated as absorption (its albedo is small; see docs/optics.md)."""
+    scale = spec.smoke.density * spec.smoke.extinction_per_m / float(optics.extinction_visible)
+    sca = scale * np.asarray(optics.scattering_rgb, dtype=float)
+    ext = scale * np.asarray(optics.extinction_rgb, dtype=float)
+    absorb = np.clip(ext - sca, 0.0, None)
+    sca_max, abs_max = float(sca.max()), float(absorb.max())
+    return {
+        "scatter_density": sca_max,
+        "scatter_color": (sca / sca_max if sca_max > 0 else np.zeros(3)).tolist(),
+        "absorb_density": abs_max,
+        "absorb_color": (1.0 - absorb / abs_max if abs_max > 0 else np.ones(3)).tolist(),
+        "anisotropy": float(np.clip(optics.asymmetry_visible, -0.95, 0.95)),
+        "lwir_absorption": scale * float(optics.extinction_lwir),
+    }
+
+
+def source_heat(temperature_k: float, ambient_k: float) -> float:
+    """Blender's relative flow temperature: 50 K above ambient is one unit, clipped to ±10."""
+    return float(np.clip((temperature_k - ambient_k) / 50.0, -10.0, 10.0))
+
+
+def _fire(spec: SceneSpec) -> dict[str, Any] | None:
+    if not spec.has_fire:
+        return None
+    ambient = spec.lights.ambient_temperature_k
+    flame = max(s.temperature_k for s in spec.sources if s.kind in ("fire", "both"))
+    factors = np.linspace(0.0, 1.0, THERMAL_CURVE_POINTS)
+    radiance = band_radiance(ambient + factors * (flame - ambient))
+    return {"ambient_k": ambient, "flame_k": flame, "visible_strength": FIRE_VISIBLE_STRENGTH,
+            "radiance_curve": [[float(f), float(r)] for f, r in zip(factors, radiance)]}
+
+
+def _camera(k: Intrinsics, supersample: int, samples: int, frames: list[FrameSample]) -> dict[str, Any]:
+    return {
+        "render": {"width": k.width * supersample, "height": k.height * supersample, "fl_x": k.fl_x * supersample},
+        "depth": {"width": k.width, "height": k.height, "fl_x": k.fl_x},
+        "samples": samples,
+        "frames": [{"stem": f.stem, "blender_frame": f.sim_frame, "c2w": f.c2w.tolist()} for f in frames],
+    }
+
+
+def _objects(spec: SceneSpec, manifest: Manifest, source: str, mesh_dir: Path) -> list[dict[str, Any]]:
+    out = []
+    for i, obj in enumerate(spec.objects):
+        asset = manifest.get(obj.asset, source, f"objects[{i}].asset")
+        entry: dict[str, Any] = {"kind": asset.kind, "params": asset.params}
+        if asset.kind == "recipe":
+            entry["recipe"] = asset.recipe
+        else:
+            mesh = load_mesh(asset)
+            npz = mesh_dir / f"{asset.name}.npz"
+            if not npz.exists():
+                mesh_dir.mkdir(parents=True, exist_ok=True)
+                tmp = npz.with_suffix(".tmp.npz")
+                np.savez(tmp, vertices=mesh.vertices, faces=mesh.faces)
+                tmp.replace(npz)
+            entry["mesh_npz"] = str(npz)
+        out.append({"name": obj.name, "asset": entry, "material": obj.material, "location": obj.location,
+                    "rotation_deg": obj.rotation_deg, "scale": obj.scale, "params": obj.params})
+    return out
+
+
+def make_job(spec: SceneSpec, plan: Plan, manifest: Manifest, source: str, work: Path, threads: int) -> dict[str, Any]:
+    sky_k = spec.lights.sky_temperature_k
+    coeffs = smoke_coefficients(spec, plan.optics)
+    fire = _fire(spec)
+    materials = {}
+    for name, mat in spec.materials.items():
+        materials[name] = {"name": name, "base_color": mat.base_color, "roughness": mat.roughness,
+                           "metallic": mat.metallic, "texture": vars(mat.texture),
+                           "thermal_curve": surface_radiance_curve(mat, sky_k)}
+    lights = spec.lights
+    return {
+        "seed": spec.seed,
+        "threads": threads,
+        "blend_path": str(work / "scene.blend"),
+        "cache_dir": str(work / "cache"),
+        "raw_dir": str(work / "raw"),
+        "summary_path": str(work / "worker_summary.json"),
+        "grids": ["density", "flame"] if fire else (["density"] if spec.has_smoke else []),
+        "materials": materials,
+        "objects": _objects(spec, manifest, source, work / "meshes"),
+        "world": {"sky_color": lights.sky_color, "sky_strength": lights.sky_strength,
+                  "sun_strength": lights.sun_strength, "sun_elevation_deg": lights.sun_elevation_deg,
+                  "sun_azimuth_deg": lights.sun_azimuth_deg,
+                  "thermal_sky_radiance": float(band_radiance(sky_k))},
+        "sim": {"fps": spec.sim.fps, "resolution": spec.sim.resolution, "center": spec.sim.center,
+                "size": spec.sim.size, "vorticity": spec.sim.vorticity,
+                "buoyancy_density": spec.sim.buoyancy_density, "buoyancy_heat": spec.sim.buoyancy_heat,
+                "wind": spec.sim.wind, "dissolve_frames": int(round(spec.sim.dissolve_s * spec.sim.fps)),
+                "noise_upres": spec.sim.noise_upres, "frame_end": plan.timeline.last_frame},
+        "sources": [{"kind": s.kind, "position": s.position, "radius": s.radius, "rate": s.rate,
+                     "heat": source_heat(s.temperature_k, spec.lights.ambient_temperature_k), "velocity": s.velocity} for s in spec.sources],
+        "smoke_rgb": {**{k: coeffs[k] for k in ("scatter_density", "scatter_color", "absorb_density",
+                                                 "absorb_color", "anisotropy")}, "fire": fire},
+        "smoke_thermal": {"absorption_per_density": coeffs["lwir_absorption"], "fire": fire},
+        "cameras": {
+            "rgb": _camera(plan.intrinsics["rgb"], 1, spec.rig.rgb.samples, plan.frames["rgb"]),
+            "thermal": _camera(plan.intrinsics["thermal"], spec.rig.thermal.supersample,
+                               spec.rig.thermal.samples, plan.frames["thermal"]),
+        },
+        "passes": {m: list(p) for m, p in plan.render_passes.items() if p},
+    }

@@ -1,0 +1,187 @@
+"""generate-scene end to end: plan → worker (bake + renders) → post-processing → metadata
+→ validation → atomic move into place.
+
+All work happens in a staging folder beside the output (`.NAME.partial`). A rerun of
+the same spec and seed resumes there: the bake and every finished image are kept. The
+dataset appears at its final path only once complete and valid.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import platform
+import shutil
+import time
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import yaml
+from tqdm import tqdm
+
+from generator import postprocess
+from generator.assets import Manifest, load_manifest
+from generator.dataset_format import FORMAT, FORMAT_VERSION, PASS_FILES, file_path, transforms_name, validate_dataset
+from generator.errors import GeneratorError
+from generator.job import Plan, make_job, make_plan, smoke_coefficients
+from generator.optics.sensor import ThermalSensor, ThermalSensorConfig
+from generator.rig import FrameSample, Intrinsics
+from generator.spec import SceneSpec
+from generator.worker_client import run_worker
+
+log = logging.getLogger("generate-scene")
+STAGING_MARK = "staging.json"
+
+
+def versions() -> dict[str, str]:
+    out = {"python": platform.python_version()}
+    for dist, key in (("smokeseer-synth", "smokeseer_synth"), ("bpy", "bpy"), ("numpy", "numpy"),
+                      ("miepython", "miepython"), ("colour-science", "colour_science"), ("OpenEXR", "openexr"),
+                      ("trimesh", "trimesh")):
+        try:
+            out[key] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            out[key] = "not installed"
+    return out
+
+
+def _write_json(path: Path, data: Any) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(data, indent=2))
+    os.replace(tmp, path)
+
+
+def _staging(out: Path, spec: SceneSpec) -> Path:
+    """The staging folder for this spec: reused when the spec hash matches, else replaced."""
+    work = out.parent / f".{out.name}.partial"
+    mark = work / STAGING_MARK
+    if work.exists():
+        previous = json.loads(mark.read_text()) if mark.exists() else {}
+        if previous.get("spec_sha256") == spec.sha256():
+            log.info("resuming from %s", work)
+            return work
+        log.info("discarding stale staging folder %s (different spec)", work)
+        shutil.rmtree(work)
+    (work / "dataset").mkdir(parents=True)
+    _write_json(mark, {"spec_sha256": spec.sha256(), "scene": spec.name})
+    return work
+
+
+def sensor_for(spec: SceneSpec) -> ThermalSensor:
+    """The thermal camera model; its radiance range spans the scene's temperatures."""
+    mats = spec.materials.values()
+    t_lo = min([spec.lights.sky_temperature_k] + [m.temperature_k - m.temperature_variation_k / 2 for m in mats])
+    t_hi = max([spec.lights.ambient_temperature_k] + [m.temperature_k + m.temperature_variation_k / 2 for m in mats]
+               + [s.temperature_k for s in spec.sources if s.kind != "smoke"])
+    cam = spec.rig.thermal
+    options = {"t_min_k": max(1.0, t_lo - 10.0), "t_max_k": t_hi + 20.0, **cam.sensor}
+    try:
+        config = ThermalSensorConfig(width=cam.width, height=cam.height, **options)
+    except (TypeError, ValueError) as exc:
+        raise GeneratorError(f"rig.thermal.sensor: {exc}") from None
+    return ThermalSensor(config, seed=spec.seed)
+
+
+def _transforms(modality: str, k: Intrinsics, fps: float, offset: float, frames: list[FrameSample]) -> dict[str, Any]:
+    return {
+        "modality": modality, "camera_model": "PINHOLE", "w": k.width, "h": k.height,
+        "fl_x": k.fl_x, "fl_y": k.fl_y, "cx": k.cx, "cy": k.cy, "camera_angle_x": k.camera_angle_x,
+        "fps": fps, "time_offset_s": offset,
+        "frames": [{"index": f.index, "file_stem": f.stem, "timestamp_s": f.timestamp_s, "time": f.time,
+                    "sim_frame": f.sim_frame, "split": f.split, "transform_matrix": f.c2w.tolist()}
+                   for f in frames],
+    }
+
+
+def _frame_done(out: Path, modality: str, passes: tuple[str, ...], stem: str) -> bool:
+    return all(file_path(out, pf, stem).exists() for p in passes for pf in PASS_FILES[(modality, p)])
+
+
+def _postprocess(spec: SceneSpec, plan: Plan, work: Path, sensor: ThermalSensor | None, show: bool) -> float:
+    out = work / "dataset"
+    ctx = postprocess.PostContext(
+        raw=work / "raw", out=out, requested=spec.passes, mask_threshold=spec.smoke.mask_threshold,
+        ambient_radiance=(postprocess.ambient_radiance(spec.lights.ambient_temperature_k)
+                          if spec.has_smoke and not spec.has_fire else None),
+        sensor=sensor)
+    t0 = time.perf_counter()
+    for modality, passes in spec.passes.items():
+        frames = plan.frames[modality]
+        for frame in tqdm(frames, desc=f"post {modality}", unit="frame", disable=not show, leave=False):
+            if _frame_done(out, modality, passes, frame.stem):
+                continue
+            if modality == "rgb":
+                postprocess.finish_rgb_frame(ctx, frame.stem)
+            else:
+                postprocess.finish_thermal_frame(ctx, frame.stem, frame.index)
+    return time.perf_counter() - t0
+
+
+def _metadata(spec: SceneSpec, plan: Plan, sensor: ThermalSensor | None, summary: dict[str, Any],
+              stats: dict[str, Any], timings: dict[str, Any]) -> dict[str, Any]:
+    optics = plan.optics
+    coeffs = smoke_coefficients(spec, optics) if spec.has_smoke else None
+    meta: dict[str, Any] = {
+        "format": FORMAT, "format_version": FORMAT_VERSION, "scene": spec.name, "seed": spec.seed,
+        "spec_sha256": spec.sha256(), "duration_s": plan.timeline.duration_s, "sim_fps": spec.sim.fps,
+        "passes": {m: list(p) for m, p in spec.passes.items()},
+        "smoke": {"present": spec.has_smoke, "fire": spec.has_fire, "static": spec.sim.static,
+                  "mask_threshold": spec.smoke.mask_threshold, "density": spec.smoke.density,
+                  "particles": spec.smoke.particles, "sources": len(spec.sources),
+                  "grids": summary.get("grids", [])},
+        "optics": {**optics.describe(),
+                   "ambient_temperature_k": spec.lights.ambient_temperature_k,
+                   "sky_temperature_k": spec.lights.sky_temperature_k,
+                   "coefficients_per_unit_density": coeffs},
+        "stats": stats,
+        "versions": {**versions(), "blender": summary.get("bpy", "")},
+        "timings_s": timings,
+    }
+    if sensor is not None:
+        meta["thermal_sensor"] = sensor.describe()
+    return meta
+
+
+def generate(spec: SceneSpec, out: Path, manifest: Manifest | None = None, source: str = "spec",
+             threads: int | None = None, force: bool = False, show_progress: bool = True) -> Path:
+    """Generate the dataset for `spec` at `out`; resumes an interrupted run of the same spec."""
+    out = Path(out).resolve()
+    if out.exists() and not force:
+        raise GeneratorError(f"{out}: already exists (use --force to replace it)")
+    started = time.perf_counter()
+    manifest = manifest or load_manifest()
+    plan = make_plan(spec)
+    work = _staging(out, spec)
+    threads = threads or max(1, os.cpu_count() or 1)
+    job = make_job(spec, plan, manifest, source, work, threads)
+    log.info("scene %s: %d RGB + %d thermal frames, passes %s, sim %d^3 over %d frames",
+             spec.name, len(plan.frames["rgb"]), len(plan.frames["thermal"]),
+             ",".join(f"{m}.{p}" for m, ps in spec.passes.items() for p in ps), spec.sim.resolution,
+             plan.timeline.last_frame)
+    summary = run_worker(job, work, show_progress) if job["passes"] else {"timings": {}, "passes": {}}
+    log.info("worker finished in %.1f s", summary.get("wall_s", 0.0))
+    sensor = sensor_for(spec) if spec.passes.get("thermal") else None
+    post_s = _postprocess(spec, plan, work, sensor, show_progress)
+    log.info("post-processing finished in %.1f s", post_s)
+    dataset = work / "dataset"
+    for modality in spec.passes:
+        cam = spec.rig.rgb if modality == "rgb" else spec.rig.thermal
+        _write_json(dataset / transforms_name(modality),
+                    _transforms(modality, plan.intrinsics[modality], cam.fps, cam.time_offset_s,
+                                plan.frames[modality]))
+    (dataset / "scene.yaml").write_text(yaml.safe_dump(spec.to_dict(), sort_keys=False))
+    stems = {m: [f.stem for f in plan.frames[m]] for m in spec.passes}
+    stats = postprocess.scene_stats(dataset, stems, spec.passes)
+    timings = {"bake": summary["timings"].get("bake"), "build": summary["timings"].get("build"),
+               "worker": summary.get("wall_s"), "postprocess": post_s,
+               "render": {k: v["seconds_per_frame"] for k, v in summary["passes"].items()},
+               "total": time.perf_counter() - started}
+    _write_json(dataset / "dataset.json", _metadata(spec, plan, sensor, summary, stats, timings))
+    validate_dataset(dataset)
+    if out.exists():
+        shutil.rmtree(out)
+    os.replace(dataset, out)
+    shutil.rmtree(work)
+    log.info("dataset written to %s in %.1f s", out, time.perf_counter() - started)
+    return out

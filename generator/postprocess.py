@@ -1,0 +1,120 @@
+"""Raw worker renders → dataset files: depth cleanup, smoke masks, the isothermal smoke
+emission, area-averaging to the thermal sensor, and the thermal camera model."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from generator.dataset_format import PASS_FILES, file_path
+from generator.imageio import copy_file, read_exr, read_exr_channel, read_png, write_exr, write_png
+from generator.optics.planck import band_radiance
+from generator.optics.sensor import ThermalSensor, area_average
+
+NO_HIT_DEPTH = 1e9
+
+
+@dataclass(frozen=True)
+class PostContext:
+    raw: Path
+    out: Path
+    requested: dict[str, tuple[str, ...]]
+    mask_threshold: float
+    ambient_radiance: float | None  # added as (1-tau)*L_amb when the render has no smoke emission
+    sensor: ThermalSensor | None
+
+    def to_sensor_grid(self, image: np.ndarray) -> np.ndarray:
+        assert self.sensor is not None
+        factor = (image.shape[0] // self.sensor.config.height, image.shape[1] // self.sensor.config.width)
+        return area_average(image, factor).astype(np.float32)
+
+
+def _depth(raw_file: Path) -> np.ndarray:
+    channels = read_exr(raw_file)
+    key = next((k for k in channels if k.endswith("Depth.Z")), None)
+    if key is None:
+        raise RuntimeError(f"{raw_file}: worker depth render has no Z channel ({sorted(channels)})")
+    depth = channels[key].astype(np.float32)
+    depth[~np.isfinite(depth) | (depth >= NO_HIT_DEPTH)] = 0.0
+    return depth
+
+
+def _alpha(raw_file: Path) -> np.ndarray:
+    return np.clip(read_exr_channel(raw_file, "A"), 0.0, 1.0)
+
+
+def _radiance(raw_file: Path) -> np.ndarray:
+    channels = read_exr(raw_file)
+    rgb = np.stack([channels[c] for c in ("R", "G", "B")], axis=-1)
+    return np.clip(rgb.mean(axis=-1), 0.0, None).astype(np.float64)
+
+
+def _write_alpha(ctx: PostContext, modality: str, stem: str, alpha: np.ndarray) -> None:
+    alpha_file, mask_file = PASS_FILES[(modality, "smoke_alpha")]
+    write_exr(file_path(ctx.out, alpha_file, stem), {"A": alpha})
+    write_png(file_path(ctx.out, mask_file, stem), np.where(alpha > ctx.mask_threshold, 255, 0).astype(np.uint8))
+
+
+def _wanted(ctx: PostContext, modality: str, name: str) -> bool:
+    return name in ctx.requested.get(modality, ())
+
+
+def finish_rgb_frame(ctx: PostContext, stem: str) -> None:
+    for name in ("smoky", "clean"):
+        if _wanted(ctx, "rgb", name):
+            copy_file(ctx.raw / "rgb" / name / f"{stem}.png", file_path(ctx.out, PASS_FILES[("rgb", name)][0], stem))
+    if _wanted(ctx, "rgb", "depth"):
+        write_exr(file_path(ctx.out, PASS_FILES[("rgb", "depth")][0], stem),
+                  {"Z": _depth(ctx.raw / "rgb" / "depth" / f"{stem}.exr")})
+    if _wanted(ctx, "rgb", "smoke_alpha"):
+        _write_alpha(ctx, "rgb", stem, _alpha(ctx.raw / "rgb" / "smoke_alpha" / f"{stem}.exr"))
+
+
+def finish_thermal_frame(ctx: PostContext, stem: str, frame_index: int) -> None:
+    """Radiance is composed at render resolution, then area-averaged onto sensor pixels."""
+    raw = ctx.raw / "thermal"
+    alpha_hi = _alpha(raw / "smoke_alpha" / f"{stem}.exr") if (raw / "smoke_alpha" / f"{stem}.exr").exists() else None
+    for name in ("smoky", "clean"):
+        if not _wanted(ctx, "thermal", name):
+            continue
+        radiance_hi = _radiance(raw / name / f"{stem}.exr")
+        if name == "smoky" and ctx.ambient_radiance is not None and alpha_hi is not None:
+            radiance_hi = radiance_hi + alpha_hi * ctx.ambient_radiance
+        radiance_file, counts_file = PASS_FILES[("thermal", name)]
+        write_exr(file_path(ctx.out, radiance_file, stem),
+                  {"L": ctx.to_sensor_grid(radiance_hi)})
+        assert ctx.sensor is not None
+        write_png(file_path(ctx.out, counts_file, stem), ctx.sensor.to_counts(radiance_hi, frame_index))
+    if _wanted(ctx, "thermal", "depth"):
+        write_exr(file_path(ctx.out, PASS_FILES[("thermal", "depth")][0], stem),
+                  {"Z": _depth(raw / "depth" / f"{stem}.exr")})
+    if _wanted(ctx, "thermal", "smoke_alpha") and alpha_hi is not None:
+        _write_alpha(ctx, "thermal", stem, ctx.to_sensor_grid(alpha_hi))
+
+
+def ambient_radiance(ambient_k: float) -> float:
+    return float(band_radiance(ambient_k))
+
+
+def psnr_u8(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a.astype(np.float64) / 255 - b.astype(np.float64) / 255) ** 2))
+    return float("inf") if mse == 0 else 10.0 * np.log10(1.0 / mse)
+
+
+def scene_stats(out: Path, stems: dict[str, list[str]], passes: dict[str, tuple[str, ...]]) -> dict[str, float | None]:
+    """Evidence that the smoke is as dense as claimed and that thermal sees through it."""
+    stats: dict[str, float | None] = {}
+    for modality in ("rgb", "thermal"):
+        if "smoke_alpha" in passes.get(modality, ()):
+            alphas = [read_exr_channel(file_path(out, PASS_FILES[(modality, "smoke_alpha")][0], s), "A")
+                      for s in stems[modality]]
+            masks = [read_png(file_path(out, PASS_FILES[(modality, "smoke_alpha")][1], s)) for s in stems[modality]]
+            stats[f"{modality}_mean_smoke_alpha"] = float(np.mean([a.mean() for a in alphas]))
+            stats[f"{modality}_smoke_fraction"] = float(np.mean([(m > 0).mean() for m in masks]))
+    if {"smoky", "clean"} <= set(passes.get("rgb", ())):
+        values = [psnr_u8(read_png(out / "rgb" / "smoky" / f"{s}.png"), read_png(out / "rgb" / "clean" / f"{s}.png"))
+                  for s in stems["rgb"]]
+        finite = [v for v in values if np.isfinite(v)]
+        stats["psnr_smoky_vs_clean"] = float(np.mean(finite)) if finite else None
+    return stats

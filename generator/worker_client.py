@@ -1,0 +1,62 @@
+"""Runs the Blender worker in a subprocess, turns its `@@` lines into progress bars and
+log lines, and turns a crash into one error that names the log file."""
+from __future__ import annotations
+
+import json
+import logging
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from generator.errors import WorkerError
+
+log = logging.getLogger("generate-scene")
+
+
+def run_worker(job: dict[str, Any], work: Path, show_progress: bool = True) -> dict[str, Any]:
+    job_path = work / "job.json"
+    job_path.write_text(json.dumps(job, indent=1))
+    log_path = work / "logs" / "worker.log"
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    repo_root = Path(__file__).resolve().parents[1]
+    cmd = [sys.executable, "-m", "blender.worker", str(job_path)]
+    bars: dict[str, tqdm] = {}
+    error: str | None = None
+    started = time.perf_counter()
+    with log_path.open("a") as log_file:
+        log_file.write(f"\n=== worker started: {' '.join(cmd)}\n")
+        log_file.flush()
+        proc = subprocess.Popen(cmd, cwd=repo_root, stdout=subprocess.PIPE, stderr=log_file, text=True, bufsize=1)
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            log_file.write(line)
+            if not line.startswith("@@"):
+                continue
+            kind, _, payload = line[2:].partition(" ")
+            data = json.loads(payload)
+            if kind == "progress":
+                bar = bars.get(data["item"])
+                if bar is None:
+                    bar = bars[data["item"]] = tqdm(total=data["total"], desc=f"render {data['item']}",
+                                                     unit="frame", disable=not show_progress, leave=False)
+                bar.update(1)
+                if bar.n >= bar.total:
+                    bar.close()
+            elif kind == "stage" and data.get("status") in ("done", "reused"):
+                seconds = data.get("seconds")
+                log.info("%s %s%s", data["name"], data["status"], f" in {seconds:.1f} s" if seconds else "")
+            elif kind == "error":
+                error = data["message"]
+        code = proc.wait()
+    for bar in bars.values():
+        bar.close()
+    if code != 0:
+        reason = error or f"exited with code {code}"
+        raise WorkerError(f"Blender worker failed: {reason}. Full log: {log_path}")
+    summary = json.loads(Path(job["summary_path"]).read_text())
+    summary["wall_s"] = time.perf_counter() - started
+    return summary

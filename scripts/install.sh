@@ -1,0 +1,15 @@
+#!/usr/bin/env bash
+# Creates .venv (Python 3.11) and installs the project with everything its tests need.
+# Idempotent: a second run only checks that the pins are satisfied.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PYTHON="${PYTHON:-python3.11}"
+if [ ! -x .venv/bin/python ]; then
+  "$PYTHON" -m venv .venv
+fi
+. .venv/bin/activate
+python -m pip install --quiet --upgrade pip wheel setuptools
+# The CPU build of torch lies on local disk; ask for it by exact version before anything
+# that depends on torch, so no resolver pulls a multi-GB CUDA build.
+python -m pip install --quiet "torch==2.13.0" "numpy>=1.26,<2"
+python -m pip install --quiet -e ".[test]"

@@ -1,0 +1,66 @@
+"""Scene spec validation: every bad input names its file and field."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from generator.errors import SpecError
+from generator.presets import PRESET_DIR, list_presets, load_preset
+from generator.spec import Overrides, apply_overrides, load_spec_file, parse_passes, parse_spec
+
+
+def demo_dict() -> dict:
+    return yaml.safe_load((PRESET_DIR / "demo.yaml").read_text())
+
+
+def test_presets_load_and_hash_is_stable() -> None:
+    assert "demo" in list_presets()
+    a, b = load_preset("demo"), load_preset("demo")
+    assert a == b and a.sha256() == b.sha256()
+    assert a.has_smoke and not a.has_fire
+
+
+@pytest.mark.parametrize("mutate, field", [
+    (lambda d: d["rig"]["rgb"].update(width=-64), "rig.rgb.width"),
+    (lambda d: d.update(frames=0), "frames"),
+    (lambda d: d["objects"][0].update(material="nope"), "objects[0].material"),
+    (lambda d: d["sources"][0].update(type="plasma"), "sources[0].type"),
+    (lambda d: d["materials"]["skin"].update(emissivity=1.5), "materials.skin.emissivity"),
+    (lambda d: d["materials"]["skin"].update(temperature_k=-3), "materials.skin.temperature_k"),
+    (lambda d: d["sim"].update(resolution="big"), "sim.resolution"),
+    (lambda d: d["sim"].update(vorticty=0.1), "sim.vorticty"),
+    (lambda d: d["rig"]["trajectory"].update(center=[0, 0]), "rig.trajectory.center"),
+    (lambda d: d["rig"]["trajectory"].update(radius=float("nan")), "rig.trajectory.radius"),
+    (lambda d: d.update(passes=["rgb.colour"]), "passes"),
+])
+def test_bad_fields_name_file_and_field(mutate, field: str) -> None:
+    data = demo_dict()
+    mutate(data)
+    with pytest.raises(SpecError) as err:
+        parse_spec(data, "scene.yaml")
+    assert err.value.field == field
+    assert str(err.value).startswith(f"scene.yaml: {field}: ")
+
+
+def test_malformed_yaml_reports_line(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: x\nobjects: [\n  - asset: box\n")
+    with pytest.raises(SpecError, match=r"bad.yaml: malformed YAML at line \d+"):
+        load_spec_file(bad)
+
+
+def test_overrides_apply_and_reject_bad_values() -> None:
+    spec = apply_overrides(load_preset("demo"), Overrides(frames=3, resolution=(40, 30), seed=7,
+                                                          passes="rgb.smoky,thermal"))
+    assert (spec.frames, spec.rig.rgb.width, spec.rig.rgb.height, spec.seed) == (3, 40, 30, 7)
+    assert spec.passes == {"rgb": ("smoky",), "thermal": ("smoky", "clean", "depth", "smoke_alpha")}
+    for bad in (Overrides(frames=0), Overrides(resolution=(-1, 5)), Overrides(sim_resolution=2)):
+        with pytest.raises(SpecError, match="command line"):
+            apply_overrides(load_preset("demo"), bad)
+
+
+def test_parse_passes_orders_and_dedupes() -> None:
+    assert parse_passes("thermal.depth,rgb,thermal.depth", "x") == {
+        "rgb": ("smoky", "clean", "depth", "smoke_alpha"), "thermal": ("depth",)}
