@@ -32,7 +32,7 @@ def pass_setup(modality: str, name: str, samples: int) -> PassSetup:
     if name == "depth":
         return PassSetup(False, False, 1, 0, True, "EXR", depth_pass=True)
     if name == "smoke_alpha":
-        return PassSetup(True, True, max(4, samples // 2), 0, False, "EXR")
+        return PassSetup(True, True, samples, 0, False, "EXR")
     fmt = "PNG" if modality == "rgb" else "EXR"
     bounces = 4 if modality == "rgb" else 0
     return PassSetup(name == "smoky", False, samples, bounces, False, fmt)
@@ -116,8 +116,7 @@ def apply_pass(setup: PassSetup, built: BuiltScene, camera: dict[str, Any]) -> N
 def render_to(path: str, c2w: list[list[float]], blender_frame: int) -> None:
     """Render one image; write aside and rename so a crash never leaves a partial file."""
     scene = bpy.context.scene
-    if scene.frame_current != blender_frame:
-        scene.frame_set(blender_frame)
+    scene.frame_set(blender_frame)  # always: right after a bake the current frame's state is stale
     scene.camera.matrix_world = Matrix(c2w)
     tmp = f"{path}.tmp{os.path.splitext(path)[1]}"
     scene.render.filepath = tmp

@@ -52,10 +52,17 @@ def _prepare(job: dict[str, Any]):
     return built, timings
 
 
+def _previous_summary(job: dict[str, Any]) -> dict[str, Any]:
+    """What an interrupted earlier run measured, so a resumed dataset still reports it."""
+    path = Path(job["summary_path"])
+    return json.loads(path.read_text()) if path.exists() else {"timings": {}, "passes": {}}
+
+
 def _render_all(job: dict[str, Any], built, timings: dict[str, float]) -> dict[str, Any]:
     from blender import render
 
     render.configure_engine(job["seed"], job["threads"])
+    previous = _previous_summary(job)
     per_pass: dict[str, dict[str, float]] = {}
     for modality, passes in job["passes"].items():
         camera = job["cameras"][modality]
@@ -69,18 +76,29 @@ def _render_all(job: dict[str, Any], built, timings: dict[str, float]) -> dict[s
             ext = "png" if setup.file_format == "PNG" else "exr"
             key = f"{modality}.{name}"
             frames = camera["frames"]
-            done, seconds = 0, 0.0
+            before = previous["passes"].get(key, {})
+            done, seconds = before.get("rendered", 0), before.get("seconds", 0.0)
             for frame in frames:
                 path = folder / f"{frame['stem']}.{ext}"
-                if not path.exists():
+                fresh = not path.exists()
+                if fresh:
                     t0 = time.perf_counter()
                     render.render_to(str(path), frame["c2w"], frame["blender_frame"])
                     seconds += time.perf_counter() - t0
                     done += 1
-                emit("progress", item=key, frame=frame["stem"], total=len(frames))
+                emit("progress", item=key, frame=frame["stem"], total=len(frames), rendered=fresh)
             per_pass[key] = {"rendered": done, "seconds": seconds,
                              "seconds_per_frame": seconds / done if done else None}
-    return {"timings": timings, "passes": per_pass}
+            _save_summary(job, {**previous, "timings": {**previous["timings"], **timings},
+                                "passes": {**previous["passes"], **per_pass}})
+    return {"timings": {**previous["timings"], **timings}, "passes": per_pass}
+
+
+def _save_summary(job: dict[str, Any], summary: dict[str, Any]) -> None:
+    path = Path(job["summary_path"])
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(summary, indent=2))
+    os.replace(tmp, path)
 
 
 def main(argv: list[str]) -> None:
@@ -99,7 +117,7 @@ def main(argv: list[str]) -> None:
         summary = _render_all(job, built, timings)
         summary["grids"] = sorted(job["grids"])
         summary["bpy"] = bpy.app.version_string
-        Path(job["summary_path"]).write_text(json.dumps(summary, indent=2))
+        _save_summary(job, summary)
         emit("done", summary=job["summary_path"])
         code = 0
     except Exception as exc:  # the parent turns this into one clear line plus the log path

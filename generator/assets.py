@@ -17,6 +17,7 @@ import yaml
 
 from generator.errors import AssetError, SpecError
 from generator.fields import Fields
+from generator.spec import MaterialSpec, parse_texture
 
 UNIT_SCALE = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048}
 MANIFEST_ENV = "SMOKESEER_ASSETS_MANIFEST"
@@ -35,6 +36,7 @@ class Asset:
     sha256: str | None = None
     params: dict[str, Any] = field(default_factory=dict)
     thermal: dict[str, float] = field(default_factory=dict)
+    material: MaterialSpec | None = None  # "asset:NAME", for objects whose spec names no material
 
 
 def default_manifest_path() -> Path:
@@ -49,10 +51,24 @@ def _asset(name: str, f: Fields, root: Path) -> Asset:
     thermal = {
         "temperature_k": thermal_f.number("temperature_k", 293.15, 0.0, 5000.0, exclusive_minimum=True),
         "emissivity": thermal_f.number("emissivity", 0.95, 0.0, 1.0),
+        "temperature_variation_k": thermal_f.number("temperature_variation_k", 0.0, 0.0, 500.0),
     }
+    if thermal["temperature_k"] - thermal["temperature_variation_k"] / 2 <= 0:
+        raise thermal_f.error("temperature_variation_k", "would take the temperature to 0 K or below")
     thermal_f.finish()
+    look = f.sub("appearance")
+    material = MaterialSpec(
+        name=f"asset:{name}",
+        base_color=look.vector("base_color", 3, (0.5, 0.5, 0.5), 0.0, 1.0),
+        roughness=look.number("roughness", 0.6, 0.0, 1.0),
+        metallic=look.number("metallic", 0.0, 0.0, 1.0),
+        texture=parse_texture(look.sub("texture")),
+        **thermal,
+    )
+    look.finish()
     common = dict(name=name, kind=kind, units=units, license=f.string("license"),
-                  provenance=f.string("provenance"), params=f.mapping("params"), thermal=thermal)
+                  provenance=f.string("provenance"), params=f.mapping("params"), thermal=thermal,
+                  material=material)
     if kind == "recipe":
         asset = Asset(**common, recipe=f.string("recipe"))
     else:

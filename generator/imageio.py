@@ -6,7 +6,6 @@ interrupted run never leaves a truncated image that a resume would trust.
 from __future__ import annotations
 
 import os
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -54,14 +53,6 @@ def write_png(path: Path, image: np.ndarray) -> None:
     tmp = _tmp(path)
     pil.save(tmp, format="PNG", compress_level=6)
     os.replace(tmp, path)
-
-
-def copy_file(src: Path, dst: Path) -> None:
-    """Copy atomically; the source stays, so a resumed worker sees the frame as rendered."""
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    tmp = _tmp(dst)
-    shutil.copyfile(src, tmp)
-    os.replace(tmp, dst)
 
 
 def read_png(path: Path) -> np.ndarray:

@@ -2,7 +2,7 @@
 so the Blender side only wires nodes and renders."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +43,21 @@ def make_plan(spec: SceneSpec) -> Plan:
     if not spec.has_smoke:
         render_passes = {m: tuple(p for p in ps if p != "smoke_alpha") for m, ps in render_passes.items()}
     return Plan(line, frames, k, optics, render_passes)
+
+
+def resolve_asset_materials(spec: SceneSpec, manifest: Manifest, source: str) -> SceneSpec:
+    """Give every object without a `material` its asset's default material from the manifest
+    (appearance + thermal defaults, named `asset:NAME`), so the resolved spec is complete."""
+    materials = dict(spec.materials)
+    objects = []
+    for i, obj in enumerate(spec.objects):
+        if obj.material is None:
+            asset = manifest.get(obj.asset, source, f"objects[{i}].asset")
+            assert asset.material is not None
+            materials.setdefault(asset.material.name, asset.material)
+            obj = replace(obj, material=asset.material.name)
+        objects.append(obj)
+    return replace(spec, objects=tuple(objects), materials=materials)
 
 
 def surface_radiance_curve(mat: MaterialSpec, sky_k: float) -> list[list[float]]:

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from generator.dataset_format import PASS_FILES, file_path
-from generator.imageio import copy_file, read_exr, read_exr_channel, read_png, write_exr, write_png
+from generator.imageio import read_exr, read_exr_channel, read_png, write_exr, write_png
 from generator.optics.planck import band_radiance
 from generator.optics.sensor import ThermalSensor, area_average
 
@@ -40,14 +40,20 @@ def _depth(raw_file: Path) -> np.ndarray:
     return depth
 
 
-def _alpha(raw_file: Path) -> np.ndarray:
+def read_alpha(raw_file: Path) -> np.ndarray:
     return np.clip(read_exr_channel(raw_file, "A"), 0.0, 1.0)
 
 
-def _radiance(raw_file: Path) -> np.ndarray:
+def read_radiance(raw_file: Path) -> np.ndarray:
+    """A thermal render's radiance: its grey emission, averaged over the RGB channels."""
     channels = read_exr(raw_file)
     rgb = np.stack([channels[c] for c in ("R", "G", "B")], axis=-1)
     return np.clip(rgb.mean(axis=-1), 0.0, None).astype(np.float64)
+
+
+def add_smoke_emission(transmitted: np.ndarray, alpha: np.ndarray, smoke_radiance: float) -> np.ndarray:
+    """Kirchhoff for isothermal smoke: the render holds tau*L_behind, alpha is 1-tau."""
+    return transmitted + alpha * smoke_radiance
 
 
 def _write_alpha(ctx: PostContext, modality: str, stem: str, alpha: np.ndarray) -> None:
@@ -63,24 +69,28 @@ def _wanted(ctx: PostContext, modality: str, name: str) -> bool:
 def finish_rgb_frame(ctx: PostContext, stem: str) -> None:
     for name in ("smoky", "clean"):
         if _wanted(ctx, "rgb", name):
-            copy_file(ctx.raw / "rgb" / name / f"{stem}.png", file_path(ctx.out, PASS_FILES[("rgb", name)][0], stem))
+            # Re-encoded pixels only: Cycles writes render times into PNG metadata, which would
+            # make identical renders differ byte for byte.
+            write_png(file_path(ctx.out, PASS_FILES[("rgb", name)][0], stem),
+                      read_png(ctx.raw / "rgb" / name / f"{stem}.png"))
     if _wanted(ctx, "rgb", "depth"):
         write_exr(file_path(ctx.out, PASS_FILES[("rgb", "depth")][0], stem),
                   {"Z": _depth(ctx.raw / "rgb" / "depth" / f"{stem}.exr")})
     if _wanted(ctx, "rgb", "smoke_alpha"):
-        _write_alpha(ctx, "rgb", stem, _alpha(ctx.raw / "rgb" / "smoke_alpha" / f"{stem}.exr"))
+        _write_alpha(ctx, "rgb", stem, read_alpha(ctx.raw / "rgb" / "smoke_alpha" / f"{stem}.exr"))
 
 
 def finish_thermal_frame(ctx: PostContext, stem: str, frame_index: int) -> None:
     """Radiance is composed at render resolution, then area-averaged onto sensor pixels."""
     raw = ctx.raw / "thermal"
-    alpha_hi = _alpha(raw / "smoke_alpha" / f"{stem}.exr") if (raw / "smoke_alpha" / f"{stem}.exr").exists() else None
+    alpha_hi = read_alpha(raw / "smoke_alpha" / f"{stem}.exr") if (raw / "smoke_alpha" / f"{stem}.exr").exists() else None
     for name in ("smoky", "clean"):
         if not _wanted(ctx, "thermal", name):
             continue
-        radiance_hi = _radiance(raw / name / f"{stem}.exr")
-        if name == "smoky" and ctx.ambient_radiance is not None and alpha_hi is not None:
-            radiance_hi = radiance_hi + alpha_hi * ctx.ambient_radiance
+        radiance_hi = read_radiance(raw / name / f"{stem}.exr")
+        if name == "smoky" and ctx.ambient_radiance is not None:
+            assert alpha_hi is not None, "the plan renders the LWIR alpha whenever smoke emission is composited"
+            radiance_hi = add_smoke_emission(radiance_hi, alpha_hi, ctx.ambient_radiance)
         radiance_file, counts_file = PASS_FILES[("thermal", name)]
         write_exr(file_path(ctx.out, radiance_file, stem),
                   {"L": ctx.to_sensor_grid(radiance_hi)})

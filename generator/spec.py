@@ -46,9 +46,12 @@ class MaterialSpec:
 
 @dataclass(frozen=True)
 class ObjectSpec:
+    """`material` None means the asset's default material from the manifest (resolved by
+    `generator.job.resolve_asset_materials` before anything is rendered)."""
+
     name: str
     asset: str
-    material: str
+    material: str | None = None
     location: tuple[float, float, float] = (0.0, 0.0, 0.0)
     rotation_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
     scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
@@ -182,7 +185,7 @@ def _to_yaml_ready(value: Any) -> Any:
     return value
 
 
-def _texture(f: Fields) -> TextureSpec:
+def parse_texture(f: Fields) -> TextureSpec:
     d = TextureSpec()
     spec = TextureSpec(
         kind=f.string("kind", d.kind, TEXTURE_KINDS),
@@ -202,7 +205,7 @@ def _material(name: str, f: Fields) -> MaterialSpec:
         base_color=f.vector("base_color", 3, d.base_color, 0.0, 1.0),
         roughness=f.number("roughness", d.roughness, 0.0, 1.0),
         metallic=f.number("metallic", d.metallic, 0.0, 1.0),
-        texture=_texture(f.sub("texture")),
+        texture=parse_texture(f.sub("texture")),
         temperature_k=f.number("temperature_k", d.temperature_k, minimum=0.0, maximum=5000.0,
                                exclusive_minimum=True),
         temperature_variation_k=f.number("temperature_variation_k", d.temperature_variation_k, 0.0, 500.0),
@@ -216,8 +219,10 @@ def _material(name: str, f: Fields) -> MaterialSpec:
 
 def _object(i: int, f: Fields, materials: dict[str, MaterialSpec]) -> ObjectSpec:
     asset = f.string("asset")
-    material = f.string("material")
-    if material not in materials:
+    material = f.raw("material", None)
+    if material is not None:
+        material = f.string("material")
+    if material is not None and material not in materials:
         raise f.error("material", f"unknown material {material!r}; defined: {', '.join(sorted(materials)) or 'none'}")
     scale_raw = f.data.get("scale", 1.0)
     if isinstance(scale_raw, (int, float)) and not isinstance(scale_raw, bool):

@@ -25,6 +25,7 @@ def run_worker(job: dict[str, Any], work: Path, show_progress: bool = True) -> d
     repo_root = Path(__file__).resolve().parents[1]
     cmd = [sys.executable, "-m", "blender.worker", str(job_path)]
     bars: dict[str, tqdm] = {}
+    counts = {True: 0, False: 0}
     error: str | None = None
     started = time.perf_counter()
     with log_path.open("a") as log_file:
@@ -44,6 +45,7 @@ def run_worker(job: dict[str, Any], work: Path, show_progress: bool = True) -> d
                     bar = bars[data["item"]] = tqdm(total=data["total"], desc=f"render {data['item']}",
                                                      unit="frame", disable=not show_progress, leave=False)
                 bar.update(1)
+                counts[data["rendered"]] += 1
                 if bar.n >= bar.total:
                     bar.close()
             elif kind == "stage" and data.get("status") in ("done", "reused"):
@@ -57,6 +59,7 @@ def run_worker(job: dict[str, Any], work: Path, show_progress: bool = True) -> d
     if code != 0:
         reason = error or f"exited with code {code}"
         raise WorkerError(f"Blender worker failed: {reason}. Full log: {log_path}")
+    log.info("rendered %d images, reused %d from an earlier run", counts[True], counts[False])
     summary = json.loads(Path(job["summary_path"]).read_text())
     summary["wall_s"] = time.perf_counter() - started
     return summary
