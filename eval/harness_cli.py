@@ -1,0 +1,163 @@
+"""`regenerate-tables`: one command from presets to Table 1, Table 2, figures and report.
+
+Exit codes: 0 all runs ok; 1 tables written but some runs failed (see report.md);
+2 bad input (one error line on stderr).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from eval.harness import HarnessConfig, default_workers, regenerate
+from eval.runs import ABLATIONS, METHODS
+
+
+def _list(s: str) -> list[str]:
+    return [x.strip() for x in s.split(",") if x.strip()]
+
+
+def parse_seeds(s: str) -> list[int]:
+    """"3" means seeds 0, 1, 2; a comma list ("0,5" or "7,") names the seeds."""
+    try:
+        if "," in s:
+            return [int(x) for x in _list(s)]
+        n = int(s)
+    except ValueError:
+        raise ValueError(f"seeds: expected a count or a comma list of integers, got {s!r}") from None
+    if n < 1:
+        raise ValueError(f"seeds: count must be >= 1, got {n}")
+    return list(range(n))
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """`64x48` (WIDTHxHEIGHT) or `64` (square), the generator's size syntax."""
+    try:
+        parts = [int(x) for x in text.lower().split("x")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}") from None
+    if len(parts) == 1:
+        parts *= 2
+    if len(parts) != 2 or min(parts) < 1:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}")
+    return parts[0], parts[1]
+
+
+def _pairs(items: list[str], flag: str) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for item in items:
+        if "=" not in item:
+            raise ValueError(f"{flag}: expected KEY=VALUE, got {item!r}")
+        k, v = item.split("=", 1)
+        out[k.strip()] = yaml.safe_load(v)
+    return out
+
+
+def _known_presets() -> list[str] | None:
+    try:
+        from generator.presets import list_presets
+    except ImportError:
+        return None
+    return list(list_presets())
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="regenerate-tables", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--out", type=Path, default=Path("results/regenerate-tables"), help="output folder (cache lives here)")
+    p.add_argument("--scenes", type=_list, default=None,
+                   help="comma list of generator presets (default: every preset except demo)")
+    p.add_argument("--methods", type=_list, default=list(METHODS), help=f"comma list of {', '.join(METHODS)}")
+    p.add_argument("--ablations", action=argparse.BooleanOptionalAction, default=True,
+                   help="also run Table 2's ablations")
+    p.add_argument("--ablation-list", type=_list, default=list(ABLATIONS), help=f"subset of {', '.join(ABLATIONS)}")
+    p.add_argument("--seeds", default="3", help="count N (seeds 0..N-1) or comma list (default 3)")
+    p.add_argument("--profile", choices=("quick", "paper"), default="quick")
+    p.add_argument("--workers", type=int, default=default_workers(), help="parallel tasks (default: cores/2)")
+    p.add_argument("--scheduler", default=None,
+                   help='Dask scheduler address (tcp://host:8786), or "local" for a Dask LocalCluster; '
+                        "default: a local process pool")
+    p.add_argument("--dataset", action="append", default=[], metavar="SCENE=PATH",
+                   help="use an existing dataset for a scene instead of generating it")
+    p.add_argument("--dehazer", default="dcp", help="dehazer for the ImgDehaze baseline")
+    p.add_argument("--iterations", type=int, default=None,
+                   help="tiny budget: stage2/stage3 iterations (also sets stage3.test_every to a quarter)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="trainer override, dotted key")
+    p.add_argument("--frames", type=int, default=None, help="generator override")
+    p.add_argument("--resolution", type=parse_size, default=None, help="generator override: RGB WIDTHxHEIGHT")
+    p.add_argument("--thermal-resolution", type=parse_size, default=None, help="generator override: WIDTHxHEIGHT")
+    p.add_argument("--samples", type=int, default=None, help="generator override: Cycles samples")
+    p.add_argument("--sim-resolution", type=int, default=None, help="generator override: Mantaflow voxels")
+    p.add_argument("--gen-set", action="append", default=[], metavar="KEY=VALUE", help="other generator override")
+    p.add_argument("--lpips-weights", default=None, help="backbone .pth (torchvision layout) or its folder")
+    p.add_argument("--lpips-heads", default=None, help="LPIPS v0.1 heads .pth, or an lpips wheel")
+    return p
+
+
+def config_from_args(args: argparse.Namespace) -> HarnessConfig:
+    """Turn parsed flags into a validated HarnessConfig (ValueError names the bad flag)."""
+    datasets = {k: Path(str(v)) for k, v in _pairs(args.dataset, "--dataset").items()}
+    scenes = args.scenes
+    presets = _known_presets()
+    if scenes is None:
+        if presets is None:
+            raise ValueError("scenes: generator presets are unavailable; pass --scenes and --dataset")
+        scenes = [s for s in presets if s != "demo"]
+    for s in scenes:
+        if s not in datasets and presets is not None and s not in presets:
+            raise ValueError(f"scenes: unknown preset {s!r}; known: {', '.join(presets)}")
+        if s not in datasets and presets is None:
+            raise ValueError(f"scenes: cannot generate {s!r} (generator unavailable); pass --dataset {s}=PATH")
+    extra = set(datasets) - set(scenes)
+    if extra:
+        raise ValueError(f"dataset: scene(s) {', '.join(sorted(extra))} not in --scenes")
+    train = _pairs(args.set, "--set")
+    if args.iterations is not None:
+        if args.iterations < 1:
+            raise ValueError(f"iterations: must be >= 1, got {args.iterations}")
+        train.setdefault("stage2.iterations", args.iterations)
+        train.setdefault("stage3.iterations", args.iterations)
+        train.setdefault("stage3.test_every", max(1, args.iterations // 4))
+    gen = _pairs(args.gen_set, "--gen-set")
+    for key in ("frames", "resolution", "thermal_resolution", "samples", "sim_resolution"):
+        if getattr(args, key) is not None:
+            gen[key] = getattr(args, key)
+    cfg = HarnessConfig(
+        out=args.out, scenes=scenes, methods=args.methods,
+        ablations=args.ablation_list if args.ablations else [], seeds=parse_seeds(args.seeds),
+        profile=args.profile, train_overrides=train, gen_overrides=gen, datasets=datasets,
+        dehazer=args.dehazer, workers=args.workers, scheduler=args.scheduler,
+        lpips_weights=args.lpips_weights, lpips_heads=args.lpips_heads,
+    )
+    from eval.dehaze import available_dehazers
+
+    if cfg.dehazer not in available_dehazers():
+        raise ValueError(f"dehazer: unknown {cfg.dehazer!r}, available: {', '.join(available_dehazers())}")
+    cfg.validate()
+    return cfg
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stderr)
+    try:
+        cfg = config_from_args(args)
+    except ValueError as exc:
+        print(f"regenerate-tables: error: {exc}", file=sys.stderr)
+        return 2
+    results, paths = regenerate(cfg)
+    failed = sum(r.status != "ok" for r in results)
+    print(f"wrote {len(paths)} files to {Path(cfg.out).resolve()}; {len(results) - failed} runs ok, {failed} failed")
+    for name in ("table1.md", "table2.md"):
+        if name in paths:
+            print(Path(paths[name]).read_text())
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,78 @@
+"""report.md: every setting a table depends on, every run with its status, every failure
+with its error, and the tables themselves, so one file answers "where did this digit come from"."""
+
+from __future__ import annotations
+
+import platform
+from dataclasses import asdict
+from importlib import metadata
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from eval.dehaze import DarkChannelPrior
+from eval.runs import VARIANTS, RunResult
+
+if TYPE_CHECKING:
+    from eval.harness import DatasetOutcome, HarnessConfig
+
+
+def _version(pkg: str) -> str:
+    try:
+        return metadata.version(pkg)
+    except metadata.PackageNotFoundError:
+        return "not installed"
+
+
+def _settings(cfg: "HarnessConfig", backend: str) -> list[tuple[str, Any]]:
+    return [
+        ("scenes", ", ".join(cfg.scenes)),
+        ("methods", ", ".join(f"{k} ({VARIANTS[k].label}, trainer mode `{VARIANTS[k].mode}`)" for k in cfg.methods)
+         or "none"),
+        ("ablations", ", ".join(f"{k} (mode `{VARIANTS[k].mode}`)" for k in cfg.ablations) or "none"),
+        ("seeds", ", ".join(map(str, cfg.seeds))),
+        ("training profile", cfg.profile),
+        ("training overrides", cfg.train_overrides or "none"),
+        ("generator overrides", cfg.gen_overrides or "none"),
+        ("dataset seed", cfg.dataset_seed),
+        ("dehazer", f"{cfg.dehazer} {asdict(DarkChannelPrior()) if cfg.dehazer == 'dcp' else ''}"),
+        ("execution", backend),
+        ("LPIPS weights", cfg.lpips_weights or "default search ($TORCH_HOME, ~/.cache/torch)"),
+        ("output folder", str(Path(cfg.out).resolve())),
+        ("versions", ", ".join(f"{p} {_version(p)}" for p in ("smokeseer-synth", "torch", "numpy", "bpy"))
+         + f", python {platform.python_version()}"),
+    ]
+
+
+def write_report(cfg: "HarnessConfig", results: list[RunResult], datasets: list["DatasetOutcome"],
+                 lpips_status: str, backend: str, wall_s: float, paths: dict[str, Path], out: Path) -> Path:
+    failed = [r for r in results if r.status != "ok"]
+    lines = ["# regenerate-tables report", "",
+             f"{len(results)} runs: {len(results) - len(failed)} ok "
+             f"({sum(r.cached for r in results)} from cache), {len(failed)} failed; {wall_s:.1f} s wall.", "",
+             "## Settings", ""]
+    lines += [f"- **{k}**: {v}" for k, v in _settings(cfg, backend)]
+    lines += [f"- **LPIPS**: {lpips_status}", ""]
+    lines += ["## Datasets", "", "| scene | kind | status | cached | seconds | path |", "|---|---|---|---|---|---|"]
+    lines += [f"| {d.scene} | {d.kind} | {d.status} | {d.cached} | {d.wall_time_s:.1f} | `{d.path}` |"
+              for d in datasets]
+    lines += ["", "## Runs", "", "| scene | variant | seed | status | cached | seconds | PSNR | config hash | run dir |",
+              "|---|---|---|---|---|---|---|---|---|"]
+    for r in results:
+        p = r.metrics.get("psnr")
+        lines.append(f"| {r.scene} | {r.variant} | {r.seed} | {r.status} | {r.cached} | {r.wall_time_s:.1f} | "
+                     f"{'' if p is None else f'{p:.2f}'} | {r.config_hash[:12]} | `{r.run_dir}` |")
+    lines += ["", "## Failures", ""]
+    if not failed:
+        lines.append("None.")
+    for r in failed:
+        lines += [f"### {r.scene} / {r.variant} / seed {r.seed}", "", "```", r.error.strip() or "(no message)", "```", ""]
+    for d in datasets:
+        if d.status != "ok":
+            lines += [f"### dataset {d.scene} ({d.kind})", "", "```", d.error.strip() or "(no message)", "```", ""]
+    lines += ["", "## Tables", ""]
+    for name in ("table1.md", "table2.md"):
+        if name in paths:
+            lines += [Path(paths[name]).read_text(), ""]
+    lines += ["## Files", ""] + [f"- `{k}`" for k in sorted(paths)]
+    out.write_text("\n".join(lines) + "\n")
+    return out

@@ -1,0 +1,107 @@
+"""What the tables compare: the methods and ablations, the paper's numbers, and the
+records a run leaves behind. Shared by the harness, table and figure writers."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One row of Table 1 or Table 2: a trainer mode, optionally on dehazed frames."""
+
+    key: str
+    label: str
+    mode: str
+    table: str  # "methods" or "ablations"
+    paper: dict[str, float]
+    dehazer: str | None = None
+    note: str = ""
+
+
+METHODS: dict[str, Variant] = {
+    v.key: v
+    for v in (
+        Variant("imgdehaze-dcp", "ImgDehaze (DCP) + Deformable 3DGS", "deformable-3dgs", "methods",
+                {"psnr": 14.42, "ssim": 0.37, "lpips": 0.318}, dehazer="dcp",
+                note="paper's dehazer is ConvIR (weights not available offline); ours is the "
+                     "dark channel prior with guided-filter refinement"),
+        Variant("rgb-only", "Ours (RGB only)", "rgb-only", "methods",
+                {"psnr": 15.08, "ssim": 0.38, "lpips": 0.326}),
+        Variant("full", "Ours (Full)", "full", "methods",
+                {"psnr": 19.92, "ssim": 0.76, "lpips": 0.247}),
+    )
+}
+
+ABLATIONS: dict[str, Variant] = {
+    v.key: v
+    for v in (
+        Variant("no-smoke-alpha", "w/o smoke_alpha", "no-smoke-alpha", "ablations", {"psnr": 18.96}),
+        Variant("no-smoke-color", "w/o smoke_color", "no-smoke-color", "ablations", {"psnr": 19.02}),
+        Variant("no-mono", "w/o mono", "no-mono", "ablations", {"psnr": 19.78}),
+        Variant("no-depth", "w/o depth", "no-depth", "ablations", {"psnr": 19.88}),
+        Variant("no-mask", "w/o mask", "no-mask", "ablations", {"psnr": 19.82}),
+    )
+}
+
+VARIANTS: dict[str, Variant] = {**METHODS, **ABLATIONS}
+
+
+def config_hash(obj: Any) -> str:
+    """SHA-256 of canonical JSON: the cache key of a dataset or run."""
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """Everything that decides one training run; its hash names the cache entry."""
+
+    scene: str
+    variant: str
+    mode: str
+    seed: int
+    profile: str
+    overrides: dict[str, Any]
+    dataset: str  # path of the (possibly dehazed) dataset the run trains on
+    dataset_hash: str
+
+    def key(self) -> dict[str, Any]:
+        """Hashed fields: the dataset enters by content hash, not by path."""
+        d = asdict(self)
+        d.pop("dataset")
+        return d
+
+    def hash(self) -> str:
+        return config_hash(self.key())
+
+    def run_dir(self, out: Path) -> Path:
+        return Path(out) / "runs" / self.scene / self.variant / f"seed{self.seed}-{self.hash()[:12]}"
+
+
+@dataclass
+class RunResult:
+    """What the harness records for a run, finished or failed (never dropped)."""
+
+    scene: str
+    variant: str
+    seed: int
+    status: str  # "ok" or "failed"
+    run_dir: str
+    config_hash: str
+    dataset: str = ""
+    metrics: dict[str, Any] = field(default_factory=dict)
+    wall_time_s: float = 0.0
+    prep_time_s: float = 0.0  # per-scene preprocessing charged to the method (dehazing)
+    error: str = ""
+    cached: bool = False
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> "RunResult":
+        return cls(**{k: d[k] for k in cls.__dataclass_fields__ if k in d})

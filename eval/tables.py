@@ -1,0 +1,236 @@
+"""Table 1 (methods) and Table 2 (ablations) as Markdown, LaTeX and CSV.
+
+Aggregation: each run's metric is already a mean over the test split; per seed we
+average over scenes, then report mean ± sample std (ddof=1) over seeds. With one
+seed there is no std and none is printed. Failed runs are counted and flagged in
+the row, never silently left out.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable
+
+from eval.runs import ABLATIONS, METHODS, VARIANTS, RunResult
+
+
+@dataclass(frozen=True)
+class Stat:
+    mean: float | None
+    std: float | None
+    n_seeds: int
+
+
+@dataclass(frozen=True)
+class Column:
+    metric: str
+    header: str
+    digits: int
+
+
+TABLE1_COLUMNS = (
+    Column("psnr", "PSNR ↑", 2), Column("ssim", "SSIM ↑", 3), Column("lpips", "LPIPS ↓", 3),
+)
+TABLE1_EXTRA = (
+    Column("psnr_input", "Input PSNR", 2), Column("depth_absrel", "Depth AbsRel ↓", 3),
+    Column("depth_rmse", "Depth RMSE (m) ↓", 3), Column("mask_iou", "Mask IoU ↑", 3),
+)
+TABLE2_COLUMNS = TABLE1_COLUMNS
+
+
+@dataclass(frozen=True)
+class Row:
+    variant: str
+    label: str
+    stats: dict[str, Stat]
+    paper: dict[str, float]
+    runs_ok: int
+    runs_failed: int
+    runs_expected: int
+    lpips_status: str
+
+
+def seed_stat(values_by_seed: dict[int, list[float]]) -> Stat:
+    """Mean over scenes within a seed, then mean and sample std over seeds."""
+    per_seed = [sum(v) / len(v) for _, v in sorted(values_by_seed.items()) if v]
+    if not per_seed:
+        return Stat(None, None, 0)
+    n = len(per_seed)
+    mean = sum(per_seed) / n
+    std = math.sqrt(sum((x - mean) ** 2 for x in per_seed) / (n - 1)) if n > 1 else None
+    return Stat(mean, std, n)
+
+
+def _metric_values(results: Iterable[RunResult], metric: str) -> dict[int, list[float]]:
+    out: dict[int, list[float]] = {}
+    for r in results:
+        if r.status != "ok":
+            continue
+        v = r.metrics.get(metric)
+        out.setdefault(r.seed, [])
+        if v is not None:
+            out[r.seed].append(float(v))
+    return out
+
+
+def build_rows(results: list[RunResult], variants: list[str], metrics: Iterable[str]) -> list[Row]:
+    """One row per variant that appears in `variants`, in that order."""
+    metrics = list(metrics)
+    scenes = {r.scene for r in results}
+    seeds = {r.seed for r in results}
+    rows = []
+    for key in variants:
+        mine = [r for r in results if r.variant == key]
+        if not mine:
+            continue
+        statuses = sorted({str(r.metrics.get("lpips_status", "")) for r in mine if r.status == "ok"} - {""})
+        rows.append(Row(
+            variant=key, label=VARIANTS[key].label if key in VARIANTS else key,
+            stats={m: seed_stat(_metric_values(mine, m)) for m in metrics},
+            paper=VARIANTS[key].paper if key in VARIANTS else {},
+            runs_ok=sum(r.status == "ok" for r in mine),
+            runs_failed=sum(r.status != "ok" for r in mine),
+            runs_expected=len(scenes) * len(seeds),
+            lpips_status="; ".join(statuses),
+        ))
+    return rows
+
+
+def format_stat(stat: Stat, digits: int, latex: bool = False) -> str:
+    if stat.mean is None:
+        return "—"
+    if stat.std is None:
+        return f"{stat.mean:.{digits}f}"
+    pm = r" $\pm$ " if latex else " ± "
+    return f"{stat.mean:.{digits}f}{pm}{stat.std:.{digits}f}"
+
+
+def _cell(row: Row, col: Column, latex: bool) -> str:
+    stat = row.stats[col.metric]
+    if col.metric == "lpips" and stat.mean is None and row.lpips_status.startswith("skipped"):
+        return "skipped: no weights"
+    return format_stat(stat, col.digits, latex)
+
+
+def _paper_cell(row: Row, col: Column) -> str:
+    v = row.paper.get(col.metric)
+    return "—" if v is None else f"{v:.{col.digits}f}"
+
+
+def _runs_cell(row: Row) -> str:
+    flag = " †" if row.runs_failed or row.runs_ok + row.runs_failed < row.runs_expected else ""
+    return f"{row.runs_ok}/{row.runs_expected}{flag}"
+
+
+def _grid(rows: list[Row], cols: tuple[Column, ...], extra: tuple[Column, ...], latex: bool,
+          first: str) -> tuple[list[str], list[list[str]]]:
+    header = [first] + [c.header for c in cols] + [f"Paper {c.header.split()[0]}" for c in cols]
+    header += [c.header for c in extra] + ["Runs ok"]
+    body = []
+    for r in rows:
+        body.append([r.label] + [_cell(r, c, latex) for c in cols] + [_paper_cell(r, c) for c in cols]
+                    + [_cell(r, c, latex) for c in extra] + [_runs_cell(r)])
+    return header, body
+
+
+def _footnotes(rows: list[Row], n_scenes: int) -> list[str]:
+    seeds = max((s.n_seeds for r in rows for s in r.stats.values()), default=0)
+    notes = [f"Mean over {n_scenes} scene(s) per seed, then mean ± sample std over {seeds} seed(s) "
+             "(no ± with one seed). SSIM in the 3DGS convention (full zero-padded map). "
+             "Paper columns: SmokeSeer paper, synthetic benchmark (its scenes, not ours)."]
+    for r in rows:
+        v = VARIANTS.get(r.variant)
+        if v is not None and v.note:
+            notes.append(f"{r.label}: {v.note}; its Input PSNR is that of the dehazed frames.")
+        if r.runs_failed or r.runs_ok < r.runs_expected:
+            notes.append(f"† {r.label}: {r.runs_failed} failed, {r.runs_ok} of {r.runs_expected} runs "
+                         "averaged; see report.md for the errors.")
+    return notes
+
+
+def _markdown(header: list[str], body: list[list[str]], title: str, notes: list[str]) -> str:
+    lines = [f"### {title}", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(row) + " |" for row in body]
+    return "\n".join(lines + [""] + [f"- {n}" for n in notes]) + "\n"
+
+
+def _tex_escape(s: str) -> str:
+    for a, b in (("\\", r"\textbackslash{}"), ("_", r"\_"), ("%", r"\%"), ("&", r"\&"), ("#", r"\#"),
+                 ("↑", r"$\uparrow$"), ("↓", r"$\downarrow$"), ("†", r"$^\dagger$"), ("—", "--")):
+        s = s.replace(a, b)
+    return s
+
+
+def _latex(header: list[str], body: list[list[str]], title: str, notes: list[str]) -> str:
+    esc = [[c if "$\\pm$" in c else _tex_escape(c) for c in row] for row in body]
+    lines = [r"\begin{table}[t]", r"\centering", r"\small",
+             r"\begin{tabular}{l" + "c" * (len(header) - 1) + "}", r"\toprule",
+             " & ".join(_tex_escape(h) for h in header) + r" \\", r"\midrule"]
+    lines += [" & ".join(row) + r" \\" for row in esc]
+    lines += [r"\bottomrule", r"\end{tabular}",
+              r"\caption{" + _tex_escape(title + ". " + " ".join(notes)) + "}", r"\end{table}"]
+    return "\n".join(lines) + "\n"
+
+
+def _csv_rows(table: str, rows: list[Row], cols: tuple[Column, ...]) -> list[list[object]]:
+    out: list[list[object]] = []
+    for r in rows:
+        for c in cols:
+            s = r.stats[c.metric]
+            out.append([table, r.variant, r.label, c.metric, "" if s.mean is None else s.mean,
+                        "" if s.std is None else s.std, s.n_seeds, r.runs_ok, r.runs_failed,
+                        r.runs_expected, r.paper.get(c.metric, "")])
+    return out
+
+
+CSV_HEADER = ["table", "variant", "label", "metric", "mean", "std", "n_seeds", "runs_ok",
+              "runs_failed", "runs_expected", "paper"]
+
+
+def write_tables(results: list[RunResult], out_dir: Path) -> dict[str, Path]:
+    """Write table1.{md,tex,csv}, table2.{md,tex,csv} and per_scene.csv; return their paths."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    n_scenes = len({r.scene for r in results})
+    paths: dict[str, Path] = {}
+    specs = (
+        ("table1", "Table 1: methods", [k for k in METHODS], TABLE1_COLUMNS, TABLE1_EXTRA, "Method"),
+        ("table2", "Table 2: ablations", ["full", *ABLATIONS], TABLE2_COLUMNS, (), "Variant"),
+    )
+    for name, title, order, cols, extra, first in specs:
+        variants = [k for k in order if any(r.variant == k for r in results)]
+        if name == "table2" and not any(r.variant in ABLATIONS for r in results):
+            continue
+        rows = build_rows(results, variants, [c.metric for c in cols + extra])
+        notes = _footnotes(rows, n_scenes)
+        header, body = _grid(rows, cols, extra, False, first)
+        (out_dir / f"{name}.md").write_text(_markdown(header, body, title, notes))
+        header_tex, body_tex = _grid(rows, cols, extra, True, first)
+        (out_dir / f"{name}.tex").write_text(_latex(header_tex, body_tex, title, notes))
+        with open(out_dir / f"{name}.csv", "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(CSV_HEADER)
+            w.writerows(_csv_rows(name, rows, cols + extra))
+        paths.update({f"{name}.md": out_dir / f"{name}.md", f"{name}.tex": out_dir / f"{name}.tex",
+                      f"{name}.csv": out_dir / f"{name}.csv"})
+    paths["per_scene.csv"] = _write_per_scene(results, out_dir / "per_scene.csv")
+    return paths
+
+
+def _write_per_scene(results: list[RunResult], path: Path) -> Path:
+    metrics = [c.metric for c in TABLE1_COLUMNS + TABLE1_EXTRA]
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["scene", "variant", "metric", "mean", "std", "n_seeds", "runs_failed"])
+        for scene in sorted({r.scene for r in results}):
+            for key in sorted({r.variant for r in results if r.scene == scene}):
+                mine = [r for r in results if r.scene == scene and r.variant == key]
+                for m in metrics:
+                    s = seed_stat(_metric_values(mine, m))
+                    w.writerow([scene, key, m, "" if s.mean is None else s.mean,
+                                "" if s.std is None else s.std, s.n_seeds,
+                                sum(r.status != "ok" for r in mine)])
+    return path
