@@ -78,7 +78,10 @@ def intrinsics(camera: CameraSpec, width: int | None = None, height: int | None 
     return Intrinsics(w, h, fl, fl, w / 2.0, h / 2.0)
 
 
-def look_at(position: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0, 0.0, 1.0])) -> np.ndarray:
+WORLD_UP = np.array([0.0, 0.0, 1.0])
+
+
+def look_at(position: np.ndarray, target: np.ndarray, up: np.ndarray = WORLD_UP) -> np.ndarray:
     """c2w with the camera at `position` looking at `target`, world +Z kept up."""
     forward = target - position
     norm = np.linalg.norm(forward)
@@ -122,12 +125,12 @@ def timeline(spec: SceneSpec) -> Timeline:
     return Timeline(spec.sim.fps, warmup, duration, spec.sim.static)
 
 
-def test_indices(frames: int, test_every: int) -> set[int]:
+def held_out_indices(frames: int, test_every: int) -> set[int]:
     return set(range(test_every // 2, frames, test_every)) if frames > 1 else set()
 
 
 def rgb_frames(spec: SceneSpec, line: Timeline) -> list[FrameSample]:
-    held_out = test_indices(spec.frames, spec.test_every)
+    held_out = held_out_indices(spec.frames, spec.test_every)
     out = []
     for i in range(spec.frames):
         ts = line.snap(i / spec.rig.rgb.fps)

@@ -22,7 +22,7 @@ from functools import lru_cache
 
 import numpy as np
 from colour.colorimetry import planck_law
-from colour.colorimetry.blackbody import CONSTANT_C1, CONSTANT_C2
+from colour.colorimetry.blackbody import CONSTANT_C2
 
 LWIR_BAND_M: tuple[float, float] = (8e-6, 14e-6)
 
