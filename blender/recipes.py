@@ -13,8 +13,8 @@ from __future__ import annotations
 import math
 from typing import Any, Callable, Iterable, Sequence
 
-import bmesh
 import bpy
+import bmesh  # after bpy: the module only exists once bpy is loaded
 import numpy as np
 from mathutils import Euler, Matrix, Vector
 

@@ -145,13 +145,22 @@ def terrain_mesh(recipe: TerrainRecipe) -> trimesh.Trimesh:
     return trimesh.Trimesh(vertices.astype(np.float32), faces, process=False)
 
 
-def sample_terrain(mesh: trimesh.Trimesh, x: float, y: float) -> float:
-    """Height of the triangulated surface under (x, y): where a preset's object must stand."""
-    origin = np.array([[x, y, 1e4]])
-    hits, _, _ = mesh.ray.intersects_location(origin, np.array([[0.0, 0.0, -1.0]]))
-    if len(hits) == 0:
-        raise ValueError(f"({x}, {y}) lies outside the terrain")
-    return float(hits[:, 2].max())
+def sample_terrain(recipe: TerrainRecipe, x: np.ndarray | float, y: np.ndarray | float) -> np.ndarray:
+    """Height of the triangulated grid, exactly as written to the PLY, under points (x, y):
+    where a preset must stand an object so that it touches the ground."""
+    n = recipe.cells
+    heights = np.asarray(terrain_mesh(recipe).vertices[:, 2], dtype=np.float64).reshape(n + 1, n + 1)
+    step = recipe.size_m / n
+    u = (np.asarray(x, dtype=float) + recipe.size_m / 2) / step
+    v = (np.asarray(y, dtype=float) + recipe.size_m / 2) / step
+    if np.any((u < 0) | (u > n) | (v < 0) | (v > n)):
+        raise ValueError(f"points outside the {recipe.size_m} m terrain")
+    i, j = np.minimum(u.astype(int), n - 1), np.minimum(v.astype(int), n - 1)
+    fu, fv = u - i, v - j
+    h00, h10, h01, h11 = heights[j, i], heights[j, i + 1], heights[j + 1, i], heights[j + 1, i + 1]
+    lower = h00 + fu * (h10 - h00) + fv * (h11 - h10)
+    upper = h00 + fv * (h01 - h00) + fu * (h11 - h01)
+    return np.where(fu >= fv, lower, upper)
 
 
 def rock_mesh(recipe: RockRecipe) -> trimesh.Trimesh:

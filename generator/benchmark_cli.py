@@ -1,0 +1,149 @@
+"""`generate-benchmark`: generate the ten benchmark scenes at one profile, with evidence.
+
+Each scene goes to OUT/<scene>/ through `generator.api.generate`. A scene whose dataset is
+already there and was made from the same resolved spec is skipped (so an interrupted run
+resumes; an unfinished scene also resumes inside the generator's own staging folder); one
+made from a different spec is regenerated. Every scene prints one line (time, size, smoke
+statistics), and the run writes OUT/benchmark.json and OUT/benchmark.md.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from generator.api import generate, resolve_spec
+from generator.assets import load_manifest
+from generator.errors import GeneratorError
+from generator.job import resolve_asset_materials
+from generator.profiles import BENCHMARK_SCENES, PROFILES, Profile, get_profile, strong_motion
+from generator.spec import SceneSpec
+
+log = logging.getLogger("generate-benchmark")
+
+
+def folder_size(path: Path) -> tuple[int, int]:
+    """Total bytes and number of files under `path`."""
+    files = [p for p in path.rglob("*") if p.is_file()]
+    return sum(p.stat().st_size for p in files), len(files)
+
+
+def _resolved(scene: str, profile: Profile) -> SceneSpec:
+    spec, source = resolve_spec(scene, profile.overrides)
+    return resolve_asset_materials(spec, load_manifest(), source)
+
+
+def _finished(out: Path, spec: SceneSpec) -> bool:
+    meta = out / "dataset.json"
+    return meta.is_file() and json.loads(meta.read_text()).get("spec_sha256") == spec.sha256()
+
+
+def run_scene(scene: str, profile: Profile, out_root: Path, force: bool, threads: int | None,
+              show_progress: bool) -> dict[str, Any]:
+    """Generate (or reuse) one scene; returns its benchmark record."""
+    spec = _resolved(scene, profile)
+    out = out_root / scene
+    reused = not force and _finished(out, spec)
+    started = time.perf_counter()
+    if not reused:
+        generate(scene, out, force=True, show_progress=show_progress, threads=threads, **profile.kwargs())
+    wall = time.perf_counter() - started
+    meta = json.loads((out / "dataset.json").read_text())
+    size, n_files = folder_size(out)
+    frames = {m: len(json.loads((out / f"transforms_{m}.json").read_text())["frames"])
+              for m in ("rgb", "thermal") if (out / f"transforms_{m}.json").is_file()}
+    return {
+        "scene": scene, "paper_analogue": BENCHMARK_SCENES[scene], "status": "reused" if reused else "generated",
+        "density": spec.smoke.density, "fire": spec.has_fire, "strong_motion": strong_motion(spec),
+        "frames": frames, "seconds": meta["timings_s"]["total"] if reused else wall,
+        "size_bytes": size, "files": n_files, "stats": meta.get("stats", {}),
+    }
+
+
+def _fmt(value: Any, spec: str) -> str:
+    return format(value, spec) if isinstance(value, (int, float)) else "n/a"
+
+
+def scene_line(r: dict[str, Any]) -> str:
+    s = r["stats"]
+    return (f"{r['scene']:<11} {r['status']:<9} {r['seconds']:7.1f} s {r['size_bytes'] / 1e6:7.2f} MB  "
+            f"density {r['density']:.2f}  rgb alpha {_fmt(s.get('rgb_mean_smoke_alpha'), '.3f')}  "
+            f"thermal alpha {_fmt(s.get('thermal_mean_smoke_alpha'), '.4f')}  "
+            f"PSNR {_fmt(s.get('psnr_smoky_vs_clean'), '.1f')} dB")
+
+
+def markdown_table(records: list[dict[str, Any]], profile: Profile) -> str:
+    head = ("| scene | paper analogue | density | fire | strong motion | frames RGB/thermal | time (s) | size (MB) "
+            "| RGB mean smoke alpha | RGB smoke fraction | thermal mean smoke alpha | PSNR smoky vs clean (dB) |\n"
+            "|---|---|---|---|---|---|---|---|---|---|---|---|\n")
+    rows = []
+    for r in records:
+        s = r["stats"]
+        rows.append(
+            f"| {r['scene']} | {r['paper_analogue']} | {r['density']:.2f} | {'yes' if r['fire'] else 'no'} "
+            f"| {'yes' if r['strong_motion'] else 'no'} | {r['frames'].get('rgb', 0)}/{r['frames'].get('thermal', 0)} "
+            f"| {r['seconds']:.0f} | {r['size_bytes'] / 1e6:.1f} "
+            f"| {_fmt(s.get('rgb_mean_smoke_alpha'), '.3f')} | {_fmt(s.get('rgb_smoke_fraction'), '.2f')} "
+            f"| {_fmt(s.get('thermal_mean_smoke_alpha'), '.4f')} | {_fmt(s.get('psnr_smoky_vs_clean'), '.1f')} |")
+    total_s = sum(r["seconds"] for r in records)
+    total_mb = sum(r["size_bytes"] for r in records) / 1e6
+    return (f"Profile `{profile.name}` ({profile.description}).\n\n" + head + "\n".join(rows)
+            + f"\n\nTotal: {total_s:.0f} s, {total_mb:.1f} MB.\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="generate-benchmark",
+                                description="Generate the ten-scene synthetic smoke benchmark at one profile.")
+    p.add_argument("--profile", required=True, choices=sorted(PROFILES), help="size profile (docs/benchmark.md)")
+    p.add_argument("--out", type=Path, required=True, help="output folder; one dataset per scene inside it")
+    p.add_argument("--scenes", help=f"comma-separated subset of: {','.join(BENCHMARK_SCENES)}")
+    p.add_argument("--force", action="store_true", help="regenerate scenes that are already finished")
+    p.add_argument("--threads", type=int, help="render threads per scene (default: all cores)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s: %(message)s", datefmt="%H:%M:%S")
+    args = build_parser().parse_args(argv)
+    scenes = list(BENCHMARK_SCENES) if not args.scenes else [s.strip() for s in args.scenes.split(",") if s.strip()]
+    unknown = [s for s in scenes if s not in BENCHMARK_SCENES]
+    if unknown:
+        print(f"generate-benchmark: error: unknown scene(s) {', '.join(unknown)}; "
+              f"choose from {', '.join(BENCHMARK_SCENES)}", file=sys.stderr)
+        return 2
+    profile = get_profile(args.profile)
+    args.out.mkdir(parents=True, exist_ok=True)
+    records, failed = [], []
+    started = time.perf_counter()
+    for scene in scenes:
+        try:
+            record = run_scene(scene, profile, args.out, args.force, args.threads, not args.quiet)
+        except GeneratorError as exc:
+            print(f"{scene:<11} FAILED: {exc}", file=sys.stderr)
+            failed.append(scene)
+            continue
+        except KeyboardInterrupt:
+            print("generate-benchmark: interrupted; run the same command again to resume", file=sys.stderr)
+            return 130
+        records.append(record)
+        print(scene_line(record), flush=True)
+    summary = {
+        "profile": profile.name, "description": profile.description, "overrides": profile.kwargs(),
+        "scenes": records, "failed": failed, "wall_seconds": time.perf_counter() - started,
+        "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
+    }
+    (args.out / "benchmark.json").write_text(json.dumps(summary, indent=2))
+    (args.out / "benchmark.md").write_text(markdown_table(records, profile))
+    print(f"wrote {args.out / 'benchmark.json'} and {args.out / 'benchmark.md'}")
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

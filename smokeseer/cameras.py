@@ -1,0 +1,113 @@
+"""Camera conventions and scene bounds.
+
+The datasets store camera-to-world matrices in OpenGL/Blender axes; the rasterizer wants
+OpenCV world-to-camera matrices. Keeping every conversion here gives one place to get it right.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+_GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+def c2w_gl_to_viewmat(c2w: np.ndarray) -> np.ndarray:
+    """OpenGL camera-to-world → OpenCV world-to-camera (flip camera Y and Z, then invert)."""
+    c2w = np.asarray(c2w, dtype=np.float64)
+    return np.linalg.inv(c2w @ _GL_TO_CV)
+
+
+def viewmat_to_c2w_cv(viewmat: np.ndarray) -> np.ndarray:
+    """OpenCV world-to-camera → OpenCV camera-to-world, computed without a general inverse."""
+    r = viewmat[:3, :3]
+    t = viewmat[:3, 3]
+    out = np.eye(4)
+    out[:3, :3] = r.T
+    out[:3, 3] = -r.T @ t
+    return out
+
+
+def camera_center(viewmat: np.ndarray) -> np.ndarray:
+    return -viewmat[:3, :3].T @ viewmat[:3, 3]
+
+
+def intrinsics(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
+    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+
+@dataclass
+class SceneBounds:
+    """Where Gaussians are initialised: a centre, a half-size, and the 3DGS scene extent."""
+
+    center: np.ndarray
+    half_size: float
+    extent: float
+
+
+def scene_bounds(viewmats: np.ndarray, Ks: np.ndarray, widths: np.ndarray) -> SceneBounds:
+    """Estimate the observed region from the cameras alone (no GT geometry is used).
+
+    The centre is the least-squares point nearest all optical axes (cameras of a capture look
+    at the scene); the half-size is the image half-width at the mean camera distance, so the
+    box covers what the cameras see. The extent is 3DGS's: 1.1 × the largest camera distance
+    from the mean camera centre (floored so a static camera still gets a usable scale).
+    """
+    centres = np.stack([camera_center(v) for v in viewmats])
+    dirs = np.stack([v[2, :3] for v in viewmats])
+    a = np.zeros((3, 3))
+    b = np.zeros(3)
+    for c, d in zip(centres, dirs):
+        p = np.eye(3) - np.outer(d, d)
+        a += p
+        b += p @ c
+    if np.linalg.cond(a) < 1e8:
+        center = np.linalg.solve(a, b)
+        dist = np.linalg.norm(centres - center, axis=1).mean()
+    else:
+        dist = 1.0
+        center = centres.mean(0) + dirs.mean(0) * dist
+    half_fov = np.mean([math.atan(0.5 * w / k[0, 0]) for k, w in zip(Ks, widths)])
+    half_size = float(max(dist * math.tan(half_fov), 1e-3))
+    spread = np.linalg.norm(centres - centres.mean(0), axis=1).max()
+    extent = float(1.1 * max(spread, half_size))
+    return SceneBounds(center=center, half_size=half_size, extent=extent)
+
+
+def visible_fraction(points: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray,
+                     widths: np.ndarray, heights: np.ndarray) -> np.ndarray:
+    """Fraction of cameras whose image contains each point (in front of the camera)."""
+    hits = np.zeros(len(points))
+    for v, k, w, h in zip(viewmats, Ks, widths, heights):
+        pc = points @ v[:3, :3].T + v[:3, 3]
+        z = pc[:, 2]
+        safe = np.where(z > 1e-6, z, 1.0)
+        u = k[0, 0] * pc[:, 0] / safe + k[0, 2]
+        vv = k[1, 1] * pc[:, 1] / safe + k[1, 2]
+        hits += (z > 1e-6) & (u >= 0) & (u < w) & (vv >= 0) & (vv < h)
+    return hits / max(len(viewmats), 1)
+
+
+def sample_in_view(bounds: SceneBounds, n: int, viewmats: np.ndarray, Ks: np.ndarray,
+                   widths: np.ndarray, heights: np.ndarray, rng: np.random.Generator,
+                   min_fraction: float = 0.3) -> np.ndarray:
+    """Uniform points in the bounds box that at least ``min_fraction`` of the cameras see.
+
+    Rejection sampling keeps random initialisation (3DGS's synthetic-scene default) from
+    wasting Gaussians where no camera can constrain them.
+    """
+    out: list[np.ndarray] = []
+    total = 0
+    for _ in range(50):
+        cand = bounds.center + rng.uniform(-1.0, 1.0, size=(4 * n, 3)) * bounds.half_size
+        keep = cand[visible_fraction(cand, viewmats, Ks, widths, heights) >= min_fraction]
+        out.append(keep)
+        total += len(keep)
+        if total >= n:
+            break
+    pts = np.concatenate(out) if out else np.zeros((0, 3))
+    if len(pts) < n:
+        extra = bounds.center + rng.uniform(-1.0, 1.0, size=(n - len(pts), 3)) * bounds.half_size
+        pts = np.concatenate([pts, extra])
+    return pts[:n]

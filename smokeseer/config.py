@@ -1,0 +1,261 @@
+"""Typed training configuration: profiles, loss weights, deformation and densification.
+
+Every default names its source in docs/method.md. Profiles are full configs; overrides use
+dotted keys (``"stage3.iterations"``) so the CLI, the metrics harness and tests share one path.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from dataclasses import dataclass, field
+from typing import Any
+
+MODES: tuple[str, ...] = (
+    "full",
+    "rgb-only",
+    "no-smoke-alpha",
+    "no-smoke-color",
+    "no-mono",
+    "no-depth",
+    "no-mask",
+    "deformable-3dgs",
+)
+PROFILES: tuple[str, ...] = ("quick", "paper")
+
+
+@dataclass
+class LossWeights:
+    """Paper λ's (render, smoke_alpha, smoke_color, mono, depth, mask) plus the public code's
+    penalty on mean smoke thermal opacity (weight is ours: the paper does not state it)."""
+
+    render: float = 1.0
+    smoke_alpha: float = 0.1
+    smoke_color: float = 0.05
+    mono: float = 0.1
+    depth: float = 2.0
+    mask: float = 0.5
+    thermal_smoke_opacity: float = 0.01
+    dssim: float = 0.2
+
+
+@dataclass
+class DeformConfig:
+    """Deformable 3DGS MLP defaults: 8×256, skip at layer 4, 10 xyz / 6 t frequencies."""
+
+    depth: int = 8
+    width: int = 256
+    skip_layer: int = 4
+    xyz_frequencies: int = 10
+    t_frequencies: int = 6
+    warmup_iterations: int = 3000
+    lr_init: float = 8e-4
+    lr_final: float = 1.6e-6
+    predict_rotation_scale: bool = False
+
+
+@dataclass
+class DensifyConfig:
+    """3DGS adaptive density control, in iterations of the stage it runs in."""
+
+    start: int = 500
+    stop: int = 15000
+    every: int = 100
+    grad_threshold: float = 2e-4
+    percent_dense: float = 0.01
+    opacity_reset_every: int = 3000
+    prune_opacity: float = 0.005
+    screen_size_threshold: float = 20.0
+    max_gaussians: int = 1_000_000
+
+
+@dataclass
+class LearningRates:
+    """3DGS learning rates; means are scaled by the scene extent and decay exponentially."""
+
+    means_init: float = 1.6e-4
+    means_final: float = 1.6e-6
+    sh_dc: float = 2.5e-3
+    sh_rest: float = 2.5e-3 / 20.0
+    thermal: float = 2.5e-3
+    opacity: float = 0.05
+    scales: float = 5e-3
+    quats: float = 1e-3
+    temporal: float = 1e-3
+
+
+@dataclass
+class Stage2Config:
+    """Vanilla 3DGS on the geometry modality (thermal; RGB when there is no thermal)."""
+
+    iterations: int = 15000
+    init_points: int = 100_000
+    init_opacity: float = 0.1
+    init_scale_max: float = 0.02
+    densify: DensifyConfig = field(default_factory=DensifyConfig)
+
+
+@dataclass
+class Stage3Config:
+    """Joint surface + smoke optimisation."""
+
+    iterations: int = 15000
+    smoke_points: int = 20_000
+    smoke_init_opacity: float = 0.02
+    smoke_init_scale: float = 0.5
+    smoke_densify: DensifyConfig = field(default_factory=lambda: DensifyConfig(opacity_reset_every=0))
+    train_surface_geometry: bool = True
+    test_every: int = 1000
+
+
+@dataclass
+class TrainConfig:
+    """Everything that decides a run; its JSON hash goes in metrics.json."""
+
+    mode: str = "full"
+    profile: str = "quick"
+    seed: int = 0
+    device: str = "cpu"
+    max_width: int = 0
+    sh_degree: int = 3
+    sh_increase_every: int = 1000
+    stage2: Stage2Config = field(default_factory=Stage2Config)
+    stage3: Stage3Config = field(default_factory=Stage3Config)
+    deform: DeformConfig = field(default_factory=DeformConfig)
+    loss: LossWeights = field(default_factory=LossWeights)
+    lr: LearningRates = field(default_factory=LearningRates)
+    depth_prior: str = "thermal-render"
+    mono_weights: str = ""
+    pose_noise_rot_deg: float = 0.0
+    pose_noise_trans: float = 0.0
+    registration: str = "auto"
+    checkpoint_every: int = 1000
+    log_every: int = 10
+    smoke_ply_times: tuple[float, ...] = (0.0, 0.5, 1.0)
+    progress: bool = True
+
+    def validate(self) -> None:
+        """Reject configs that cannot run, naming the field."""
+        if self.mode not in MODES:
+            raise ValueError(f"mode: {self.mode!r} is not one of {', '.join(MODES)}")
+        if self.profile not in PROFILES:
+            raise ValueError(f"profile: {self.profile!r} is not one of {', '.join(PROFILES)}")
+        for name, value in (("stage2.iterations", self.stage2.iterations),
+                            ("stage3.iterations", self.stage3.iterations)):
+            if value < 0:
+                raise ValueError(f"{name}: must be >= 0, got {value}")
+        if not 0 <= self.sh_degree <= 3:
+            raise ValueError(f"sh_degree: must be in 0..3, got {self.sh_degree}")
+        if self.depth_prior not in ("thermal-render", "mono", "none"):
+            raise ValueError(f"depth_prior: {self.depth_prior!r} is not thermal-render, mono or none")
+        if self.registration not in ("auto", "off", "trajectory"):
+            raise ValueError(f"registration: {self.registration!r} is not auto, off or trajectory")
+        if self.deform.skip_layer >= self.deform.depth:
+            raise ValueError("deform.skip_layer: must be below deform.depth")
+        for t in self.smoke_ply_times:
+            if not 0.0 <= t <= 1.0:
+                raise ValueError(f"smoke_ply_times: {t} is outside [0, 1]")
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    def stage2_sha256(self) -> str:
+        """Hash of the settings Stage 2 depends on, so a Stage 2 checkpoint is reused by runs
+        that differ only in Stage 3 (ablations, Stage 3 budgets) on the same geometry."""
+        d = self.to_dict()
+        for key in ("stage3", "loss", "depth_prior", "mono_weights", "smoke_ply_times", "progress",
+                    "log_every", "checkpoint_every", "profile"):
+            d.pop(key)
+        d["mode"] = {"rgb-only": "rgb", "deformable-3dgs": "deformable-3dgs"}.get(self.mode, "thermal")
+        if d["mode"] != "deformable-3dgs":
+            d.pop("deform")
+        return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()
+
+    def sha256(self) -> str:
+        """Hash of the settings that change results (progress display excluded)."""
+        d = self.to_dict()
+        d.pop("progress")
+        return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()
+
+
+def _quick() -> TrainConfig:
+    """Minutes on 2 CPU cores: reduced resolution, iterations and Gaussian counts, with the
+    3DGS schedules scaled to the shorter runs."""
+    s2 = Stage2Config(
+        iterations=1000,
+        init_points=2000,
+        densify=DensifyConfig(start=150, stop=800, every=100, opacity_reset_every=500,
+                              max_gaussians=12_000),
+    )
+    s3 = Stage3Config(
+        iterations=800,
+        smoke_points=800,
+        smoke_densify=DensifyConfig(start=200, stop=600, every=100, opacity_reset_every=0,
+                                    max_gaussians=4_000),
+        test_every=200,
+    )
+    deform = DeformConfig(depth=4, width=64, skip_layer=2, warmup_iterations=200)
+    return TrainConfig(profile="quick", max_width=64, sh_degree=1, sh_increase_every=300,
+                       stage2=s2, stage3=s3, deform=deform, checkpoint_every=200)
+
+
+def _paper() -> TrainConfig:
+    """The paper's schedule: 15k + 15k iterations at full resolution (meant for GPUs)."""
+    return TrainConfig(profile="paper", max_width=0)
+
+
+def make_config(mode: str = "full", profile: str = "quick", seed: int = 0,
+                overrides: dict[str, Any] | None = None) -> TrainConfig:
+    """Build a profile's config, then apply dotted-key overrides (``{"stage3.iterations": 30}``)."""
+    if profile not in PROFILES:
+        raise ValueError(f"profile: {profile!r} is not one of {', '.join(PROFILES)}")
+    cfg = _quick() if profile == "quick" else _paper()
+    cfg.mode = mode
+    cfg.seed = seed
+    for key, value in (overrides or {}).items():
+        _set_dotted(cfg, key, value)
+    cfg.validate()
+    return cfg
+
+
+def _set_dotted(cfg: Any, key: str, value: Any) -> None:
+    parts = key.split(".")
+    target = cfg
+    for p in parts[:-1]:
+        if not dataclasses.is_dataclass(target) or not hasattr(target, p):
+            raise ValueError(f"overrides: unknown key {key!r}")
+        target = getattr(target, p)
+    leaf = parts[-1]
+    if not dataclasses.is_dataclass(target) or leaf not in {f.name for f in dataclasses.fields(target)}:
+        raise ValueError(f"overrides: unknown key {key!r}")
+    current = getattr(target, leaf)
+    if dataclasses.is_dataclass(current):
+        raise ValueError(f"overrides: {key!r} is a section; set one of its fields")
+    if isinstance(current, bool):
+        value = value if isinstance(value, bool) else str(value).lower() in ("1", "true", "yes")
+    elif isinstance(current, int):
+        value = int(value)
+    elif isinstance(current, float):
+        value = float(value)
+    elif isinstance(current, tuple):
+        value = tuple(float(v) for v in value)
+    setattr(target, leaf, value)
+
+
+def config_from_dict(d: dict[str, Any]) -> TrainConfig:
+    """Rebuild a config saved by ``to_dict`` (checkpoints, config.json)."""
+    cfg = TrainConfig()
+    for key, value in _flatten(d).items():
+        _set_dotted(cfg, key, value)
+    cfg.validate()
+    return cfg
+
+
+def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(_flatten(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out

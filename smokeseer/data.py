@@ -1,0 +1,498 @@
+"""Load a generated dataset (docs/dataset-format.md) or a real capture (docs/real-captures.md).
+
+Everything downstream sees one ``SceneData``: OpenCV world-to-camera matrices, intrinsics at
+the working resolution, images as float arrays in [0, 1], and normalised times. Malformed
+input raises ``DatasetError`` naming the file and the field, so the CLI can print one line.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PIL import Image
+
+from smokeseer.cameras import c2w_gl_to_viewmat, intrinsics
+
+
+class DatasetError(ValueError):
+    """Malformed or missing dataset input; the message names the file (and field)."""
+
+
+@dataclass
+class Frame:
+    """One image's camera at the working resolution."""
+
+    file_stem: str
+    viewmat: np.ndarray
+    K: np.ndarray
+    width: int
+    height: int
+    timestamp_s: float
+    time: float
+    split: str
+
+
+@dataclass
+class ModalityData:
+    """All frames of one camera; ``images`` is the training input (smoky), others optional."""
+
+    name: str
+    frames: list[Frame]
+    images: np.ndarray
+    clean: np.ndarray | None = None
+    masks: np.ndarray | None = None
+    depth: np.ndarray | None = None
+    counts_range: tuple[float, float] | None = None
+
+    def indices(self, split: str) -> list[int]:
+        return [i for i, f in enumerate(self.frames) if f.split == split]
+
+    @property
+    def channels(self) -> int:
+        return int(self.images.shape[-1])
+
+
+@dataclass
+class SceneData:
+    """A scene ready for training: RGB always, thermal when the capture has it."""
+
+    name: str
+    path: Path
+    rgb: ModalityData
+    thermal: ModalityData | None
+    smoke_present: bool
+    smoke_static: bool
+    mask_threshold: float
+    synthetic: bool
+    init_points: np.ndarray | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    if not path.is_file():
+        raise DatasetError(f"{path}: missing file")
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise DatasetError(f"{path}: not valid JSON ({exc})") from exc
+    if not isinstance(data, dict):
+        raise DatasetError(f"{path}: top level must be a JSON object")
+    return data
+
+
+def _field(d: dict[str, Any], key: str, path: Path, kind: type | tuple[type, ...]) -> Any:
+    if key not in d:
+        raise DatasetError(f"{path}: missing field {key!r}")
+    value = d[key]
+    if not isinstance(value, kind) or isinstance(value, bool) and kind is not bool:
+        raise DatasetError(f"{path}: field {key!r} has the wrong type ({type(value).__name__})")
+    return value
+
+
+def read_png(path: Path) -> np.ndarray:
+    """PNG as an array: uint8 or uint16 values kept as they are (H×W or H×W×C)."""
+    if not path.is_file():
+        raise DatasetError(f"{path}: missing file")
+    try:
+        with Image.open(path) as im:
+            if im.mode in ("I;16", "I;16B", "I;16L", "I"):
+                return np.asarray(im, dtype=np.uint16 if im.mode != "I" else np.int32).astype(np.float64)
+            if im.mode not in ("L", "RGB", "RGBA", "LA"):
+                im = im.convert("RGB")
+            return np.asarray(im).astype(np.float64)
+    except OSError as exc:
+        raise DatasetError(f"{path}: unreadable image ({exc})") from exc
+
+
+def read_exr(path: Path, channel: str) -> np.ndarray:
+    """One float channel of an EXR file."""
+    import OpenEXR
+
+    if not path.is_file():
+        raise DatasetError(f"{path}: missing file")
+    try:
+        channels = OpenEXR.File(str(path)).channels()
+    except Exception as exc:  # OpenEXR raises plain Exception subclasses for bad files
+        raise DatasetError(f"{path}: unreadable EXR ({exc})") from exc
+    if channel not in channels:
+        raise DatasetError(f"{path}: missing EXR channel {channel!r}")
+    return np.asarray(channels[channel].pixels, dtype=np.float64)
+
+
+def box_downscale(img: np.ndarray, factor: int) -> np.ndarray:
+    """Area-average by an integer factor (crops the remainder), the standard 3DGS downscale."""
+    if factor == 1:
+        return img
+    h = img.shape[0] // factor * factor
+    w = img.shape[1] // factor * factor
+    x = img[:h, :w]
+    shape = (h // factor, factor, w // factor, factor) + x.shape[2:]
+    return x.reshape(shape).mean(axis=(1, 3))
+
+
+def downscale_depth(depth: np.ndarray, factor: int) -> np.ndarray:
+    """Mean of the valid (> 0) depths in each block; 0 where the block saw no surface."""
+    if factor == 1:
+        return depth
+    valid = (depth > 0).astype(np.float64)
+    num = box_downscale(depth * valid, factor)
+    den = box_downscale(valid, factor)
+    return np.where(den > 0.5, num / np.maximum(den, 1e-12), 0.0)
+
+
+def _factor(width: int, max_width: int) -> int:
+    return 1 if max_width <= 0 or width <= max_width else int(math.ceil(width / max_width))
+
+
+def _check_image(arr: np.ndarray, path: Path, h: int, w: int) -> None:
+    if arr.shape[0] != h or arr.shape[1] != w:
+        raise DatasetError(f"{path}: image is {arr.shape[1]}x{arr.shape[0]}, transforms say {w}x{h}")
+
+
+def _rgb01(arr: np.ndarray, path: Path) -> np.ndarray:
+    if arr.ndim == 2:
+        arr = np.repeat(arr[..., None], 3, axis=-1)
+    if arr.shape[-1] == 4:
+        arr = arr[..., :3]
+    if arr.shape[-1] != 3:
+        raise DatasetError(f"{path}: expected an RGB image, got {arr.shape[-1]} channels")
+    scale = 65535.0 if arr.max() > 255 else 255.0
+    return arr / scale
+
+
+def _gray(arr: np.ndarray) -> np.ndarray:
+    return arr if arr.ndim == 2 else arr[..., :3].mean(-1)
+
+
+def _parse_transforms(path: Path, modality: str) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    data = _read_json(path)
+    for key in ("w", "h"):
+        _field(data, key, path, int)
+    for key in ("fl_x", "fl_y", "cx", "cy"):
+        _field(data, key, path, (int, float))
+    frames = _field(data, "frames", path, list)
+    if not frames:
+        raise DatasetError(f"{path}: field 'frames' is empty")
+    for i, fr in enumerate(frames):
+        if not isinstance(fr, dict):
+            raise DatasetError(f"{path}: frames[{i}] is not an object")
+        try:
+            m = np.asarray(fr["transform_matrix"], dtype=np.float64)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise DatasetError(f"{path}: frames[{i}].transform_matrix is missing or not numeric") from exc
+        if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+            raise DatasetError(f"{path}: frames[{i}].transform_matrix must be a finite 4x4 matrix")
+        if abs(np.linalg.det(m[:3, :3])) < 1e-8:
+            raise DatasetError(f"{path}: frames[{i}].transform_matrix has a singular rotation")
+    return data, frames
+
+
+def _frames_from_transforms(path: Path, data: dict[str, Any], frames: list[dict[str, Any]],
+                            factor: int, default_test_every: int) -> list[Frame]:
+    w, h = int(data["w"]) // factor, int(data["h"]) // factor
+    k = intrinsics(data["fl_x"] / factor, data["fl_y"] / factor, data["cx"] / factor, data["cy"] / factor)
+    out = []
+    for i, fr in enumerate(frames):
+        stem = fr.get("file_stem") or Path(str(fr.get("file_path", f"{i:04d}"))).stem
+        ts = fr.get("timestamp_s", None)
+        if ts is not None and not isinstance(ts, (int, float)):
+            raise DatasetError(f"{path}: frames[{i}].timestamp_s is not a number")
+        split = fr.get("split")
+        if split is None:
+            split = "test" if default_test_every > 0 and i % default_test_every == default_test_every // 2 else "train"
+        if split not in ("train", "test"):
+            raise DatasetError(f"{path}: frames[{i}].split must be 'train' or 'test', got {split!r}")
+        out.append(Frame(file_stem=str(stem), viewmat=c2w_gl_to_viewmat(np.asarray(fr["transform_matrix"])),
+                         K=k.copy(), width=w, height=h,
+                         timestamp_s=float(ts) if ts is not None else float(i),
+                         time=float(fr.get("time", 0.0)), split=split))
+    return out
+
+
+def load_scene(path: Path, max_width: int = 0) -> SceneData:
+    """Load a generated dataset (has dataset.json) or a real capture (has capture.json or
+    COLMAP/transforms poses without dataset.json)."""
+    path = Path(path)
+    if not path.is_dir():
+        raise DatasetError(f"{path}: not a directory")
+    if (path / "dataset.json").exists():
+        return _load_synthetic(path, max_width)
+    return _load_capture(path, max_width)
+
+
+def _normalise_counts(stack: np.ndarray) -> tuple[np.ndarray, tuple[float, float]]:
+    """Map raw thermal values to [0, 1] by the dataset's own range (min/max over all frames).
+
+    A per-dataset range keeps the low-contrast LWIR signal spread over [0, 1] whatever the
+    sensor's gain, and works the same for real captures that have no sensor metadata.
+    """
+    lo, hi = float(stack.min()), float(stack.max())
+    if hi - lo < 1e-9:
+        hi = lo + 1.0
+    return (stack - lo) / (hi - lo), (lo, hi)
+
+
+def _load_synthetic(path: Path, max_width: int) -> SceneData:
+    meta = _read_json(path / "dataset.json")
+    if meta.get("format") != "smokeseer-synth-dataset":
+        raise DatasetError(f"{path / 'dataset.json'}: field 'format' must be 'smokeseer-synth-dataset'")
+    passes = _field(meta, "passes", path / "dataset.json", dict)
+    smoke = meta.get("smoke", {}) if isinstance(meta.get("smoke", {}), dict) else {}
+    rgb_passes = passes.get("rgb", [])
+    if "smoky" not in rgb_passes:
+        raise DatasetError(f"{path / 'dataset.json'}: field 'passes.rgb' must include 'smoky'")
+    rgb = _load_synth_modality(path, "rgb", rgb_passes, max_width)
+    thermal_passes = passes.get("thermal", [])
+    thermal = _load_synth_modality(path, "thermal", thermal_passes, max_width) if "smoky" in thermal_passes else None
+    _set_times(rgb, thermal, meta.get("duration_s"))
+    return SceneData(
+        name=str(meta.get("scene", path.name)), path=path.resolve(), rgb=rgb, thermal=thermal,
+        smoke_present=bool(smoke.get("present", True)), smoke_static=bool(smoke.get("static", False)),
+        mask_threshold=float(smoke.get("mask_threshold", 0.02)), synthetic=True, meta=meta)
+
+
+def _load_synth_modality(path: Path, modality: str, passes: list[str], max_width: int) -> ModalityData:
+    tpath = path / f"transforms_{modality}.json"
+    data, raw_frames = _parse_transforms(tpath, modality)
+    factor = _factor(int(data["w"]), max_width)
+    frames = _frames_from_transforms(tpath, data, raw_frames, factor, default_test_every=0)
+    h0, w0 = int(data["h"]), int(data["w"])
+    stems = [f.file_stem for f in frames]
+
+    def stack(sub: str, reader) -> np.ndarray:
+        imgs = []
+        for stem in stems:
+            p = path / modality / sub / f"{stem}{'.exr' if reader is not None else '.png'}"
+            arr = reader(p) if reader is not None else read_png(p)
+            _check_image(arr, p, h0, w0)
+            imgs.append(arr)
+        return np.stack(imgs)
+
+    if modality == "rgb":
+        images = np.stack([box_downscale(_rgb01(a, path / "rgb" / "smoky" / f"{s}.png"), factor)
+                           for a, s in zip(stack("smoky", None), stems)])
+        clean = (np.stack([box_downscale(_rgb01(a, path / "rgb" / "clean" / f"{s}.png"), factor)
+                           for a, s in zip(stack("clean", None), stems)]) if "clean" in passes else None)
+        counts = None
+    else:
+        raw = np.stack([_gray(a) for a in stack("smoky", None)])
+        norm, counts = _normalise_counts(raw)
+        images = np.stack([box_downscale(x, factor)[..., None] for x in norm])
+        clean = None
+        if "clean" in passes:
+            craw = np.stack([_gray(a) for a in stack("clean", None)])
+            clean = np.stack([box_downscale((x - counts[0]) / (counts[1] - counts[0]), factor)[..., None]
+                              for x in craw])
+    masks = depth = None
+    if "smoke_alpha" in passes:
+        masks = np.stack([box_downscale(_gray(a) / 255.0, factor) for a in stack("smoke_mask", None)])
+    if "depth" in passes:
+        depth = np.stack([downscale_depth(a, factor)
+                          for a in stack("depth", lambda p: read_exr(p, "Z"))])
+    _check_finite(images, path / modality / "smoky")
+    return ModalityData(name=modality, frames=frames, images=images.astype(np.float32),
+                        clean=None if clean is None else clean.astype(np.float32),
+                        masks=None if masks is None else masks.astype(np.float32),
+                        depth=None if depth is None else depth.astype(np.float32),
+                        counts_range=counts)
+
+
+def _check_finite(arr: np.ndarray, where: Path) -> None:
+    if not np.all(np.isfinite(arr)):
+        raise DatasetError(f"{where}: images contain NaN or Inf")
+
+
+def _set_times(rgb: ModalityData, thermal: ModalityData | None, duration: Any) -> None:
+    """Normalised time from timestamps: t = (timestamp − first RGB timestamp) / duration."""
+    frames = rgb.frames + (thermal.frames if thermal else [])
+    t0 = min(f.timestamp_s for f in rgb.frames)
+    if isinstance(duration, (int, float)) and duration > 0:
+        span = float(duration)
+    else:
+        span = max(f.timestamp_s for f in frames) - t0
+    span = span if span > 0 else 1.0
+    for f in frames:
+        f.time = float(np.clip((f.timestamp_s - t0) / span, 0.0, 1.0))
+
+
+# ----------------------------------------------------------------------------- real captures
+
+def _load_capture(path: Path, max_width: int) -> SceneData:
+    meta = _read_json(path / "capture.json") if (path / "capture.json").exists() else {}
+    smoke = meta.get("smoke", {}) if isinstance(meta.get("smoke", {}), dict) else {}
+    test_every = int(meta.get("test_every", 8))
+    rgb = _load_capture_modality(path, "rgb", max_width, test_every)
+    if rgb is None:
+        raise DatasetError(f"{path}: no RGB poses (need transforms_rgb.json or rgb/sparse/images.txt)")
+    thermal = _load_capture_modality(path, "thermal", max_width, 0)
+    _set_times(rgb, thermal, meta.get("duration_s"))
+    points = None
+    pts_file = path / "rgb" / "sparse" / "points3D.txt"
+    if pts_file.exists():
+        points = read_colmap_points(pts_file)
+    return SceneData(
+        name=str(meta.get("scene", path.name)), path=path.resolve(), rgb=rgb, thermal=thermal,
+        smoke_present=bool(smoke.get("present", True)), smoke_static=bool(smoke.get("static", False)),
+        mask_threshold=float(smoke.get("mask_threshold", 0.5)), synthetic=False,
+        init_points=points, meta=meta)
+
+
+def _load_capture_modality(path: Path, modality: str, max_width: int,
+                           test_every: int) -> ModalityData | None:
+    tpath = path / f"transforms_{modality}.json"
+    colmap = path / modality / "sparse"
+    if tpath.exists():
+        data, raw = _parse_transforms(tpath, modality)
+        factor = _factor(int(data["w"]), max_width)
+        frames = _frames_from_transforms(tpath, data, raw, factor, test_every if modality == "rgb" else 0)
+        if modality == "thermal":
+            for f in frames:
+                f.split = "train"
+        files = [path / str(fr.get("file_path", f"{modality}/images/{f.file_stem}.png")) for fr, f in zip(raw, frames)]
+        sizes = [(int(data["h"]), int(data["w"]))] * len(frames)
+    elif (colmap / "images.txt").exists():
+        frames, files, sizes, factor = _frames_from_colmap(path, modality, max_width, test_every)
+    else:
+        return None
+    imgs = []
+    for fpath, (h, w) in zip(files, sizes):
+        if not fpath.suffix:
+            fpath = fpath.with_suffix(".png")
+        arr = read_png(fpath)
+        _check_image(arr, fpath, h, w)
+        imgs.append(arr)
+    masks = None
+    if modality == "rgb":
+        images = np.stack([box_downscale(_rgb01(a, p), factor) for a, p in zip(imgs, files)])
+        counts = None
+        mask_files = [path / "rgb" / "masks" / f"{f.file_stem}.png" for f in frames]
+        if all(p.exists() for p in mask_files):
+            masks = np.stack([box_downscale((_gray(read_png(p)) > 127).astype(np.float64), factor)
+                              for p in mask_files]).astype(np.float32)
+    else:
+        norm, counts = _normalise_counts(np.stack([_gray(a) for a in imgs]))
+        images = np.stack([box_downscale(x, factor)[..., None] for x in norm])
+    _check_finite(images, path / modality)
+    return ModalityData(name=modality, frames=frames, images=images.astype(np.float32),
+                        masks=masks, counts_range=counts)
+
+
+def _timestamps(path: Path, modality: str) -> dict[str, float]:
+    tfile = path / modality / "timestamps.csv"
+    if not tfile.exists():
+        return {}
+    out: dict[str, float] = {}
+    with tfile.open() as fh:
+        for row_no, row in enumerate(csv.reader(fh), start=1):
+            if not row or row[0].startswith("#") or row[0] == "name":
+                continue
+            try:
+                out[Path(row[0]).stem] = float(row[1])
+            except (IndexError, ValueError) as exc:
+                raise DatasetError(f"{tfile}: line {row_no} must be 'name,timestamp_s'") from exc
+    return out
+
+
+def read_colmap_cameras(path: Path) -> dict[int, tuple[int, int, np.ndarray]]:
+    """COLMAP cameras.txt → {camera_id: (width, height, K)}; only undistorted pinhole models."""
+    if not path.is_file():
+        raise DatasetError(f"{path}: missing file")
+    cams: dict[int, tuple[int, int, np.ndarray]] = {}
+    for line_no, line in enumerate(path.read_text().splitlines(), start=1):
+        if not line.strip() or line.startswith("#"):
+            continue
+        parts = line.split()
+        try:
+            cid, model, w, h = int(parts[0]), parts[1], int(parts[2]), int(parts[3])
+            params = [float(p) for p in parts[4:]]
+        except (IndexError, ValueError) as exc:
+            raise DatasetError(f"{path}: line {line_no} is not 'ID MODEL W H PARAMS'") from exc
+        if model == "PINHOLE" and len(params) == 4:
+            k = intrinsics(*params)
+        elif model == "SIMPLE_PINHOLE" and len(params) == 3:
+            k = intrinsics(params[0], params[0], params[1], params[2])
+        else:
+            raise DatasetError(f"{path}: line {line_no}: camera model {model} is not supported; "
+                               "undistort to PINHOLE first (colmap image_undistorter)")
+        cams[cid] = (w, h, k)
+    return cams
+
+
+def _quat_to_rot(q: np.ndarray) -> np.ndarray:
+    w, x, y, z = q / np.linalg.norm(q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def read_colmap_images(path: Path) -> list[tuple[str, int, np.ndarray]]:
+    """COLMAP images.txt → [(name, camera_id, OpenCV world-to-camera 4×4)], sorted by name."""
+    if not path.is_file():
+        raise DatasetError(f"{path}: missing file")
+    lines = [ln for ln in path.read_text().splitlines() if not ln.startswith("#")]
+    out = []
+    for i in range(0, len(lines), 2):
+        line = lines[i]
+        if not line.strip():
+            continue
+        parts = line.split()
+        try:
+            q = np.array([float(v) for v in parts[1:5]])
+            t = np.array([float(v) for v in parts[5:8]])
+            cid = int(parts[8])
+            name = parts[9]
+        except (IndexError, ValueError) as exc:
+            raise DatasetError(f"{path}: entry {i // 2 + 1} is not 'ID QW QX QY QZ TX TY TZ CAM NAME'") from exc
+        if not np.all(np.isfinite(q)) or np.linalg.norm(q) < 1e-12 or not np.all(np.isfinite(t)):
+            raise DatasetError(f"{path}: entry {i // 2 + 1} ({name}) has an invalid pose")
+        v = np.eye(4)
+        v[:3, :3] = _quat_to_rot(q)
+        v[:3, 3] = t
+        out.append((name, cid, v))
+    if not out:
+        raise DatasetError(f"{path}: no images listed")
+    return sorted(out, key=lambda e: e[0])
+
+
+def read_colmap_points(path: Path) -> np.ndarray:
+    """COLMAP points3D.txt → N×3 positions (used to initialise Stage 2)."""
+    pts = []
+    for line_no, line in enumerate(path.read_text().splitlines(), start=1):
+        if not line.strip() or line.startswith("#"):
+            continue
+        try:
+            pts.append([float(v) for v in line.split()[1:4]])
+        except ValueError as exc:
+            raise DatasetError(f"{path}: line {line_no} has a non-numeric position") from exc
+    return np.asarray(pts, dtype=np.float64).reshape(-1, 3)
+
+
+def _frames_from_colmap(path: Path, modality: str, max_width: int,
+                        test_every: int) -> tuple[list[Frame], list[Path], list[tuple[int, int]], int]:
+    sparse = path / modality / "sparse"
+    cams = read_colmap_cameras(sparse / "cameras.txt")
+    images = read_colmap_images(sparse / "images.txt")
+    stamps = _timestamps(path, modality)
+    widths = {w for w, _, _ in cams.values()}
+    factor = _factor(max(widths), max_width)
+    frames, files, sizes = [], [], []
+    for i, (name, cid, v) in enumerate(images):
+        if cid not in cams:
+            raise DatasetError(f"{sparse / 'images.txt'}: {name} uses unknown camera {cid}")
+        w, h, k = cams[cid]
+        kk = k.copy()
+        kk[:2] /= factor
+        split = "test" if test_every > 0 and i % test_every == test_every // 2 else "train"
+        stem = Path(name).stem
+        frames.append(Frame(file_stem=stem, viewmat=v, K=kk, width=w // factor, height=h // factor,
+                            timestamp_s=stamps.get(stem, float(i)), time=0.0, split=split))
+        files.append(path / modality / "images" / name)
+        sizes.append((h, w))
+    return frames, files, sizes, factor

@@ -1,0 +1,188 @@
+"""Held-out evaluation and run outputs: renders, metrics against the smoke-free ground truth,
+and PLY exports. Scoring uses eval.metrics so trainer and tables share one convention."""
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from PIL import Image
+
+from eval.metrics import depth_errors, load_lpips, mask_iou, psnr, ssim_3dgs
+from smokeseer.data import SceneData
+from smokeseer.model import SceneModel, View, make_view, sh_coeffs, smoke_sh
+from smokeseer.raster import GaussianPly, write_ply
+
+
+@dataclass
+class TestRenders:
+    """Surface-only renders (the de-smoked prediction) and smoke alpha for each test view."""
+
+    stems: list[str]
+    surface: list[np.ndarray]
+    surface_depth: list[np.ndarray]
+    smoke_alpha: list[np.ndarray | None]
+
+
+def test_views(scene: SceneData, device: torch.device) -> tuple[list[int], list[View]]:
+    idx = scene.rgb.indices("test")
+    fr = scene.rgb.frames
+    return idx, [make_view(fr[i].viewmat, fr[i].K, fr[i].width, fr[i].height, fr[i].time, device) for i in idx]
+
+
+def quick_test_psnr(model: SceneModel, scene: SceneData, device: torch.device) -> float | None:
+    """Mean PSNR of surface-only renders against clean test images (for the run log)."""
+    if scene.rgb.clean is None:
+        return None
+    idx, views = test_views(scene, device)
+    if not idx:
+        return None
+    vals = []
+    with torch.no_grad():
+        for i, v in zip(idx, views):
+            img = model.render_rgb(v, smoke=False).colors[0].clamp(0, 1).cpu().numpy()
+            vals.append(psnr(img, scene.rgb.clean[i]))
+    return float(np.mean(vals))
+
+
+def _save_png8(path: Path, img: np.ndarray) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arr = np.clip(np.round(np.clip(img, 0.0, 1.0) * 255.0), 0, 255).astype(np.uint8)
+    Image.fromarray(arr[..., 0] if arr.shape[-1] == 1 else arr).save(path)
+
+
+def _save_png16(path: Path, counts: np.ndarray) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arr = np.clip(np.round(counts), 0, 65535).astype(np.uint16)
+    Image.fromarray(arr).save(path)
+
+
+def thermal_test_view(scene: SceneData, i: int, device: torch.device) -> View | None:
+    """The thermal camera model at an RGB test frame: the RGB pose (the cameras are co-located
+    on the rig) with the thermal intrinsics and resolution, at the frame's time."""
+    if scene.thermal is None:
+        return None
+    f = scene.rgb.frames[i]
+    t0 = scene.thermal.frames[0]
+    return make_view(f.viewmat, t0.K, t0.width, t0.height, f.time, device)
+
+
+def write_renders(model: SceneModel, scene: SceneData, out: Path, device: torch.device) -> TestRenders:
+    """renders/{composite,surface,smoke,thermal}/NNNN.png for every test view."""
+    idx, views = test_views(scene, device)
+    res = TestRenders([], [], [], [])
+    lo_hi = scene.thermal.counts_range if scene.thermal is not None else None
+    with torch.no_grad():
+        for i, v in zip(idx, views):
+            stem = scene.rgb.frames[i].file_stem
+            comp = model.render_rgb(v)
+            surf = model.render_rgb(v, smoke=False) if model.smoke is not None else comp
+            _save_png8(out / "renders" / "composite" / f"{stem}.png", comp.colors[0].cpu().numpy())
+            surf_img = surf.colors[0].clamp(0, 1).cpu().numpy()
+            _save_png8(out / "renders" / "surface" / f"{stem}.png", surf_img)
+            if model.smoke is not None:
+                smoke = model.render_rgb(v, surface=False).colors[0].cpu().numpy()
+            else:
+                smoke = np.zeros_like(surf_img)
+            _save_png8(out / "renders" / "smoke" / f"{stem}.png", smoke)
+            tv = thermal_test_view(scene, i, device)
+            if tv is not None and "thermal" in model.surface and lo_hi is not None:
+                th = model.render_thermal(tv).colors[0, ..., 0].cpu().numpy()
+                _save_png16(out / "renders" / "thermal" / f"{stem}.png", lo_hi[0] + th * (lo_hi[1] - lo_hi[0]))
+            res.stems.append(stem)
+            res.surface.append(surf_img)
+            res.surface_depth.append(surf.depths[0, ..., 0].cpu().numpy())
+            res.smoke_alpha.append(comp.subset_alphas[0, ..., 0].cpu().numpy()
+                                   if comp.subset_alphas is not None else None)
+    return res
+
+
+def score(renders: TestRenders, scene: SceneData, lpips_weights: str | None) -> dict[str, Any]:
+    """metrics + per_image for metrics.json; metrics are None where the data has no GT."""
+    idx = scene.rgb.indices("test")
+    rgb = scene.rgb
+    per_image: list[dict[str, Any]] = []
+    metrics: dict[str, Any] = {"psnr": None, "ssim": None, "lpips": None, "lpips_status": "",
+                               "psnr_input": None, "depth_absrel": None, "depth_rmse": None,
+                               "mask_iou": None}
+    if not idx:
+        metrics["lpips_status"] = "skipped: no test views"
+        return {"metrics": metrics, "per_image": per_image}
+    scorer, status = load_lpips(lpips_weights)
+    metrics["lpips_status"] = status
+    if rgb.clean is None:
+        metrics["lpips_status"] = "skipped: no clean ground truth"
+        return {"metrics": metrics, "per_image": per_image}
+    lp_vals, ious, absrel, rmse = [], [], [], []
+    for k, i in enumerate(idx):
+        pred = renders.surface[k]
+        gt = rgb.clean[i].astype(np.float64)
+        entry = {"file_stem": renders.stems[k], "psnr": psnr(pred, gt), "ssim": ssim_3dgs(pred, gt),
+                 "psnr_input": psnr(rgb.images[i], gt)}
+        if scorer is not None:
+            entry["lpips"] = float(scorer(pred, gt))
+            lp_vals.append(entry["lpips"])
+        per_image.append(entry)
+        if rgb.depth is not None and np.any(rgb.depth[i] > 0):
+            de = depth_errors(renders.surface_depth[k], rgb.depth[i])
+            absrel.append(de["absrel"])
+            rmse.append(de["rmse"])
+        alpha = renders.smoke_alpha[k]
+        if alpha is not None and rgb.masks is not None:
+            iou = mask_iou(alpha > scene.mask_threshold, rgb.masks[i] > 0.5)
+            if iou is not None:
+                ious.append(iou)
+    metrics["psnr"] = float(np.mean([e["psnr"] for e in per_image]))
+    metrics["ssim"] = float(np.mean([e["ssim"] for e in per_image]))
+    metrics["psnr_input"] = float(np.mean([e["psnr_input"] for e in per_image]))
+    metrics["lpips"] = float(np.mean(lp_vals)) if lp_vals else None
+    metrics["depth_absrel"] = float(np.mean(absrel)) if absrel else None
+    metrics["depth_rmse"] = float(np.mean(rmse)) if rmse else None
+    metrics["mask_iou"] = float(np.mean(ious)) if ious else None
+    for key, val in metrics.items():
+        if isinstance(val, float) and not math.isfinite(val):
+            raise ValueError(f"metrics.{key}: non-finite value {val}")
+    return {"metrics": metrics, "per_image": per_image}
+
+
+def _ply(means: torch.Tensor, quats: torch.Tensor, log_scales: torch.Tensor,
+         opacity: torch.Tensor, sh: torch.Tensor) -> GaussianPly:
+    p = opacity.clamp(1e-6, 1 - 1e-6)
+    return GaussianPly(means=means.detach().cpu().numpy().astype(np.float32),
+                       quats=quats.detach().cpu().numpy().astype(np.float32),
+                       log_scales=log_scales.detach().cpu().numpy().astype(np.float32),
+                       opacity_logits=torch.log(p / (1 - p)).detach().cpu().numpy().astype(np.float32),
+                       sh=sh.detach().cpu().numpy().astype(np.float32))
+
+
+def write_plys(model: SceneModel, out: Path, times: tuple[float, ...]) -> list[Path]:
+    """ply/surface.ply (RGB SH, shared opacity; the deformable-3dgs baseline's at t = 0.5) and
+    ply/smoke_tX.XX.ply per chosen time."""
+    d = out / "ply"
+    d.mkdir(parents=True, exist_ok=True)
+    written = []
+    s = model.surface
+    with torch.no_grad():
+        placed = model.surface_at(0.5)
+        path = d / "surface.ply"
+        write_ply(path, _ply(placed.means, placed.quats, placed.log_scales, torch.sigmoid(s["opacity"]),
+                             sh_coeffs(s)))
+        written.append(path)
+        if model.smoke is not None:
+            k = s["sh_dc"].shape[1] + s["sh_rest"].shape[1]
+            for t in times:
+                placed, o_rgb, _ = model.smoke_at(t)
+                path = d / f"smoke_t{t:.2f}.ply"
+                write_ply(path, _ply(placed.means, placed.quats, placed.log_scales, o_rgb,
+                                     smoke_sh(model.smoke, k)))
+                written.append(path)
+    return written
+
+
+def lpips_weights_from_env() -> str | None:
+    """LPIPS backbone location: $SMOKESEER_LPIPS_WEIGHTS, else eval.metrics' own search."""
+    return os.environ.get("SMOKESEER_LPIPS_WEIGHTS") or None

@@ -1,0 +1,94 @@
+"""Training losses. Images are [H, W, C] tensors; each prior is a separate function so modes
+can switch them off one at a time (docs/method.md gives each definition and its source)."""
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+_SSIM_C1 = 0.01 ** 2
+_SSIM_C2 = 0.03 ** 2
+
+
+def _gauss_window(size: int = 11, sigma: float = 1.5, dtype: torch.dtype = torch.float32) -> Tensor:
+    x = torch.arange(size, dtype=dtype) - size // 2
+    g = torch.exp(-(x ** 2) / (2 * sigma ** 2))
+    g = g / g.sum()
+    return torch.outer(g, g)
+
+
+def ssim(pred: Tensor, target: Tensor) -> Tensor:
+    """Differentiable SSIM with the 3DGS convention (11×11 Gaussian σ=1.5, zero padding,
+    mean over the full map)."""
+    if pred.shape != target.shape or pred.dim() != 3:
+        raise ValueError(f"pred/target: need matching [H, W, C], got {tuple(pred.shape)} and {tuple(target.shape)}")
+    c = pred.shape[-1]
+    x = pred.permute(2, 0, 1)[None]
+    y = target.permute(2, 0, 1)[None]
+    w = _gauss_window(dtype=pred.dtype).to(pred.device).expand(c, 1, 11, 11).contiguous()
+
+    def blur(z: Tensor) -> Tensor:
+        return F.conv2d(z, w, padding=5, groups=c)
+
+    mx, my = blur(x), blur(y)
+    sxx = blur(x * x) - mx * mx
+    syy = blur(y * y) - my * my
+    sxy = blur(x * y) - mx * my
+    num = (2 * mx * my + _SSIM_C1) * (2 * sxy + _SSIM_C2)
+    den = (mx * mx + my * my + _SSIM_C1) * (sxx + syy + _SSIM_C2)
+    return (num / den).mean()
+
+
+def render_loss(pred: Tensor, target: Tensor, dssim_weight: float = 0.2) -> Tensor:
+    """3DGS photometric loss: (1 − λ)·L1 + λ·(1 − SSIM), λ = 0.2."""
+    l1 = (pred - target).abs().mean()
+    if dssim_weight == 0.0:
+        return l1
+    return (1.0 - dssim_weight) * l1 + dssim_weight * (1.0 - ssim(pred, target))
+
+
+def smoke_alpha_variance(opacities: Tensor) -> Tensor:
+    """Variance of the smoke Gaussians' RGB opacities: smoke is a homogeneous medium, so its
+    Gaussians should share one density rather than mimic surface texture."""
+    return opacities.var(unbiased=False) if opacities.numel() > 1 else opacities.sum() * 0.0
+
+
+def smoke_color_variance(colors: Tensor) -> Tensor:
+    """Variance across smoke Gaussians of their colours (per channel, averaged): smoke has one
+    colour, set by its single-scattering albedo and the illumination."""
+    return colors.var(dim=0, unbiased=False).mean() if colors.shape[0] > 1 else colors.sum() * 0.0
+
+
+def monochromaticity(colors: Tensor) -> Tensor:
+    """Variance across R, G, B within each smoke Gaussian: smoke scatters nearly grey."""
+    return colors.var(dim=-1, unbiased=False).mean() if colors.numel() else colors.sum() * 0.0
+
+
+def align_scale_shift(pred: Tensor, prior: Tensor, valid: Tensor) -> tuple[Tensor, Tensor]:
+    """Least-squares (s, b) with s·prior + b ≈ pred over valid pixels, solved in closed form
+    and detached: the prior's per-image scale and shift are nuisance parameters (MiDaS)."""
+    p = prior[valid].double()
+    q = pred.detach()[valid].double()
+    n = p.numel()
+    if n < 2:
+        return torch.ones((), dtype=pred.dtype), torch.zeros((), dtype=pred.dtype)
+    a = torch.stack([torch.stack([(p * p).sum(), p.sum()]), torch.stack([p.sum(), torch.tensor(float(n), dtype=p.dtype)])])
+    rhs = torch.stack([(p * q).sum(), q.sum()])
+    det = torch.det(a)
+    if not torch.isfinite(det) or det.abs() < 1e-12 * max(float((p * p).sum()), 1.0) * n:
+        return torch.ones((), dtype=pred.dtype), (q.mean() - p.mean()).to(pred.dtype)
+    s, b = torch.linalg.solve(a, rhs)
+    return s.to(pred.dtype), b.to(pred.dtype)
+
+
+def depth_consistency(depth: Tensor, prior: Tensor, valid: Tensor) -> Tensor:
+    """L1 between rendered surface depth and the scale/shift-aligned prior, over valid pixels."""
+    if valid.sum() < 2:
+        return depth.sum() * 0.0
+    s, b = align_scale_shift(depth, prior, valid)
+    return (depth[valid] - (s * prior[valid] + b)).abs().mean()
+
+
+def mask_alignment(smoke_alpha: Tensor, mask: Tensor) -> Tensor:
+    """L1 between the accumulated smoke alpha and the smoke mask."""
+    return (smoke_alpha - mask).abs().mean()

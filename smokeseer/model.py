@@ -1,0 +1,201 @@
+"""The SmokeSeer scene: static surface Gaussians, dynamic smoke Gaussians, and their renders.
+
+Surface tensors: ``means quats log_scales opacity`` (one opacity for both modalities), ``thermal``
+(a logit; thermal emission is treated as view-independent) and ``sh_dc``/``sh_rest`` (RGB SH).
+Smoke tensors: ``means quats log_scales opacity_rgb opacity_thermal color thermal`` plus the
+temporal-opacity parameters ``t_lo t_hi t_log_sigma``; smoke lives in a canonical space moved by
+the deformation MLP. A renderer call takes any subset of the two sets, so the composite, the
+surface-only prediction and smoke-only views all come from the same code path.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from smokeseer.deform import DeformNetwork, temporal_opacity
+from smokeseer.gaussians import GaussianSet, knn_log_scales, logit, rgb_to_sh_dc
+from smokeseer.raster import RasterOutput, rasterize
+
+
+@dataclass
+class View:
+    """One camera as batched tensors, plus the normalised time of its frame."""
+
+    viewmat: Tensor
+    K: Tensor
+    width: int
+    height: int
+    time: float
+
+
+def make_view(viewmat: np.ndarray, K: np.ndarray, width: int, height: int, time: float,
+              device: torch.device) -> View:
+    return View(torch.as_tensor(viewmat, dtype=torch.float32, device=device)[None],
+                torch.as_tensor(K, dtype=torch.float32, device=device)[None], width, height, time)
+
+
+def init_gaussians(points: np.ndarray, opacity: float, max_scale: float) -> dict[str, Tensor]:
+    """3DGS initialisation: identity rotation, kNN isotropic scale capped at ``max_scale``
+    (sparse random clouds otherwise start with Gaussians covering whole images, which costs
+    rasterization time and gains nothing), uniform low opacity."""
+    n = len(points)
+    quats = np.zeros((n, 4))
+    quats[:, 0] = 1.0
+    return {
+        "means": torch.as_tensor(points, dtype=torch.float32),
+        "quats": torch.as_tensor(quats, dtype=torch.float32),
+        "log_scales": torch.as_tensor(np.minimum(knn_log_scales(points), np.log(max_scale)), dtype=torch.float32),
+        "opacity": torch.full((n,), float(logit(opacity))),
+    }
+
+
+def add_rgb_sh(tensors: dict[str, Tensor], sh_degree: int, init_rgb: Tensor | None = None) -> None:
+    """Give Gaussians an RGB SH colour (grey unless ``init_rgb`` is given)."""
+    n = tensors["means"].shape[0]
+    rgb = init_rgb if init_rgb is not None else torch.full((n, 3), 0.5)
+    tensors["sh_dc"] = rgb_to_sh_dc(rgb)[:, None, :].float()
+    tensors["sh_rest"] = torch.zeros((n, (sh_degree + 1) ** 2 - 1, 3))
+
+
+def make_smoke(points: np.ndarray, opacity: float, scale: float, max_scale: float,
+               rng: np.random.Generator) -> GaussianSet:
+    """Smoke Gaussians at random positions, grey, faint (opacity and kNN scale × ``scale``
+    chosen so the initial cloud hides little of the surface), with random temporal windows."""
+    base = init_gaussians(points, opacity, max_scale)
+    base["log_scales"] = base["log_scales"] + float(np.log(scale))
+    n = len(points)
+    base["opacity_rgb"] = base.pop("opacity")
+    base["opacity_thermal"] = torch.full((n,), float(logit(opacity)))
+    base["color"] = torch.zeros((n, 3))
+    base["thermal"] = torch.zeros((n, 1))
+    centre = torch.as_tensor(rng.uniform(0.0, 1.0, n), dtype=torch.float32)
+    half = torch.as_tensor(rng.uniform(0.25, 0.5, n), dtype=torch.float32)
+    base["t_lo"] = centre - half
+    base["t_hi"] = centre + half
+    base["t_log_sigma"] = torch.full((n,), float(np.log(0.2)))
+    return GaussianSet(base)
+
+
+@dataclass
+class Placed:
+    """Gaussians placed at one time, ready to concatenate into one rasterizer call."""
+
+    means: Tensor
+    quats: Tensor
+    log_scales: Tensor
+
+
+def place_static(g: GaussianSet) -> Placed:
+    return Placed(g["means"], g.quats, g["log_scales"])
+
+
+def place_deformed(g: GaussianSet, deform: DeformNetwork | None, t: float, center: Tensor,
+                   active: bool) -> Placed:
+    """Canonical Gaussians moved to time t (unchanged during warm-up or without a network)."""
+    if deform is None or not active:
+        return place_static(g)
+    d_xyz, d_rot, d_scale = deform(g["means"], t, center)
+    means = g["means"] + d_xyz
+    if d_rot is None:
+        return Placed(means, g.quats, g["log_scales"])
+    q = g["quats"] + d_rot
+    q = q / q.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    return Placed(means, q, g["log_scales"] + d_scale)
+
+
+def smoke_time_opacity(smoke: GaussianSet, t: float, static: bool) -> Tensor:
+    if static:
+        return torch.ones(smoke.n, device=smoke["means"].device)
+    return temporal_opacity(t, smoke["t_lo"], smoke["t_hi"], smoke["t_log_sigma"])
+
+
+def sh_coeffs(g: GaussianSet) -> Tensor:
+    return torch.cat([g["sh_dc"], g["sh_rest"]], dim=1)
+
+
+def smoke_sh(smoke: GaussianSet, k: int) -> Tensor:
+    """Smoke's view-independent colour as SH (DC only) so it joins the surface's SH pass."""
+    dc = rgb_to_sh_dc(torch.sigmoid(smoke["color"]))[:, None, :]
+    return torch.cat([dc, torch.zeros(smoke.n, k - 1, 3, device=dc.device)], dim=1)
+
+
+def render(view: View, parts: list[tuple[Placed, Tensor, Tensor]], sh_degree: int | None,
+           background: Tensor, subset: int | None = None, normalize_depth: bool = True) -> RasterOutput:
+    """Rasterize several placed sets in one pass. Each part is (placed, opacity, colour); with
+    ``subset`` = k, the k-th part's accumulated alpha is returned in the same pass."""
+    means = torch.cat([p.means for p, _, _ in parts])
+    quats = torch.cat([p.quats for p, _, _ in parts])
+    scales = torch.cat([p.log_scales for p, _, _ in parts])
+    opac = torch.cat([o for _, o, _ in parts])
+    cols = torch.cat([c for _, _, c in parts])
+    mask = None
+    if subset is not None:
+        flags = [torch.full((p.means.shape[0],), i == subset, dtype=torch.bool) for i, (p, _, _) in enumerate(parts)]
+        mask = torch.cat(flags).to(means.device)
+    return rasterize(means, quats, scales, opac, cols, view.viewmat, view.K, view.width, view.height,
+                     sh_degree=sh_degree, log_scales=True, backgrounds=background,
+                     subset_mask=mask, render_depth=True, normalize_depth=normalize_depth)
+
+
+@dataclass
+class SceneModel:
+    """Surface (static) + optional smoke (deformable) Gaussians, rendered per modality."""
+
+    surface: GaussianSet
+    smoke: GaussianSet | None
+    deform: DeformNetwork | None
+    smoke_static: bool
+    center: Tensor
+    sh_degree: int
+    surface_deform: DeformNetwork | None = None
+
+    def surface_at(self, t: float) -> Placed:
+        """Surface Gaussians are static, except in the deformable-3dgs baseline."""
+        if self.surface_deform is None:
+            return place_static(self.surface)
+        return place_deformed(self.surface, self.surface_deform, t, self.center, True)
+
+    def smoke_at(self, t: float, deform_active: bool = True) -> tuple[Placed, Tensor, Tensor]:
+        """Smoke placed at time t with its RGB and thermal opacities (temporal opacity applied)."""
+        if self.smoke is None:
+            raise ValueError("smoke_at: this model has no smoke Gaussians")
+        placed = place_deformed(self.smoke, None if self.smoke_static else self.deform, t, self.center,
+                                deform_active)
+        tw = smoke_time_opacity(self.smoke, t, self.smoke_static)
+        return (placed, torch.sigmoid(self.smoke["opacity_rgb"]) * tw,
+                torch.sigmoid(self.smoke["opacity_thermal"]) * tw)
+
+    def render_rgb(self, view: View, surface: bool = True, smoke: bool = True, degree: int | None = None,
+                   deform_active: bool = True) -> RasterOutput:
+        """RGB = surface ∪ smoke with RGB opacities; with both, smoke alpha comes from the same pass."""
+        degree = self.sh_degree if degree is None else degree
+        k = self.surface["sh_dc"].shape[1] + self.surface["sh_rest"].shape[1]
+        parts = []
+        if surface:
+            parts.append((self.surface_at(view.time), torch.sigmoid(self.surface["opacity"]), sh_coeffs(self.surface)))
+        use_smoke = smoke and self.smoke is not None
+        if use_smoke:
+            placed, o_rgb, _ = self.smoke_at(view.time, deform_active)
+            parts.append((placed, o_rgb, smoke_sh(self.smoke, k)))
+        bg = torch.zeros(3, device=self.center.device)
+        subset = len(parts) - 1 if use_smoke else None
+        if not parts:
+            raise ValueError("render_rgb: nothing to render (no surface and no smoke)")
+        return render(view, parts, degree, bg, subset=subset)
+
+    def render_thermal(self, view: View, surface: bool = True, smoke: bool = True,
+                       deform_active: bool = True) -> RasterOutput:
+        """Thermal = surface ∪ smoke with thermal opacities and 1-channel thermal colours."""
+        parts = []
+        if surface:
+            parts.append((self.surface_at(view.time), torch.sigmoid(self.surface["opacity"]),
+                          torch.sigmoid(self.surface["thermal"])))
+        use_smoke = smoke and self.smoke is not None
+        if use_smoke:
+            placed, _, o_th = self.smoke_at(view.time, deform_active)
+            parts.append((placed, o_th, torch.sigmoid(self.smoke["thermal"])))
+        bg = torch.zeros(1, device=self.center.device)
+        return render(view, parts, None, bg, subset=len(parts) - 1 if use_smoke else None)

@@ -1,0 +1,80 @@
+"""Validate a RUN_DIR against docs/results-format.md (the trainer ↔ tables contract)."""
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+METRIC_KEYS = ("psnr", "ssim", "lpips", "lpips_status", "psnr_input", "depth_absrel", "depth_rmse", "mask_iou")
+TOP_KEYS = ("format", "format_version", "scene", "dataset", "method", "profile", "seed", "status")
+RENDER_DIRS = ("composite", "surface", "smoke")
+
+
+class ResultsFormatError(ValueError):
+    """A run directory that breaks the results contract; the message names the file and field."""
+
+
+def _finite_or_null(path: Path, key: str, value: Any) -> None:
+    if value is None:
+        return
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+        raise ResultsFormatError(f"{path}: field {key!r} must be a finite number or null, got {value!r}")
+
+
+def validate_run_dir(run_dir: Path) -> dict[str, Any]:
+    """Check metrics.json and, for an ``ok`` run, every output file; returns metrics.json."""
+    run_dir = Path(run_dir)
+    mpath = run_dir / "metrics.json"
+    if not mpath.is_file():
+        raise ResultsFormatError(f"{mpath}: missing file")
+    try:
+        doc = json.loads(mpath.read_text(), parse_constant=lambda c: float(c))
+    except json.JSONDecodeError as exc:
+        raise ResultsFormatError(f"{mpath}: not valid JSON ({exc})") from exc
+    for key in TOP_KEYS:
+        if key not in doc:
+            raise ResultsFormatError(f"{mpath}: missing field {key!r}")
+    if doc["format"] != "smokeseer-synth-results" or doc["format_version"] != 1:
+        raise ResultsFormatError(f"{mpath}: field 'format'/'format_version' is not smokeseer-synth-results v1")
+    if doc["status"] == "failed":
+        if not doc.get("error"):
+            raise ResultsFormatError(f"{mpath}: a failed run needs field 'error'")
+        if "metrics" in doc:
+            raise ResultsFormatError(f"{mpath}: a failed run must not carry 'metrics'")
+        return doc
+    if doc["status"] != "ok":
+        raise ResultsFormatError(f"{mpath}: field 'status' must be 'ok' or 'failed', got {doc['status']!r}")
+    metrics = doc.get("metrics")
+    if not isinstance(metrics, dict):
+        raise ResultsFormatError(f"{mpath}: missing field 'metrics'")
+    for key in METRIC_KEYS:
+        if key not in metrics:
+            raise ResultsFormatError(f"{mpath}: missing field 'metrics.{key}'")
+        if key != "lpips_status":
+            _finite_or_null(mpath, f"metrics.{key}", metrics[key])
+    for i, entry in enumerate(doc.get("per_image", [])):
+        for key, value in entry.items():
+            if key != "file_stem":
+                _finite_or_null(mpath, f"per_image[{i}].{key}", value)
+    for key in ("wall_time_s", "versions", "config_sha256"):
+        if key not in doc:
+            raise ResultsFormatError(f"{mpath}: missing field {key!r}")
+    for name in ("config.json", "train_log.csv", "ply/surface.ply"):
+        if not (run_dir / name).is_file():
+            raise ResultsFormatError(f"{run_dir / name}: missing file")
+    with (run_dir / "train_log.csv").open() as fh:
+        header = next(csv.reader(fh), [])
+    for col in ("iteration", "stage", "wall_s", "test_psnr"):
+        if col not in header:
+            raise ResultsFormatError(f"{run_dir / 'train_log.csv'}: missing column {col!r}")
+    stems = [e["file_stem"] for e in doc.get("per_image", [])]
+    for sub in RENDER_DIRS:
+        for stem in stems:
+            p = run_dir / "renders" / sub / f"{stem}.png"
+            if not p.is_file():
+                raise ResultsFormatError(f"{p}: missing file")
+    if not list((run_dir / "checkpoints").glob("stage*.pt")):
+        raise ResultsFormatError(f"{run_dir / 'checkpoints'}: no stageN.pt checkpoint")
+    return doc

@@ -1,0 +1,126 @@
+"""Shared training plumbing: the run log, checkpoints, NaN detection and LR schedules."""
+from __future__ import annotations
+
+import csv
+import math
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any, Iterable
+
+import torch
+from tqdm import tqdm
+
+
+class NaNDetected(RuntimeError):
+    """A loss, gradient or parameter went non-finite; carries where, for the report."""
+
+    def __init__(self, stage: int, iteration: int, tensor: str) -> None:
+        super().__init__(f"non-finite value in {tensor} at stage {stage}, iteration {iteration}")
+        self.stage = stage
+        self.iteration = iteration
+        self.tensor = tensor
+
+
+def exp_lr(step: int, total: int, lr_init: float, lr_final: float) -> float:
+    """3DGS's log-linear decay from lr_init to lr_final over ``total`` steps."""
+    if total <= 0:
+        return lr_init
+    frac = min(max(step / total, 0.0), 1.0)
+    return math.exp((1 - frac) * math.log(lr_init) + frac * math.log(lr_final))
+
+
+def check_finite(stage: int, it: int, named: Iterable[tuple[str, torch.Tensor | None]]) -> None:
+    """Raise NaNDetected naming the first non-finite tensor."""
+    for name, t in named:
+        if t is not None and not bool(torch.isfinite(t).all()):
+            raise NaNDetected(stage, it, name)
+
+
+def grads_of(prefix: str, params: dict[str, torch.nn.Parameter]) -> list[tuple[str, torch.Tensor | None]]:
+    return [(f"{prefix}.{k}.grad", p.grad) for k, p in params.items()]
+
+
+class RunLog:
+    """train_log.csv: iteration, stage, wall_s, loss terms, test_psnr; appends across resumes.
+
+    Columns are fixed up front (every loss term any stage may log) so the file stays one table.
+    """
+
+    COLUMNS = ["stage", "iteration", "wall_s", "n_gaussians", "n_smoke", "loss", "render_rgb",
+               "render_thermal", "smoke_alpha", "smoke_color", "mono", "depth", "mask",
+               "thermal_smoke_opacity", "test_psnr"]
+
+    def __init__(self, path: Path, wall_offset: float = 0.0) -> None:
+        self.path = path
+        self.t0 = time.perf_counter() - wall_offset
+        if not path.exists():
+            with path.open("w", newline="") as fh:
+                csv.writer(fh).writerow(self.COLUMNS)
+
+    def wall(self) -> float:
+        return time.perf_counter() - self.t0
+
+    def write(self, row: dict[str, Any]) -> None:
+        row = dict(row)
+        row.setdefault("wall_s", round(self.wall(), 3))
+        with self.path.open("a", newline="") as fh:
+            csv.writer(fh).writerow([_fmt(row.get(c)) for c in self.COLUMNS])
+
+    def last_wall(self) -> float:
+        """Wall time already spent by earlier (resumed) runs, from the log's last row."""
+        with self.path.open() as fh:
+            rows = list(csv.DictReader(fh))
+        return float(rows[-1]["wall_s"]) if rows and rows[-1].get("wall_s") else 0.0
+
+
+def _fmt(v: Any) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    return str(v)
+
+
+def save_checkpoint(path: Path, payload: dict[str, Any]) -> None:
+    """Atomic write, so an interrupted save never leaves a truncated checkpoint to resume from."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    torch.save(payload, tmp)
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path: Path, config_sha: str) -> dict[str, Any] | None:
+    """A checkpoint from the same config, or None (absent, unreadable, or other settings)."""
+    if not path.exists():
+        return None
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception:  # a corrupt checkpoint means "start this stage again"
+        return None
+    if payload.get("config_sha256") != config_sha:
+        return None
+    return payload
+
+
+class RunContext:
+    """What every stage needs: config, device, output folders, the log and the RNGs."""
+
+    def __init__(self, cfg: Any, out: Path, log: RunLog, scene_center: torch.Tensor, extent: float) -> None:
+        self.cfg = cfg
+        self.out = out
+        self.log = log
+        self.device = torch.device(cfg.device)
+        self.generator = torch.Generator().manual_seed(cfg.seed)
+        self.center = scene_center.to(self.device)
+        self.extent = extent
+        self.config_sha = cfg.sha256()
+        self.stage2_sha = cfg.stage2_sha256()
+
+    def log_line(self, msg: str) -> None:
+        """One human-readable line per stage event, kept clear of the progress bars."""
+        tqdm.write(f"[train-and-evaluate] {msg}", file=sys.stderr)
+
+    def checkpoint_path(self, stage: int) -> Path:
+        return self.out / "checkpoints" / f"stage{stage}.pt"
