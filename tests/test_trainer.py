@@ -79,6 +79,11 @@ def test_full_run_outputs_and_resume(splat: Path, tmp_path: Path) -> None:
     new_rows = _log_rows(run)[n_rows:]
     assert [int(r["iteration"]) for r in new_rows if r["stage"] == "3"] == [9, 12]
     assert not [r for r in new_rows if r["stage"] == "2"]
+    # A different Stage 3 setting (an ablation) reuses the finished Stage 2 and redoes Stage 3.
+    n_rows = len(_log_rows(run))
+    assert main([str(splat), "--out", str(run), "--mode", "no-smoke-color"] + TINY) == 0
+    new_rows = _log_rows(run)[n_rows:]
+    assert {r["stage"] for r in new_rows} == {"3"} and int(new_rows[0]["iteration"]) == 3
 
 
 @pytest.mark.parametrize("mode", ["rgb-only", "deformable-3dgs", "no-mask"])
