@@ -182,8 +182,6 @@ def test_provided_dataset_and_cli_exit_codes(tmp_path: Path, capsys: pytest.Capt
 @pytest.mark.slow
 def test_end_to_end_demo_tiny_budget(tmp_path: Path) -> None:
     """The real generator and trainer on the demo preset: 1 seed, 2 methods, tiny budget."""
-    pytest.importorskip("generator.api", reason="generator API not installed yet")
-    pytest.importorskip("smokeseer.api", reason="trainer API not installed yet")
     out = tmp_path / "tables"
     rc = harness_cli.main(["--scenes", "demo", "--methods", "full,rgb-only", "--no-ablations", "--seeds", "1",
                            "--iterations", "20", "--frames", "6", "--resolution", "48x36", "--samples", "4",
