@@ -11,10 +11,14 @@ param through numpy's PCG64, so a recipe builds the same mesh every time.
 from __future__ import annotations
 
 import math
-from typing import Any, Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
+from itertools import pairwise
+from typing import Any
 
 import bpy
-import bmesh  # after bpy: the module only exists once bpy is loaded
+
+# isort: split
+import bmesh  # importable only once bpy is loaded
 import numpy as np
 from mathutils import Euler, Matrix, Vector
 
@@ -185,7 +189,7 @@ def _tube_bmesh(points: np.ndarray, radii: np.ndarray, segments: int, caps: str)
                 center = pts[end] + sign * tangents[end] * radii[end] * math.sin(phi)
                 chain.append(ring(center, tangents[end], normals[end], radii[end] * math.cos(phi)))
             pole = bm.verts.new(pts[end] + sign * tangents[end] * radii[end])
-            for a, b in zip(chain, chain[1:]):
+            for a, b in pairwise(chain):
                 for k in range(segments):
                     bm.faces.new((a[k], a[(k + 1) % segments], b[(k + 1) % segments], b[k]))
             for k in range(segments):
@@ -193,7 +197,7 @@ def _tube_bmesh(points: np.ndarray, radii: np.ndarray, segments: int, caps: str)
     elif caps == "flat":
         bm.faces.new(rings[0])
         bm.faces.new(rings[-1])
-    for a, b in zip(rings, rings[1:]):
+    for a, b in pairwise(rings):
         for k in range(segments):
             bm.faces.new((a[k], a[(k + 1) % segments], b[(k + 1) % segments], b[k]))
     bmesh.ops.recalc_face_normals(bm, faces=bm.faces[:])
@@ -254,7 +258,7 @@ class Parts:
         """A surface of revolution about Z (screw modifier) of an (r, z) profile, optionally solidified."""
         bm = bmesh.new()
         verts = [bm.verts.new((float(r), 0.0, float(z))) for r, z in profile]
-        for a, b in zip(verts, verts[1:]):
+        for a, b in pairwise(verts):
             bm.edges.new((a, b))
         obj = self.add(bm)
         obj.location = location

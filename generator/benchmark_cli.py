@@ -5,6 +5,11 @@ already there and was made from the same resolved spec is skipped (so an interru
 resumes; an unfinished scene also resumes inside the generator's own staging folder); one
 made from a different spec is regenerated. Every scene prints one line (time, size, smoke
 statistics), and the run writes OUT/benchmark.json and OUT/benchmark.md.
+
+Besides the generator's statistics, each record has the mean RGB smoke opacity inside the
+smoke (where it exceeds the mask threshold), its target `OPACITY_PER_DENSITY x density`,
+and the factor by which the scene's `extinction_per_m` would have to change to meet it:
+the calibration that makes "density" mean the same thing in every scene.
 """
 from __future__ import annotations
 
@@ -18,11 +23,22 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from generator.api import generate, resolve_spec
 from generator.assets import load_manifest
+from generator.dataset_format import PASS_FILES
 from generator.errors import GeneratorError
+from generator.imageio import read_exr_channel
 from generator.job import resolve_asset_materials
-from generator.profiles import BENCHMARK_SCENES, PROFILES, Profile, get_profile, strong_motion
+from generator.profiles import (
+    BENCHMARK_SCENES,
+    OPACITY_PER_DENSITY,
+    PROFILES,
+    Profile,
+    get_profile,
+    strong_motion,
+)
 from generator.spec import SceneSpec
 
 log = logging.getLogger("generate-benchmark")
@@ -32,6 +48,37 @@ def folder_size(path: Path) -> tuple[int, int]:
     """Total bytes and number of files under `path`."""
     files = [p for p in path.rglob("*") if p.is_file()]
     return sum(p.stat().st_size for p in files), len(files)
+
+
+def smoke_alphas(dataset: Path) -> np.ndarray:
+    """Every RGB smoke-opacity image of a dataset, stacked (frames, H, W)."""
+    folder = dataset / PASS_FILES[("rgb", "smoke_alpha")][0].folder
+    files = sorted(folder.glob("*.exr"))
+    if not files:
+        return np.zeros((0, 0, 0), dtype=np.float32)
+    return np.stack([read_exr_channel(f, "A") for f in files])
+
+
+def extinction_scale(alphas: np.ndarray, threshold: float, target: float) -> float:
+    """Factor k on the extinction that brings the mean opacity inside the smoke to `target`.
+
+    Opacity is 1 - transmittance, so scaling every extinction coefficient by k turns a
+    pixel's opacity a into 1 - (1 - a)^k exactly; the mean over the pixels that are smoke
+    now (a > threshold) is monotone in k, and bisection on log k solves for it. NaN when
+    there is no smoke.
+    """
+    inside = np.clip(alphas[alphas > threshold].astype(np.float64), 0.0, 1.0 - 1e-9)
+    if inside.size == 0 or not 0.0 < target < 1.0:
+        return float("nan")
+    log_clear = np.log1p(-inside)
+    lo, hi = np.log(1e-3), np.log(1e3)
+    for _ in range(80):
+        mid = 0.5 * (lo + hi)
+        if float(np.mean(-np.expm1(np.exp(mid) * log_clear))) < target:
+            lo = mid
+        else:
+            hi = mid
+    return float(np.exp(0.5 * (lo + hi)))
 
 
 def _resolved(scene: str, profile: Profile) -> SceneSpec:
@@ -58,11 +105,18 @@ def run_scene(scene: str, profile: Profile, out_root: Path, force: bool, threads
     size, n_files = folder_size(out)
     frames = {m: len(json.loads((out / f"transforms_{m}.json").read_text())["frames"])
               for m in ("rgb", "thermal") if (out / f"transforms_{m}.json").is_file()}
+    alphas = smoke_alphas(out)
+    threshold = spec.smoke.mask_threshold
+    inside = alphas[alphas > threshold]
+    target = OPACITY_PER_DENSITY * spec.smoke.density
     return {
         "scene": scene, "paper_analogue": BENCHMARK_SCENES[scene], "status": "reused" if reused else "generated",
         "density": spec.smoke.density, "fire": spec.has_fire, "strong_motion": strong_motion(spec),
         "frames": frames, "seconds": meta["timings_s"]["total"] if reused else wall,
         "size_bytes": size, "files": n_files, "stats": meta.get("stats", {}),
+        "opacity_in_smoke": float(inside.mean()) if inside.size else None, "target_opacity": target,
+        "extinction_scale": extinction_scale(alphas, threshold, target),
+        "extinction_per_m": spec.smoke.extinction_per_m,
     }
 
 
@@ -73,15 +127,17 @@ def _fmt(value: Any, spec: str) -> str:
 def scene_line(r: dict[str, Any]) -> str:
     s = r["stats"]
     return (f"{r['scene']:<11} {r['status']:<9} {r['seconds']:7.1f} s {r['size_bytes'] / 1e6:7.2f} MB  "
-            f"density {r['density']:.2f}  rgb alpha {_fmt(s.get('rgb_mean_smoke_alpha'), '.3f')}  "
+            f"density {r['density']:.2f}  opacity in smoke {_fmt(r['opacity_in_smoke'], '.3f')} "
+            f"(target {r['target_opacity']:.2f})  rgb alpha {_fmt(s.get('rgb_mean_smoke_alpha'), '.3f')}  "
             f"thermal alpha {_fmt(s.get('thermal_mean_smoke_alpha'), '.4f')}  "
             f"PSNR {_fmt(s.get('psnr_smoky_vs_clean'), '.1f')} dB")
 
 
 def markdown_table(records: list[dict[str, Any]], profile: Profile) -> str:
     head = ("| scene | paper analogue | density | fire | strong motion | frames RGB/thermal | time (s) | size (MB) "
-            "| RGB mean smoke alpha | RGB smoke fraction | thermal mean smoke alpha | PSNR smoky vs clean (dB) |\n"
-            "|---|---|---|---|---|---|---|---|---|---|---|---|\n")
+            "| RGB opacity in smoke (target) | RGB mean smoke alpha | RGB smoke fraction | thermal mean smoke alpha "
+            "| PSNR smoky vs clean (dB) |\n"
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
     rows = []
     for r in records:
         s = r["stats"]
@@ -89,6 +145,7 @@ def markdown_table(records: list[dict[str, Any]], profile: Profile) -> str:
             f"| {r['scene']} | {r['paper_analogue']} | {r['density']:.2f} | {'yes' if r['fire'] else 'no'} "
             f"| {'yes' if r['strong_motion'] else 'no'} | {r['frames'].get('rgb', 0)}/{r['frames'].get('thermal', 0)} "
             f"| {r['seconds']:.0f} | {r['size_bytes'] / 1e6:.1f} "
+            f"| {_fmt(r['opacity_in_smoke'], '.2f')} ({r['target_opacity']:.2f}) "
             f"| {_fmt(s.get('rgb_mean_smoke_alpha'), '.3f')} | {_fmt(s.get('rgb_smoke_fraction'), '.2f')} "
             f"| {_fmt(s.get('thermal_mean_smoke_alpha'), '.4f')} | {_fmt(s.get('psnr_smoky_vs_clean'), '.1f')} |")
     total_s = sum(r["seconds"] for r in records)

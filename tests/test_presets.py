@@ -6,11 +6,17 @@ import numpy as np
 import pytest
 
 from generator.assets import load_manifest
+from generator.benchmark_cli import extinction_scale
 from generator.job import resolve_asset_materials
 from generator.meshgen import RECIPES as MESH_RECIPES
 from generator.meshgen import sample_terrain
 from generator.presets import list_presets, load_preset
-from generator.profiles import BENCHMARK_SCENES, OBJECT_LEVEL, PROFILES, strong_motion
+from generator.profiles import (
+    BENCHMARK_SCENES,
+    OBJECT_LEVEL,
+    PROFILES,
+    strong_motion,
+)
 from generator.rig import rgb_frames, thermal_frames, timeline
 from generator.spec import apply_overrides
 
@@ -52,6 +58,18 @@ def test_densities_are_the_papers(specs: dict) -> None:
         assert densities[name] == pytest.approx(PAPER_DENSITY[analogue])
     assert min(densities.values()) == pytest.approx(0.2)
     assert max(densities.values()) == pytest.approx(1.0)
+
+
+def test_extinction_calibration_inverts_beer_lambert() -> None:
+    """Opacity 1-exp(-tau): scaling tau by k is what `extinction_scale` must recover."""
+    assert extinction_scale(np.full((2, 4, 4), 0.5), 0.02, 0.75) == pytest.approx(2.0, rel=1e-6)
+    rng = np.random.default_rng(1)
+    tau = rng.exponential(0.4, (3, 20, 20))
+    alphas = -np.expm1(-tau)
+    inside = alphas > 0.02
+    target = float(np.mean(-np.expm1(-3.0 * tau[inside])))
+    assert extinction_scale(alphas, 0.02, target) == pytest.approx(3.0, rel=1e-4)
+    assert np.isnan(extinction_scale(np.zeros((1, 3, 3)), 0.02, 0.5))
 
 
 def test_fire_and_strong_motion_counts(specs: dict) -> None:
@@ -131,3 +149,20 @@ def test_profiles_shrink_and_grow_the_presets(specs: dict) -> None:
         assert bench.rig.rgb.width < spec.rig.rgb.width < paper.rig.rgb.width, name
         assert bench.rig.thermal.width < spec.rig.thermal.width < paper.rig.thermal.width, name
         assert bench.sim.resolution < spec.sim.resolution < paper.sim.resolution, name
+
+
+@pytest.mark.slow
+@pytest.mark.blender
+def test_forest_generates_for_real_at_tiny_size(tmp_path) -> None:
+    """Terrain and rock files, 46 recipe objects, fire and wind through the whole pipeline; the
+    smoke is denser in RGB than in LWIR (thermal sees through it)."""
+    from generator.api import generate
+    from generator.dataset_format import validate_dataset
+
+    out = generate("forest", tmp_path / "forest", show_progress=False, frames=2, resolution=(32, 24),
+                   thermal_resolution=(16, 12), sim_resolution=16, samples=4)
+    meta = validate_dataset(out)
+    stats = meta["stats"]
+    assert meta["smoke"]["fire"] and meta["scene"] == "forest"
+    assert stats["rgb_mean_smoke_alpha"] > 0.01
+    assert stats["rgb_mean_smoke_alpha"] > 2 * stats["thermal_mean_smoke_alpha"]
