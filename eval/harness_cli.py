@@ -16,6 +16,7 @@ import yaml
 
 from eval.harness import HarnessConfig, default_workers, regenerate
 from eval.runs import ABLATIONS, METHODS
+from generator.cli import parse_size
 
 
 def _list(s: str) -> list[str]:
@@ -35,19 +36,6 @@ def parse_seeds(s: str) -> list[int]:
     return list(range(n))
 
 
-def parse_size(text: str) -> tuple[int, int]:
-    """`64x48` (WIDTHxHEIGHT) or `64` (square), the generator's size syntax."""
-    try:
-        parts = [int(x) for x in text.lower().split("x")]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}") from None
-    if len(parts) == 1:
-        parts *= 2
-    if len(parts) != 2 or min(parts) < 1:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}")
-    return parts[0], parts[1]
-
-
 def _pairs(items: list[str], flag: str) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for item in items:
@@ -64,6 +52,14 @@ def _known_presets() -> list[str] | None:
     except ImportError:
         return None
     return list(list_presets())
+
+
+def parse_size_checked(text: str) -> tuple[int, int]:
+    """The generator's size syntax, refused at parse time: a bad size would otherwise fail every run."""
+    width, height = parse_size(text)
+    if min(width, height) < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive WIDTHxHEIGHT, got {text!r}")
+    return width, height
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -89,8 +85,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="tiny budget: stage2/stage3 iterations (also sets stage3.test_every to a quarter)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="trainer override, dotted key")
     p.add_argument("--frames", type=int, default=None, help="generator override")
-    p.add_argument("--resolution", type=parse_size, default=None, help="generator override: RGB WIDTHxHEIGHT")
-    p.add_argument("--thermal-resolution", type=parse_size, default=None, help="generator override: WIDTHxHEIGHT")
+    p.add_argument("--resolution", type=parse_size_checked, default=None, help="generator override: RGB WIDTHxHEIGHT")
+    p.add_argument("--thermal-resolution", type=parse_size_checked, default=None, help="generator override: WIDTHxHEIGHT")
     p.add_argument("--samples", type=int, default=None, help="generator override: Cycles samples")
     p.add_argument("--sim-resolution", type=int, default=None, help="generator override: Mantaflow voxels")
     p.add_argument("--gen-set", action="append", default=[], metavar="KEY=VALUE", help="other generator override")

@@ -12,7 +12,7 @@ from generator.presets import list_presets
 log = logging.getLogger("generate-scene")
 
 
-def _size(text: str) -> tuple[int, int]:
+def parse_size(text: str) -> tuple[int, int]:
     """`64x48` or `64` (square) to (width, height)."""
     try:
         parts = [int(p) for p in text.lower().split("x")]
@@ -35,8 +35,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--list-presets", action="store_true", help="list the built-in scenes and exit")
     p.add_argument("--validate", type=Path, metavar="DIR", help="check a dataset against docs/dataset-format.md")
     p.add_argument("--frames", type=int, help="number of RGB frames")
-    p.add_argument("--resolution", type=_size, help="RGB resolution, WIDTHxHEIGHT")
-    p.add_argument("--thermal-resolution", type=_size, help="thermal sensor resolution, WIDTHxHEIGHT")
+    p.add_argument("--resolution", type=parse_size, help="RGB resolution, WIDTHxHEIGHT")
+    p.add_argument("--thermal-resolution", type=parse_size, help="thermal sensor resolution, WIDTHxHEIGHT")
     p.add_argument("--samples", type=int, help="Cycles samples per RGB pixel (also caps thermal samples)")
     p.add_argument("--sim-resolution", type=int, help="Mantaflow voxels along the domain's longest side")
     p.add_argument("--seed", type=int, help="seed for the renderer and sensor noise")
