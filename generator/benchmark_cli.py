@@ -41,8 +41,6 @@ from generator.profiles import (
 )
 from generator.spec import SceneSpec
 
-log = logging.getLogger("generate-benchmark")
-
 
 def folder_size(path: Path) -> tuple[int, int]:
     """Total bytes and number of files under `path`."""

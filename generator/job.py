@@ -30,6 +30,13 @@ class Plan:
     render_passes: dict[str, tuple[str, ...]]
 
 
+def without_absent_passes(spec: SceneSpec) -> SceneSpec:
+    """A smoke-free scene has no smoke opacity to render: drop that pass from the request."""
+    if spec.has_smoke:
+        return spec
+    return replace(spec, passes={m: tuple(p for p in ps if p != "smoke_alpha") for m, ps in spec.passes.items()})
+
+
 def make_plan(spec: SceneSpec) -> Plan:
     line = timeline(spec)
     frames = {"rgb": rgb_frames(spec, line), "thermal": thermal_frames(spec, line)}
@@ -40,8 +47,6 @@ def make_plan(spec: SceneSpec) -> Plan:
             and "smoke_alpha" not in render_passes["thermal"]):
         # The isothermal smoke emission (1-tau)*L(T_amb) is composited from the LWIR alpha.
         render_passes["thermal"] = render_passes["thermal"] + ("smoke_alpha",)
-    if not spec.has_smoke:
-        render_passes = {m: tuple(p for p in ps if p != "smoke_alpha") for m, ps in render_passes.items()}
     return Plan(line, frames, k, optics, render_passes)
 
 

@@ -24,7 +24,7 @@ from generator import postprocess
 from generator.assets import Manifest, load_manifest
 from generator.dataset_format import FORMAT, FORMAT_VERSION, PASS_FILES, file_path, transforms_name, validate_dataset
 from generator.errors import GeneratorError
-from generator.job import Plan, make_job, make_plan, resolve_asset_materials, smoke_coefficients
+from generator.job import without_absent_passes, Plan, make_job, make_plan, resolve_asset_materials, smoke_coefficients
 from generator.optics.sensor import ThermalSensor, ThermalSensorConfig
 from generator.rig import FrameSample, Intrinsics
 from generator.spec import SceneSpec
@@ -151,6 +151,7 @@ def generate(spec: SceneSpec, out: Path, manifest: Manifest | None = None, sourc
         raise GeneratorError(f"{out}: already exists (use --force to replace it)")
     started = time.perf_counter()
     manifest = manifest or load_manifest()
+    spec = without_absent_passes(spec)
     spec = resolve_asset_materials(spec, manifest, source)
     plan = make_plan(spec)
     work = _staging(out, spec)

@@ -326,3 +326,14 @@ def test_interrupted_run_resumes_without_redoing_frames(tmp_path: Path) -> None:
     assert reused and int(reused.group(2)) >= 1, result.stderr
     meta = json.loads((out / "dataset.json").read_text())
     assert meta["timings_s"]["bake"] > 0, "the first run's bake time is kept across the resume"
+
+
+def test_smoke_free_scene_generates_without_smoke_passes(tmp_path: Path) -> None:
+    spec = demo_spec(tmp_path, sources=[])
+    out = tmp_path / "clear"
+    result = run_cli(str(spec), "--out", str(out), "--frames", "2", "--resolution", "32x24", "--quiet")
+    assert result.returncode == 0, result.stderr
+    meta = validate_dataset(out)
+    assert meta["smoke"]["present"] is False and meta["smoke"]["grids"] == []
+    assert meta["passes"]["rgb"] == ["smoky", "clean", "depth"]
+    assert (out / "rgb/smoky/0000.png").read_bytes() == (out / "rgb/clean/0000.png").read_bytes()
