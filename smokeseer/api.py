@@ -118,10 +118,11 @@ def _run(cfg: TrainConfig, dataset: Path, out: Path) -> dict[str, Any]:
     dev = ctx.device
     deformable = cfg.mode == "deformable-3dgs"
 
-    def s2_psnr(g: Any, deform: Any, it: int) -> float | None:
+    def s2_psnr(g: Any, deform: Any, background: Any, it: int) -> float | None:
         if not deformable:
             return None
-        m = SceneModel(g, None, None, True, ctx.center, cfg.sh_degree, surface_deform=deform)
+        m = SceneModel(g, None, None, True, ctx.center, cfg.sh_degree, surface_deform=deform,
+                       background_rgb=background)
         return quick_test_psnr(m, scene, dev)
 
     t = time.perf_counter()
@@ -130,12 +131,13 @@ def _run(cfg: TrainConfig, dataset: Path, out: Path) -> dict[str, Any]:
     ctx.log_line(f"stage 2: {s2.gaussians.n} Gaussians from {geo.name} in {wall['stage2']:.1f} s")
     t = time.perf_counter()
     if deformable:
-        model = SceneModel(s2.gaussians, None, None, True, ctx.center, cfg.sh_degree, surface_deform=s2.deform)
+        model = SceneModel(s2.gaussians, None, None, True, ctx.center, cfg.sh_degree, surface_deform=s2.deform,
+                           background_rgb=s2.background)
         wall["stage3"] = 0.0
         ctx.log_line("stage 3: skipped (deformable-3dgs baseline has one deformable set)")
     else:
         smoke_pts = _sample(scene.rgb, cfg.stage3.smoke_points, b, rng) if switches.use_smoke else None
-        model = build_scene_model(ctx, s2.gaussians, switches, smoke_pts, scene.smoke_static)
+        model = build_scene_model(ctx, s2, switches, smoke_pts, scene.smoke_static)
         prior = _depth_prior(cfg, s2.gaussians, scene, dev)
         model = train_stage3(ctx, model, scene.rgb, scene.thermal, switches, prior,
                              test_psnr=lambda m, it: quick_test_psnr(m, scene, dev))

@@ -82,6 +82,7 @@ class LearningRates:
     scales: float = 5e-3
     quats: float = 1e-3
     temporal: float = 1e-3
+    background: float = 3e-2
 
 
 @dataclass
@@ -124,6 +125,8 @@ class TrainConfig:
     deform: DeformConfig = field(default_factory=DeformConfig)
     loss: LossWeights = field(default_factory=LossWeights)
     lr: LearningRates = field(default_factory=LearningRates)
+    background: str = "environment"
+    background_sh_degree: int = 2
     depth_prior: str = "thermal-render"
     mono_weights: str = ""
     pose_noise_rot_deg: float = 0.0
@@ -146,6 +149,10 @@ class TrainConfig:
                 raise ValueError(f"{name}: must be >= 0, got {value}")
         if not 0 <= self.sh_degree <= 3:
             raise ValueError(f"sh_degree: must be in 0..3, got {self.sh_degree}")
+        if self.background not in ("environment", "black"):
+            raise ValueError(f"background: {self.background!r} is not environment or black")
+        if not 0 <= self.background_sh_degree <= 3:
+            raise ValueError(f"background_sh_degree: must be in 0..3, got {self.background_sh_degree}")
         if self.depth_prior not in ("thermal-render", "mono", "none"):
             raise ValueError(f"depth_prior: {self.depth_prior!r} is not thermal-render, mono or none")
         if self.registration not in ("auto", "off", "trajectory"):

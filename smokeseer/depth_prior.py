@@ -34,9 +34,8 @@ def rendered_depth_prior(geometry: GaussianSet, views: list[View]) -> DepthPrior
         placed = place_static(geometry)
         opac = torch.sigmoid(geometry["opacity"])
         cols = torch.zeros(geometry.n, 1, device=opac.device)
-        bg = torch.zeros(1, device=opac.device)
         for v in views:
-            out = render(v, [(placed, opac, cols)], None, bg, normalize_depth=True)
+            out = render(v, [(placed, opac, cols)], None, None, normalize_depth=True)
             maps.append(out.depths[0, ..., 0])
             valid.append((out.alphas[0, ..., 0] > 0.5) & (out.depths[0, ..., 0] > 0))
     return DepthPriorMaps(torch.stack(maps), torch.stack(valid), "depth")

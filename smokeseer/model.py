@@ -9,12 +9,13 @@ surface-only prediction and smoke-only views all come from the same code path.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
 from torch import Tensor
 
+from smokeseer.background import EnvironmentBackground, composite_over
 from smokeseer.deform import DeformNetwork, temporal_opacity
 from smokeseer.gaussians import GaussianSet, knn_log_scales, logit, rgb_to_sh_dc
 from smokeseer.raster import RasterOutput, rasterize
@@ -123,21 +124,31 @@ def smoke_sh(smoke: GaussianSet, k: int) -> Tensor:
 
 
 def render(view: View, parts: list[tuple[Placed, Tensor, Tensor]], sh_degree: int | None,
-           background: Tensor, subset: int | None = None, normalize_depth: bool = True) -> RasterOutput:
+           background: Tensor | EnvironmentBackground | None, subset: int | None = None,
+           normalize_depth: bool = True) -> RasterOutput:
     """Rasterize several placed sets in one pass. Each part is (placed, opacity, colour); with
-    ``subset`` = k, the k-th part's accumulated alpha is returned in the same pass."""
+    ``subset`` = k, the k-th part's accumulated alpha is returned in the same pass. The
+    background is a constant colour, a learned environment, or None (black)."""
     means = torch.cat([p.means for p, _, _ in parts])
     quats = torch.cat([p.quats for p, _, _ in parts])
     scales = torch.cat([p.log_scales for p, _, _ in parts])
     opac = torch.cat([o for _, o, _ in parts])
     cols = torch.cat([c for _, _, c in parts])
+    channels = cols.shape[-1]
+    env = background if isinstance(background, EnvironmentBackground) else None
+    flat = torch.zeros(channels, dtype=means.dtype, device=means.device) if background is None or env is not None \
+        else background
     mask = None
     if subset is not None:
         flags = [torch.full((p.means.shape[0],), i == subset, dtype=torch.bool) for i, (p, _, _) in enumerate(parts)]
         mask = torch.cat(flags).to(means.device)
-    return rasterize(means, quats, scales, opac, cols, view.viewmat, view.K, view.width, view.height,
-                     sh_degree=sh_degree, log_scales=True, backgrounds=background,
-                     subset_mask=mask, render_depth=True, normalize_depth=normalize_depth)
+    out = rasterize(means, quats, scales, opac, cols, view.viewmat, view.K, view.width, view.height,
+                    sh_degree=sh_degree, log_scales=True, backgrounds=flat,
+                    subset_mask=mask, render_depth=True, normalize_depth=normalize_depth)
+    if env is None:
+        return out
+    sky = env(view.viewmat[0], view.K[0], view.width, view.height)
+    return replace(out, colors=composite_over(out.colors, out.alphas, sky))
 
 
 @dataclass
@@ -151,6 +162,8 @@ class SceneModel:
     center: Tensor
     sh_degree: int
     surface_deform: DeformNetwork | None = None
+    background_rgb: EnvironmentBackground | None = None
+    background_thermal: EnvironmentBackground | None = None
 
     def surface_at(self, t: float) -> Placed:
         """Surface Gaussians are static, except in the deformable-3dgs baseline."""
@@ -170,7 +183,9 @@ class SceneModel:
 
     def render_rgb(self, view: View, surface: bool = True, smoke: bool = True, degree: int | None = None,
                    deform_active: bool = True) -> RasterOutput:
-        """RGB = surface ∪ smoke with RGB opacities; with both, smoke alpha comes from the same pass."""
+        """RGB = surface ∪ smoke with RGB opacities; with both, smoke alpha comes from the same pass.
+        The environment is drawn behind any render that includes the surface (a smoke-only
+        view is shown on black)."""
         degree = self.sh_degree if degree is None else degree
         k = self.surface["sh_dc"].shape[1] + self.surface["sh_rest"].shape[1]
         parts = []
@@ -180,11 +195,10 @@ class SceneModel:
         if use_smoke:
             placed, o_rgb, _ = self.smoke_at(view.time, deform_active)
             parts.append((placed, o_rgb, smoke_sh(self.smoke, k)))
-        bg = torch.zeros(3, device=self.center.device)
         subset = len(parts) - 1 if use_smoke else None
         if not parts:
             raise ValueError("render_rgb: nothing to render (no surface and no smoke)")
-        return render(view, parts, degree, bg, subset=subset)
+        return render(view, parts, degree, self.background_rgb if surface else None, subset=subset)
 
     def render_thermal(self, view: View, surface: bool = True, smoke: bool = True,
                        deform_active: bool = True) -> RasterOutput:
@@ -197,5 +211,5 @@ class SceneModel:
         if use_smoke:
             placed, _, o_th = self.smoke_at(view.time, deform_active)
             parts.append((placed, o_th, torch.sigmoid(self.smoke["thermal"])))
-        bg = torch.zeros(1, device=self.center.device)
-        return render(view, parts, None, bg, subset=len(parts) - 1 if use_smoke else None)
+        return render(view, parts, None, self.background_thermal if surface else None,
+                      subset=len(parts) - 1 if use_smoke else None)

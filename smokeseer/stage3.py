@@ -22,7 +22,7 @@ from smokeseer.gaussians import DensifyStrategy, GaussianSet, make_optimizer
 from smokeseer.losses import (depth_consistency, mask_alignment, monochromaticity, render_loss,
                               smoke_alpha_variance, smoke_color_variance)
 from smokeseer.model import SceneModel, add_rgb_sh, make_smoke, place_static, render
-from smokeseer.stage2 import views_of
+from smokeseer.stage2 import Stage2Result, make_background, views_of
 from smokeseer.trainutil import (NaNDetected, RunContext, check_finite, exp_lr, grads_of,
                                  load_checkpoint, save_checkpoint)
 
@@ -52,12 +52,13 @@ def loss_weights(cfg: TrainConfig) -> dict[str, float]:
     return weights
 
 
-def build_scene_model(ctx: RunContext, surface: GaussianSet, switches: Stage3Switches,
+def build_scene_model(ctx: RunContext, s2: Stage2Result, switches: Stage3Switches,
                       smoke_points: np.ndarray | None, smoke_static: bool) -> SceneModel:
     """Surface from Stage 2 gains an RGB SH colour beside its thermal one (RGB-only runs already
-    have it); smoke starts random in the scene bounds."""
+    have it); smoke starts random in the scene bounds. Stage 2's environment carries over for
+    its modality; the other modality's starts grey."""
     cfg = ctx.cfg
-    tensors = surface.state_dict()
+    tensors = s2.gaussians.state_dict()
     if "sh_dc" not in tensors:
         add_rgb_sh(tensors, cfg.sh_degree)
     tensors = {k: v.to(ctx.device) for k, v in tensors.items()}
@@ -71,7 +72,16 @@ def build_scene_model(ctx: RunContext, surface: GaussianSet, switches: Stage3Swi
             p.data = p.data.to(ctx.device)
         if switches.use_deform:
             deform = DeformNetwork(cfg.deform, ctx.extent).to(ctx.device)
-    return SceneModel(surf, smoke, deform, smoke_static or not switches.use_deform, ctx.center, cfg.sh_degree)
+    thermal_geometry = s2.color == "thermal"
+    bg_rgb = make_background(cfg, 3, ctx.device) if thermal_geometry else s2.background
+    bg_thermal = s2.background if thermal_geometry else None
+    return SceneModel(surf, smoke, deform, smoke_static or not switches.use_deform, ctx.center, cfg.sh_degree,
+                      background_rgb=bg_rgb, background_thermal=bg_thermal)
+
+
+def _backgrounds(model: SceneModel) -> dict[str, torch.nn.Module]:
+    return {name: bg for name, bg in (("background_rgb", model.background_rgb),
+                                      ("background_thermal", model.background_thermal)) if bg is not None}
 
 
 def _surface_lrs(cfg: TrainConfig, g: GaussianSet, extent: float) -> dict[str, float]:
@@ -105,16 +115,23 @@ def train_stage3(ctx: RunContext, model: SceneModel, rgb: ModalityData, thermal:
             model.smoke = GaussianSet({k: v.to(dev) for k, v in ckpt["smoke"].items()})
         if model.deform is not None and ckpt.get("deform") is not None:
             model.deform.load_state_dict(ckpt["deform"])
+        for name, bg in _backgrounds(model).items():
+            if ckpt.get(name) is not None:
+                bg.load_state_dict(ckpt[name])
         start = int(ckpt["iteration"])
     s_opt = make_optimizer(model.surface, _surface_lrs(cfg, model.surface, ctx.extent))
     k_opt = make_optimizer(model.smoke, _smoke_lrs(cfg, ctx.extent)) if model.smoke is not None else None
     d_opt = torch.optim.Adam(model.deform.parameters(), lr=cfg.deform.lr_init) if model.deform is not None else None
+    bg_params = [p for bg in _backgrounds(model).values() for p in bg.parameters()]
+    b_opt = torch.optim.Adam(bg_params, lr=cfg.lr.background) if bg_params else None
     if ckpt is not None:
         s_opt.load_state_dict(ckpt["surface_optimizer"])
         if k_opt is not None and ckpt.get("smoke_optimizer") is not None:
             k_opt.load_state_dict(ckpt["smoke_optimizer"])
         if d_opt is not None and ckpt.get("deform_optimizer") is not None:
             d_opt.load_state_dict(ckpt["deform_optimizer"])
+        if b_opt is not None and ckpt.get("background_optimizer") is not None:
+            b_opt.load_state_dict(ckpt["background_optimizer"])
         if ckpt.get("done"):
             ctx.log_line(f"stage 3: resumed finished stage from {ctx.checkpoint_path(3)}")
             return model
@@ -137,7 +154,9 @@ def train_stage3(ctx: RunContext, model: SceneModel, rgb: ModalityData, thermal:
                 "smoke": model.smoke.state_dict() if model.smoke is not None else None,
                 "smoke_optimizer": k_opt.state_dict() if k_opt is not None else None,
                 "deform": model.deform.state_dict() if model.deform is not None else None,
-                "deform_optimizer": d_opt.state_dict() if d_opt is not None else None}
+                "deform_optimizer": d_opt.state_dict() if d_opt is not None else None,
+                "background_optimizer": b_opt.state_dict() if b_opt is not None else None,
+                **{name: bg.state_dict() for name, bg in _backgrounds(model).items()}}
 
     bar = tqdm(range(start + 1, total + 1), desc="stage 3", disable=not cfg.progress, leave=False)
     for it in bar:
@@ -173,8 +192,8 @@ def train_stage3(ctx: RunContext, model: SceneModel, rgb: ModalityData, thermal:
                 terms["thermal_smoke_opacity"] = torch.sigmoid(model.smoke["opacity_thermal"]).mean()
         if prior is not None and weights["depth"] > 0 and cfg.stage3.train_surface_geometry:
             sout = render(view, [(place_static(model.surface), torch.sigmoid(model.surface["opacity"]),
-                                  torch.zeros(model.surface.n, 1, device=dev))], None,
-                          torch.zeros(1, device=dev), normalize_depth=True)
+                                  torch.zeros(model.surface.n, 1, device=dev))], None, None,
+                          normalize_depth=True)
             d = sout.depths[0, ..., 0]
             valid = prior.valid[k] & (sout.alphas[0, ..., 0] > 0.5)
             if prior.space == "disparity":
@@ -189,6 +208,7 @@ def train_stage3(ctx: RunContext, model: SceneModel, rgb: ModalityData, thermal:
                 named += grads_of("smoke", model.smoke.params)
             if model.deform is not None:
                 named += [(f"deform.{n}.grad", p.grad) for n, p in model.deform.named_parameters()]
+            named += [(f"{name}.coeffs.grad", bg.coeffs.grad) for name, bg in _backgrounds(model).items()]
             check_finite(3, it, named)
         except NaNDetected:
             save_checkpoint(ctx.out / "checkpoints" / "stage3_nan.pt", payload(it - 1, False))
@@ -207,6 +227,9 @@ def train_stage3(ctx: RunContext, model: SceneModel, rgb: ModalityData, thermal:
             if deform_on:
                 d_opt.step()
             d_opt.zero_grad(set_to_none=True)
+        if b_opt is not None:
+            b_opt.step()
+            b_opt.zero_grad(set_to_none=True)
         try:
             named = [(f"surface.{k}", p) for k, p in model.surface.params.items()]
             if model.smoke is not None:

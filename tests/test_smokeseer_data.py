@@ -68,7 +68,8 @@ def _smoke(rng: np.random.Generator, t: float, n: int, opacity: float) -> dict[s
 
 
 def _render(parts: list[dict[str, torch.Tensor]], key: str, opac_scale: list[float], vm: np.ndarray,
-            k: np.ndarray, w: int, h: int, subset_last: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+            k: np.ndarray, w: int, h: int, subset_last: bool,
+            background: tuple[float, ...] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     means = torch.cat([p["means"] for p in parts])
     n = means.shape[0]
     quats = torch.zeros(n, 4)
@@ -81,7 +82,8 @@ def _render(parts: list[dict[str, torch.Tensor]], key: str, opac_scale: list[flo
                     torch.cat([p["opacity"] * s for p, s in zip(parts, opac_scale)]),
                     torch.cat([p[key] for p in parts]),
                     torch.tensor(vm, dtype=torch.float32)[None], torch.tensor(k, dtype=torch.float32)[None], w, h,
-                    backgrounds=torch.zeros(parts[0][key].shape[1]), subset_mask=mask, normalize_depth=True)
+                    backgrounds=torch.tensor(background, dtype=torch.float32) if background is not None
+                    else torch.zeros(parts[0][key].shape[1]), subset_mask=mask, normalize_depth=True)
     sub = out.subset_alphas[0, ..., 0].numpy() if mask is not None else None
     return out.colors[0].numpy(), out.depths[0, ..., 0].numpy(), sub
 
@@ -101,9 +103,11 @@ def _png(path: Path, arr: np.ndarray) -> None:
 
 def write_splat_dataset(path: Path, smoke: str = "moving", n_rgb: int = 12, n_thermal: int = 9,
                         rgb_size: tuple[int, int] = (48, 36), thermal_size: tuple[int, int] = (32, 24),
-                        seed: int = 0, static_flag: bool = False) -> Path:
+                        seed: int = 0, static_flag: bool = False,
+                        sky: tuple[float, float, float] | None = None) -> Path:
     """Write a dataset in the documented format. ``smoke``: "moving", "none" or "opaque";
-    ``static_flag`` only sets ``smoke.static`` in dataset.json."""
+    ``static_flag`` only sets ``smoke.static`` in dataset.json; ``sky`` is a constant RGB
+    radiance behind the scene (black when None; thermal stays black)."""
     rng = np.random.default_rng(seed)
     surf = _surface(rng)
     duration = 1.0
@@ -127,10 +131,11 @@ def write_splat_dataset(path: Path, smoke: str = "moving", n_rgb: int = 12, n_th
             frames.append({"index": i, "file_stem": stem, "timestamp_s": ts, "time": min(t, 1.0),
                            "sim_frame": i, "split": split, "transform_matrix": c2w.tolist()})
             sm = _smoke(np.random.default_rng(seed + 100), t, 150, max(opacity, 1e-3))
-            clean, depth, _ = _render([surf], modality if modality == "thermal" else "rgb", [1.0], vm, k, w, h, False)
             key = "thermal" if modality == "thermal" else "rgb"
+            bg = sky if modality == "rgb" else None
+            clean, depth, _ = _render([surf], key, [1.0], vm, k, w, h, False, bg)
             th_scale = 0.05 if modality == "thermal" else 1.0
-            smoky, _, alpha = _render([surf, sm], key, [1.0, th_scale if opacity > 0 else 0.0], vm, k, w, h, True)
+            smoky, _, alpha = _render([surf, sm], key, [1.0, th_scale if opacity > 0 else 0.0], vm, k, w, h, True, bg)
             root = path / modality
             if modality == "rgb":
                 _png(root / "smoky" / f"{stem}.png", np.round(np.clip(smoky, 0, 1) * 255).astype(np.uint8))
