@@ -17,6 +17,7 @@ import yaml
 from eval.harness import HarnessConfig, default_workers, regenerate
 from eval.runs import ABLATIONS, METHODS
 from generator.cli import parse_size
+from generator.profiles import get_profile
 
 
 def _list(s: str) -> list[str]:
@@ -84,6 +85,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--iterations", type=int, default=None,
                    help="tiny budget: stage2/stage3 iterations (also sets stage3.test_every to a quarter)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="trainer override, dotted key")
+    p.add_argument("--gen-profile", choices=("bench", "paper", "native"), default=None,
+                   help="generator size profile for the scenes (default: bench with --profile quick, paper "
+                        "with --profile paper; native keeps each preset's own size); the flags below refine it")
     p.add_argument("--frames", type=int, default=None, help="generator override")
     p.add_argument("--resolution", type=parse_size_checked, default=None, help="generator override: RGB WIDTHxHEIGHT")
     p.add_argument("--thermal-resolution", type=parse_size_checked, default=None, help="generator override: WIDTHxHEIGHT")
@@ -119,7 +123,9 @@ def config_from_args(args: argparse.Namespace) -> HarnessConfig:
         train.setdefault("stage2.iterations", args.iterations)
         train.setdefault("stage3.iterations", args.iterations)
         train.setdefault("stage3.test_every", max(1, args.iterations // 4))
-    gen = _pairs(args.gen_set, "--gen-set")
+    gen_profile = args.gen_profile or ("bench" if args.profile == "quick" else "paper")
+    gen = {} if gen_profile == "native" else get_profile(gen_profile).kwargs()
+    gen.update(_pairs(args.gen_set, "--gen-set"))
     for key in ("frames", "resolution", "thermal_resolution", "samples", "sim_resolution"):
         if getattr(args, key) is not None:
             gen[key] = getattr(args, key)

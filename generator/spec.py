@@ -170,7 +170,15 @@ class SceneSpec:
         return any(s.kind in ("fire", "both") for s in self.sources)
 
     def to_dict(self) -> dict[str, Any]:
-        return _to_yaml_ready(asdict(self))
+        """The spec as plain YAML-ready data that `parse_spec` reads back to an equal spec
+        (a material's name is its key, so it is not repeated inside the entry)."""
+        d = _to_yaml_ready(asdict(self))
+        for entry in d["materials"].values():
+            entry.pop("name")
+        for source in d["sources"]:
+            source["type"] = source.pop("kind")
+        d["passes"] = [f"{m}.{p}" for m, names in self.passes.items() for p in names]
+        return d
 
     def sha256(self) -> str:
         text = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))

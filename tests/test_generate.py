@@ -21,6 +21,7 @@ from generator.imageio import read_exr_channel, read_png
 from generator.optics.slab import slab_radiance
 from generator.optics.planck import band_radiance
 from generator.presets import PRESET_DIR
+from generator.spec import load_spec_file
 
 pytestmark = pytest.mark.blender
 REPO = Path(__file__).resolve().parents[1]
@@ -53,6 +54,8 @@ def test_demo_dataset_is_valid(demo_dataset: Path) -> None:
     assert thermal["w"] < rgb["w"] and thermal["fps"] != rgb["fps"]
     assert meta["versions"]["bpy"].startswith("4.5") and meta["seed"] == 0
     assert meta["timings_s"]["bake"] > 0 and all(v > 0 for v in meta["timings_s"]["render"].values())
+    # The recorded scene.yaml is a spec in its own right: it loads back to the spec that was hashed.
+    assert load_spec_file(demo_dataset / "scene.yaml").sha256() == meta["spec_sha256"]
 
 
 def test_validator_rejects_broken_data(demo_dataset: Path, tmp_path: Path) -> None:

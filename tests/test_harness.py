@@ -19,6 +19,7 @@ from PIL import Image
 from eval import harness_cli
 from eval.harness import HarnessConfig, regenerate
 from eval.metrics import psnr, ssim_3dgs
+from generator.profiles import get_profile
 
 
 def write_tiny_dataset(root: Path, scene: str, seed: int = 0, frames: int = 4) -> Path:
@@ -177,6 +178,12 @@ def test_provided_dataset_and_cli_exit_codes(tmp_path: Path, capsys: pytest.Capt
     assert cfg.seeds == [0, 1] and cfg.ablations == []
     assert cfg.train_overrides == {"loss.depth": 1.5, "stage2.iterations": 40, "stage3.iterations": 40,
                                    "stage3.test_every": 10}
+    # Datasets follow the training profile's size unless told otherwise; flags refine the profile.
+    assert cfg.gen_overrides == get_profile("bench").kwargs()
+    args = harness_cli.build_parser().parse_args(["--scenes", "chair", "--profile", "paper", "--frames", "30"])
+    assert harness_cli.config_from_args(args).gen_overrides == {**get_profile("paper").kwargs(), "frames": 30}
+    args = harness_cli.build_parser().parse_args(["--scenes", "chair", "--gen-profile", "native", "--samples", "8"])
+    assert harness_cli.config_from_args(args).gen_overrides == {"samples": 8}
 
 
 @pytest.mark.slow
@@ -184,7 +191,8 @@ def test_end_to_end_demo_tiny_budget(tmp_path: Path) -> None:
     """The real generator and trainer on the demo preset: 1 seed, 2 methods, tiny budget."""
     out = tmp_path / "tables"
     rc = harness_cli.main(["--scenes", "demo", "--methods", "full,rgb-only", "--no-ablations", "--seeds", "1",
-                           "--iterations", "20", "--frames", "6", "--resolution", "48x36", "--samples", "4",
+                           "--iterations", "20", "--gen-profile", "native", "--frames", "6",
+                           "--resolution", "48x36", "--samples", "4",
                            "--workers", "1", "--out", str(out)])
     assert rc == 0, (out / "report.md").read_text()
     runs = json.loads((out / "results.json").read_text())["runs"]

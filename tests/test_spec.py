@@ -22,6 +22,13 @@ def test_presets_load_and_hash_is_stable() -> None:
     assert a.has_smoke and not a.has_fire
 
 
+@pytest.mark.parametrize("name", list_presets())
+def test_written_spec_loads_back_to_an_equal_spec(name: str) -> None:
+    spec = load_preset(name)
+    back = parse_spec(yaml.safe_load(yaml.safe_dump(spec.to_dict(), sort_keys=False)), "scene.yaml")
+    assert back == spec and back.sha256() == spec.sha256()
+
+
 @pytest.mark.parametrize("mutate, field", [
     (lambda d: d["rig"]["rgb"].update(width=-64), "rig.rgb.width"),
     (lambda d: d.update(frames=0), "frames"),
