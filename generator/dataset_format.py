@@ -50,9 +50,10 @@ def transforms_name(modality: str) -> str:
     return f"transforms_{modality}.json"
 
 
-def _load_json(path: Path) -> dict[str, Any]:
+def load_json(path: Path) -> dict[str, Any]:
+    """A JSON object from ``path``; DatasetError names the file when it is missing or malformed."""
     if not path.is_file():
-        raise DatasetError(f"{path}: missing")
+        raise DatasetError(f"{path}: missing file")
     try:
         data = json.loads(path.read_text())
     except json.JSONDecodeError as exc:
@@ -62,7 +63,8 @@ def _load_json(path: Path) -> dict[str, Any]:
     return data
 
 
-def _need(data: dict[str, Any], key: str, path: Path, kind: type | tuple[type, ...]) -> Any:
+def need_field(data: dict[str, Any], key: str, path: Path, kind: type | tuple[type, ...]) -> Any:
+    """``data[key]``, which must exist and be of ``kind`` (bools are not numbers)."""
     if key not in data:
         raise DatasetError(f"{path}: field {key!r} is missing")
     if not isinstance(data[key], kind) or isinstance(data[key], bool) and kind is not bool:
@@ -90,15 +92,15 @@ def check_pose(matrix: Any, where: str) -> np.ndarray:
 
 def load_transforms(root: Path, modality: str) -> dict[str, Any]:
     path = root / transforms_name(modality)
-    data = _load_json(path)
+    data = load_json(path)
     for key in ("w", "h"):
-        if _need(data, key, path, int) <= 0:
+        if need_field(data, key, path, int) <= 0:
             raise DatasetError(f"{path}: field {key!r} must be positive")
     for key in ("fl_x", "fl_y", "cx", "cy"):
-        value = _need(data, key, path, (int, float))
+        value = need_field(data, key, path, (int, float))
         if not math.isfinite(value) or (key.startswith("fl") and value <= 0):
             raise DatasetError(f"{path}: field {key!r} must be finite{' and positive' if key.startswith('fl') else ''}")
-    frames = _need(data, "frames", path, list)
+    frames = need_field(data, "frames", path, list)
     for i, frame in enumerate(frames):
         where = f"{path}: frames[{i}]"
         if not isinstance(frame, dict):
@@ -144,14 +146,14 @@ def validate_dataset(root: Path, check_images: bool = True) -> dict[str, Any]:
     if not root.is_dir():
         raise DatasetError(f"{root}: not a directory")
     meta_path = root / "dataset.json"
-    meta = _load_json(meta_path)
+    meta = load_json(meta_path)
     if meta.get("format") != FORMAT:
         raise DatasetError(f"{meta_path}: field 'format' must be {FORMAT!r}")
     if meta.get("format_version") != FORMAT_VERSION:
         raise DatasetError(f"{meta_path}: unsupported format_version {meta.get('format_version')!r}")
     for key, kind in (("scene", str), ("seed", int), ("passes", dict), ("smoke", dict), ("versions", dict),
                       ("duration_s", (int, float)), ("sim_fps", int)):
-        _need(meta, key, meta_path, kind)
+        need_field(meta, key, meta_path, kind)
     for modality, passes in meta["passes"].items():
         if modality not in ("rgb", "thermal") or not isinstance(passes, list):
             raise DatasetError(f"{meta_path}: field 'passes' has a bad entry {modality!r}")
@@ -170,7 +172,7 @@ def validate_dataset(root: Path, check_images: bool = True) -> dict[str, Any]:
                     elif not path.is_file():
                         raise DatasetError(f"{path}: missing")
     if "thermal" in meta["passes"] and meta["passes"]["thermal"]:
-        sensor = _need(meta, "thermal_sensor", meta_path, dict)
+        sensor = need_field(meta, "thermal_sensor", meta_path, dict)
         for key in ("gain", "offset", "bits"):
-            _need(sensor, key, meta_path, (int, float))
+            need_field(sensor, key, meta_path, (int, float))
     return meta

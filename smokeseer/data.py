@@ -7,7 +7,6 @@ input raises ``DatasetError`` naming the file and the field, so the CLI can prin
 from __future__ import annotations
 
 import csv
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,11 +15,11 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
+from generator.dataset_format import load_json, need_field
+from generator.errors import DatasetError
 from smokeseer.cameras import c2w_gl_to_viewmat, intrinsics
 
-
-class DatasetError(ValueError):
-    """Malformed or missing dataset input; the message names the file (and field)."""
+__all__ = ["DatasetError", "Frame", "ModalityData", "SceneData", "load_scene"]
 
 
 @dataclass
@@ -71,27 +70,6 @@ class SceneData:
     synthetic: bool
     init_points: np.ndarray | None = None
     meta: dict[str, Any] = field(default_factory=dict)
-
-
-def _read_json(path: Path) -> dict[str, Any]:
-    if not path.is_file():
-        raise DatasetError(f"{path}: missing file")
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise DatasetError(f"{path}: not valid JSON ({exc})") from exc
-    if not isinstance(data, dict):
-        raise DatasetError(f"{path}: top level must be a JSON object")
-    return data
-
-
-def _field(d: dict[str, Any], key: str, path: Path, kind: type | tuple[type, ...]) -> Any:
-    if key not in d:
-        raise DatasetError(f"{path}: missing field {key!r}")
-    value = d[key]
-    if not isinstance(value, kind) or isinstance(value, bool) and kind is not bool:
-        raise DatasetError(f"{path}: field {key!r} has the wrong type ({type(value).__name__})")
-    return value
 
 
 def read_png(path: Path) -> np.ndarray:
@@ -170,12 +148,12 @@ def _gray(arr: np.ndarray) -> np.ndarray:
 
 
 def _parse_transforms(path: Path, modality: str) -> tuple[dict[str, Any], list[dict[str, Any]]]:
-    data = _read_json(path)
+    data = load_json(path)
     for key in ("w", "h"):
-        _field(data, key, path, int)
+        need_field(data, key, path, int)
     for key in ("fl_x", "fl_y", "cx", "cy"):
-        _field(data, key, path, (int, float))
-    frames = _field(data, "frames", path, list)
+        need_field(data, key, path, (int, float))
+    frames = need_field(data, "frames", path, list)
     if not frames:
         raise DatasetError(f"{path}: field 'frames' is empty")
     for i, fr in enumerate(frames):
@@ -238,10 +216,10 @@ def _normalise_counts(stack: np.ndarray) -> tuple[np.ndarray, tuple[float, float
 
 
 def _load_synthetic(path: Path, max_width: int) -> SceneData:
-    meta = _read_json(path / "dataset.json")
+    meta = load_json(path / "dataset.json")
     if meta.get("format") != "smokeseer-synth-dataset":
         raise DatasetError(f"{path / 'dataset.json'}: field 'format' must be 'smokeseer-synth-dataset'")
-    passes = _field(meta, "passes", path / "dataset.json", dict)
+    passes = need_field(meta, "passes", path / "dataset.json", dict)
     smoke = meta.get("smoke", {}) if isinstance(meta.get("smoke", {}), dict) else {}
     rgb_passes = passes.get("rgb", [])
     if "smoky" not in rgb_passes:
@@ -323,7 +301,7 @@ def _set_times(rgb: ModalityData, thermal: ModalityData | None, duration: Any) -
 # ----------------------------------------------------------------------------- real captures
 
 def _load_capture(path: Path, max_width: int) -> SceneData:
-    meta = _read_json(path / "capture.json") if (path / "capture.json").exists() else {}
+    meta = load_json(path / "capture.json") if (path / "capture.json").exists() else {}
     smoke = meta.get("smoke", {}) if isinstance(meta.get("smoke", {}), dict) else {}
     test_every = int(meta.get("test_every", 8))
     rgb = _load_capture_modality(path, "rgb", max_width, test_every)
