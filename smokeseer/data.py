@@ -203,16 +203,31 @@ def load_scene(path: Path, max_width: int = 0) -> SceneData:
     return _load_capture(path, max_width)
 
 
+THERMAL_RANGE_PERCENTILES = (0.5, 99.5)
+
+
 def _normalise_counts(stack: np.ndarray) -> tuple[np.ndarray, tuple[float, float]]:
-    """Map raw thermal values to [0, 1] by the dataset's own range (min/max over all frames).
+    """Map raw thermal values to [0, 1] by the dataset's own robust range: the 0.5th and 99.5th
+    percentiles over all frames, clipped outside.
 
     A per-dataset range keeps the low-contrast LWIR signal spread over [0, 1] whatever the
-    sensor's gain, and works the same for real captures that have no sensor metadata.
+    sensor's gain, and works the same for real captures that have no sensor metadata. The
+    percentiles matter: one small hot object (a heater, a fire) otherwise sets the top of the
+    range and squeezes the rest of the scene into a few percent of it, where the photometric
+    loss barely sees geometry (measured on the brick_toy bench scene: 90 % of pixels within
+    0.06 of each other under min/max).
     """
-    lo, hi = float(stack.min()), float(stack.max())
+    lo, hi = (float(v) for v in np.percentile(stack, THERMAL_RANGE_PERCENTILES))
+    if hi - lo < 1e-9:
+        lo, hi = float(stack.min()), float(stack.max())
     if hi - lo < 1e-9:
         hi = lo + 1.0
-    return (stack - lo) / (hi - lo), (lo, hi)
+    return normalise_with(stack, (lo, hi)), (lo, hi)
+
+
+def normalise_with(stack: np.ndarray, counts: tuple[float, float]) -> np.ndarray:
+    """Raw thermal values to [0, 1] with a range from ``_normalise_counts``."""
+    return np.clip((stack - counts[0]) / (counts[1] - counts[0]), 0.0, 1.0)
 
 
 def _load_synthetic(path: Path, max_width: int) -> SceneData:
@@ -264,8 +279,7 @@ def _load_synth_modality(path: Path, modality: str, passes: list[str], max_width
         clean = None
         if "clean" in passes:
             craw = np.stack([_gray(a) for a in stack("clean", None)])
-            clean = np.stack([box_downscale((x - counts[0]) / (counts[1] - counts[0]), factor)[..., None]
-                              for x in craw])
+            clean = np.stack([box_downscale(normalise_with(x, counts), factor)[..., None] for x in craw])
     masks = depth = None
     if "smoke_alpha" in passes:
         masks = np.stack([box_downscale(_gray(a) / 255.0, factor) for a in stack("smoke_mask", None)])
