@@ -255,3 +255,19 @@ def test_real_capture_with_colmap_text(tmp_path: Path, splat_dataset: Path) -> N
     (cap / "rgb" / "sparse" / "cameras.txt").write_text("1 OPENCV 48 36 40 40 24 18 0.1 0 0 0\n")
     with pytest.raises(DatasetError, match="cameras.txt.*OPENCV"):
         load_scene(cap)
+
+
+def test_thermal_range_ignores_a_small_hot_object() -> None:
+    from smokeseer.data import _normalise_counts, normalise_with
+
+    rng = np.random.default_rng(0)
+    stack = rng.uniform(5000.0, 5600.0, size=(6, 40, 50))
+    stack[:, :3, :3] = 11000.0  # a heater: 0.36 % of the pixels
+    norm, (lo, hi) = _normalise_counts(stack)
+    scene = norm[:, 3:, 3:]
+    assert 5000.0 <= lo < 5010.0 and 5590.0 < hi <= 5600.0
+    assert np.percentile(scene, 99) - np.percentile(scene, 1) > 0.95
+    assert norm.min() == 0.0 and norm.max() == 1.0 and np.all(norm[:, :3, :3] == 1.0)
+    np.testing.assert_allclose(normalise_with(stack[:, 3:, 3:], (lo, hi)), scene)
+    flat, (flo, fhi) = _normalise_counts(np.full((2, 4, 4), 7.0))
+    assert fhi > flo and np.all(np.isfinite(flat))
