@@ -151,7 +151,8 @@ def train_stage2(ctx: RunContext, mod: ModalityData, init_points: np.ndarray, de
             raise
         strategy.step(it, g, opt, ctx.generator)
         if it % cfg.log_every == 0 or it == total:
-            tp = test_psnr(g, deform, background, it) if test_psnr is not None and it % cfg.stage3.test_every == 0 else None
+            due = test_psnr is not None and it % cfg.stage3.test_every == 0
+            tp = test_psnr(g, deform, background, it) if due else None
             ctx.log.write({"stage": 2, "iteration": it, "n_gaussians": g.n, "loss": float(loss.detach()),
                            f"render_{'thermal' if color == 'thermal' else 'rgb'}": float(loss.detach()),
                            "test_psnr": tp})

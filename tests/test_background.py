@@ -88,7 +88,8 @@ def test_environment_gradients_match_finite_differences() -> None:
     placed, opac, col, view = _one_blob()
     env = EnvironmentBackground(3, degree=2).double()
     with torch.no_grad():
-        env.coeffs.copy_(torch.randn(env.coeffs.shape, generator=torch.Generator().manual_seed(0), dtype=torch.float64) * 0.1)
+        noise = torch.randn(env.coeffs.shape, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+        env.coeffs.copy_(noise * 0.1)
     target = torch.rand(1, 18, 24, 3, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
 
     def loss() -> torch.Tensor:
