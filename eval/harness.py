@@ -28,7 +28,7 @@ from tqdm import tqdm
 
 from eval.dehaze import dehaze_dataset, get_dehazer
 from eval.metrics import load_lpips
-from eval.runs import ABLATIONS, METHODS, VARIANTS, RunResult, RunSpec, config_hash
+from eval.runs import ABLATIONS, METHODS, VARIANTS, RunResult, RunSpec, config_hash, source_digest
 
 log = logging.getLogger("regenerate-tables")
 
@@ -261,7 +261,8 @@ def prepare_datasets(cfg: HarnessConfig, ex: _Executor, generate_fn: GenerateFn)
             outcomes[scene] = DatasetOutcome(scene, "provided", str(p),
                                              config_hash((p / "dataset.json").read_text()), cached=True)
             continue
-        h = config_hash({"scene": scene, "overrides": cfg.gen_overrides, "seed": cfg.dataset_seed})
+        h = config_hash({"scene": scene, "overrides": cfg.gen_overrides, "seed": cfg.dataset_seed,
+                         "code": source_digest("generator", "blender")})
         path = (Path(cfg.out) / "datasets" / f"{scene}-{h[:12]}").resolve()
         o = DatasetOutcome(scene, "generated", str(path), h)
         outcomes[scene] = o
@@ -298,7 +299,8 @@ def prepare_dehazed(cfg: HarnessConfig, ex: _Executor, sources: dict[str, Datase
     jobs = []
     settings = asdict(get_dehazer(cfg.dehazer)) if cfg.dehazer == "dcp" else {"name": cfg.dehazer}
     for scene, src in sources.items():
-        h = config_hash({"source": src.hash, "dehazer": cfg.dehazer, "settings": settings})
+        h = config_hash({"source": src.hash, "dehazer": cfg.dehazer, "settings": settings,
+                         "code": source_digest("eval.dehaze")})
         path = (Path(cfg.out) / "datasets" / f"{scene}-{src.hash[:12]}-dehazed-{cfg.dehazer}-{h[:8]}").resolve()
         o = DatasetOutcome(scene, f"dehazed:{cfg.dehazer}", str(path), h)
         outcomes[scene] = o
@@ -329,13 +331,14 @@ def prepare_dehazed(cfg: HarnessConfig, ex: _Executor, sources: dict[str, Datase
 def plan_runs(cfg: HarnessConfig, datasets: dict[str, DatasetOutcome],
               dehazed: dict[str, DatasetOutcome]) -> list[RunSpec]:
     specs = []
+    code = source_digest("smokeseer")
     for scene in cfg.scenes:
         for key in cfg.variants():
             v = VARIANTS[key]
             ds = dehazed[scene] if v.dehazer else datasets[scene]
             for seed in cfg.seeds:
                 specs.append(RunSpec(scene, key, v.mode, seed, cfg.profile, dict(cfg.train_overrides),
-                                     ds.path, ds.hash))
+                                     ds.path, ds.hash, code))
     return specs
 
 

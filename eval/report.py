@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from eval.dehaze import DarkChannelPrior
-from eval.runs import VARIANTS, RunResult
+from eval.runs import VARIANTS, RunResult, source_digest
 
 if TYPE_CHECKING:
     from eval.harness import DatasetOutcome, HarnessConfig
@@ -40,6 +40,8 @@ def _settings(cfg: "HarnessConfig", backend: str) -> list[tuple[str, Any]]:
         ("output folder", str(Path(cfg.out).resolve())),
         ("versions", ", ".join(f"{p} {_version(p)}" for p in ("smokeseer-synth", "torch", "numpy", "bpy"))
          + f", python {platform.python_version()}"),
+        ("source digests (part of every cache key)",
+         ", ".join(f"{n} {source_digest(*n.split('+'))[:12]}" for n in ("generator+blender", "smokeseer", "eval.dehaze"))),
     ]
 
 

@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from eval import harness_cli
+from eval import harness, harness_cli
 from eval.harness import HarnessConfig, regenerate
+from eval.runs import source_digest
 from eval.metrics import psnr, ssim_3dgs
 from generator.profiles import get_profile
 
@@ -137,6 +138,30 @@ def test_pipeline_cache_and_failures(tmp_path: Path) -> None:
     cfg3 = _cfg(tmp_path, ablations=[], methods=["full"], seeds=[0], train_overrides={"stage3.iterations": 5})
     results3, _ = regenerate(cfg3, train_fn=identity_train, generate_fn=tiny_generate)
     assert not any(r.cached for r in results3)
+
+
+def test_changed_trainer_code_reruns(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    cfg = _cfg(tmp_path, methods=["full"], ablations=[], seeds=[0], workers=1)
+    regenerate(cfg, train_fn=identity_train, generate_fn=tiny_generate)
+    n = _calls(cfg.out)
+    real = harness.source_digest
+    monkeypatch.setattr(harness, "source_digest", lambda *names: real(*names) + ("x" if names == ("smokeseer",) else ""))
+    results, _ = regenerate(cfg, train_fn=identity_train, generate_fn=tiny_generate)
+    assert _calls(cfg.out) - n == 2 and not any(r.cached for r in results)
+
+
+def test_source_digest_follows_file_contents(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    pkg = tmp_path / "digest_probe_pkg"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "sub" / "data.yaml").write_text("a: 1\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    before = source_digest("digest_probe_pkg")
+    assert source_digest("digest_probe_pkg") == before
+    (pkg / "sub" / "data.yaml").write_text("a: 2\n")
+    assert source_digest("digest_probe_pkg") != before
+    with pytest.raises(ValueError, match="no_such_package_xyz"):
+        source_digest("no_such_package_xyz")
 
 
 def test_dataset_failure_fails_its_runs(tmp_path: Path) -> None:
