@@ -87,6 +87,16 @@ def test_full_run_outputs_and_resume(splat: Path, tmp_path: Path) -> None:
     assert {r["stage"] for r in new_rows} == {"3"} and int(new_rows[0]["iteration"]) == 3
 
 
+def test_same_seed_gives_the_same_model(splat: Path, tmp_path: Path) -> None:
+    """Seeds make a run reproducible: the same seed gives the same PLY bytes, another seed does not."""
+    plys = {}
+    for name, seed in (("a", "3"), ("b", "3"), ("c", "4")):
+        assert main([str(splat), "--out", str(tmp_path / name), "--seed", seed] + TINY) == 0
+        plys[name] = (tmp_path / name / "ply" / "surface.ply").read_bytes()
+    assert plys["a"] == plys["b"]
+    assert plys["a"] != plys["c"]
+
+
 @pytest.mark.parametrize("mode", ["rgb-only", "deformable-3dgs", "no-mask"])
 def test_other_modes_run(splat: Path, tmp_path: Path, mode: str) -> None:
     run = tmp_path / mode
