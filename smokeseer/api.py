@@ -55,11 +55,6 @@ def switches_for(cfg: TrainConfig, scene: SceneData) -> Stage3Switches:
     )
 
 
-def _db(value: float | None) -> str:
-    """PSNR for the log line; None when the dataset has no held-out views."""
-    return "n/a" if value is None else f"{value:.2f} dB"
-
-
 def _metrics_doc(cfg: TrainConfig, scene_name: str, dataset: Path, status: str) -> dict[str, Any]:
     return {"format": RESULTS_FORMAT, "format_version": RESULTS_FORMAT_VERSION, "scene": scene_name,
             "dataset": str(Path(dataset).resolve()), "method": cfg.mode, "profile": cfg.profile,
@@ -156,7 +151,7 @@ def _run(cfg: TrainConfig, dataset: Path, out: Path) -> dict[str, Any]:
     wall["eval"] = time.perf_counter() - t
     wall["total"] = time.perf_counter() - t_start
     m = scores["metrics"]
-    ctx.log_line(f"eval: PSNR surface vs clean {_db(m['psnr'])}, smoky input vs clean {_db(m['psnr_input'])} "
+    ctx.log_line(f"eval: PSNR surface vs clean {m['psnr']}, smoky input vs clean {m['psnr_input']} "
                  f"in {wall['eval']:.1f} s")
     doc = _metrics_doc(cfg, scene.name, dataset, "ok")
     doc.update(scores)
