@@ -9,6 +9,7 @@ same scheduling, caching and failure bookkeeping runs for real work and in tests
 from __future__ import annotations
 
 import concurrent.futures as cf
+import fcntl
 import json
 import logging
 import multiprocessing
@@ -18,7 +19,8 @@ import sys
 import time
 import traceback
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field
+from functools import partial
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
@@ -127,32 +129,75 @@ def _error_text(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=6)}"
 
 
-def generate_task(scene: str, out: str, overrides: dict[str, Any], seed: int,
-                  generate_fn: GenerateFn) -> tuple[str, str, float]:
-    """Generate one scene's dataset; returns (status, error, seconds)."""
-    t0 = time.perf_counter()
-    try:
-        if Path(out).exists():
-            shutil.rmtree(out)
-        generate_fn(scene, Path(out), seed=seed, **overrides)
-        if not (Path(out) / "dataset.json").is_file():
-            raise RuntimeError(f"generator returned without writing {out}/dataset.json")
-        return "ok", "", time.perf_counter() - t0
-    except Exception as exc:  # recorded against every run of the scene, never dropped
-        return "failed", _error_text(exc), time.perf_counter() - t0
+def dataset_task(o: DatasetOutcome, make: Callable[[Path], Any]) -> tuple[str, str, float]:
+    """Produce one dataset folder under its lock and mark it done before the lock is released,
+    so an overlapping invocation reuses it; returns (status, error, seconds)."""
+    path = Path(o.path)
+    with _run_lock(path):
+        marker = _read_json(_done_marker(path))
+        if marker and marker.get("hash") == o.hash and (path / "dataset.json").is_file():
+            return "ok", "", float(marker.get("wall_time_s", 0.0))
+        t0 = time.perf_counter()
+        try:
+            if path.exists():
+                shutil.rmtree(path)
+            make(path)
+            if not (path / "dataset.json").is_file():
+                raise RuntimeError(f"{o.kind} dataset task returned without writing {path}/dataset.json")
+        except Exception as exc:  # recorded against every run of the scene, never dropped
+            return "failed", _error_text(exc), time.perf_counter() - t0
+        done = replace(o, status="ok", error="", wall_time_s=time.perf_counter() - t0)
+        _done_marker(path).write_text(json.dumps(asdict(done), indent=2))
+        return "ok", "", done.wall_time_s
 
 
-def dehaze_task(src: str, dst: str, dehazer: str) -> tuple[str, str, float]:
-    t0 = time.perf_counter()
-    try:
-        dehaze_dataset(Path(src), Path(dst), get_dehazer(dehazer))
-        return "ok", "", time.perf_counter() - t0
-    except Exception as exc:
-        return "failed", _error_text(exc), time.perf_counter() - t0
+def dehaze_into(src: str, dehazer: str, dst: Path) -> None:
+    dehaze_dataset(Path(src), dst, get_dehazer(dehazer))
 
 
-def run_task(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int) -> RunResult:
-    """Train and evaluate one run; any exception becomes a failed record with its error."""
+def finished_run(spec: RunSpec, run_dir: Path) -> RunResult | None:
+    """The cached record of a run that finished with exactly this config, else None."""
+    rec = _read_json(run_dir / "harness.json")
+    if rec and rec.get("status") == "ok" and rec.get("config_hash") == spec.hash() \
+            and (run_dir / "metrics.json").is_file():
+        r = RunResult.from_json(rec)
+        r.cached = True
+        return r
+    return None
+
+
+@contextmanager
+def _run_lock(run_dir: Path) -> Iterator[None]:
+    """Invocations that share an --out folder may plan the same run: the second waits for the
+    first instead of deleting the folder it trains in (POSIX flock, released if it dies)."""
+    lock = run_dir.with_name(f".{run_dir.name}.lock")
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    with lock.open("a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
+def run_task(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int, prep_time_s: float = 0.0) -> RunResult:
+    """Train and evaluate one run under its lock, and record it in harness.json before the lock
+    is released; a run another invocation finished meanwhile is returned as cached."""
+    with _run_lock(Path(run_dir)):
+        done = finished_run(spec, Path(run_dir))
+        if done is not None:
+            return done
+        res = _train_run(spec, run_dir, train_fn, threads)
+        res.prep_time_s = prep_time_s
+        Path(run_dir).mkdir(parents=True, exist_ok=True)
+        tmp = Path(run_dir) / "harness.json.tmp"
+        tmp.write_text(json.dumps(res.to_json(), indent=2))
+        os.replace(tmp, Path(run_dir) / "harness.json")
+        return res
+
+
+def _train_run(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int) -> RunResult:
+    """Train and evaluate one run from scratch; any exception becomes a failed record with its error."""
     for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[var] = str(threads)
     if "torch" in sys.modules:
@@ -273,8 +318,6 @@ def prepare_datasets(cfg: HarnessConfig, ex: _Executor, generate_fn: GenerateFn)
 
         def ok(v: tuple[str, str, float], o: DatasetOutcome = o) -> None:
             o.status, o.error, o.wall_time_s = v
-            if o.status == "ok":
-                _done_marker(Path(o.path)).write_text(json.dumps(asdict(o), indent=2))
             log.info("dataset %-12s %s %.1f s%s", o.scene, o.status, o.wall_time_s,
                      "" if o.status == "ok" else "\n" + o.error)
 
@@ -283,8 +326,8 @@ def prepare_datasets(cfg: HarnessConfig, ex: _Executor, generate_fn: GenerateFn)
             log.info("dataset %-12s failed: %s", o.scene, o.error)
 
         path.parent.mkdir(parents=True, exist_ok=True)
-        jobs.append((generate_task, (scene, str(path), dict(cfg.gen_overrides), cfg.dataset_seed, generate_fn),
-                     ok, fail))
+        make = partial(generate_fn, scene, seed=cfg.dataset_seed, **cfg.gen_overrides)
+        jobs.append((dataset_task, (o, make), ok, fail))
     if jobs:
         with tqdm(total=len(jobs), desc="datasets", unit="scene", file=sys.stderr) as bar:
             _drain(ex, jobs, bar)
@@ -314,14 +357,12 @@ def prepare_dehazed(cfg: HarnessConfig, ex: _Executor, sources: dict[str, Datase
 
         def ok(v: tuple[str, str, float], o: DatasetOutcome = o) -> None:
             o.status, o.error, o.wall_time_s = v
-            if o.status == "ok":
-                _done_marker(Path(o.path)).write_text(json.dumps(asdict(o), indent=2))
 
         def fail(exc: BaseException, o: DatasetOutcome = o) -> None:
             o.status, o.error = "failed", f"worker crashed: {type(exc).__name__}: {exc}"
 
         path.parent.mkdir(parents=True, exist_ok=True)
-        jobs.append((dehaze_task, (src.path, str(path), cfg.dehazer), ok, fail))
+        jobs.append((dataset_task, (o, partial(dehaze_into, src.path, cfg.dehazer)), ok, fail))
     if jobs:
         with tqdm(total=len(jobs), desc="dehaze", unit="scene", file=sys.stderr) as bar:
             _drain(ex, jobs, bar)
@@ -368,20 +409,14 @@ def execute_runs(cfg: HarnessConfig, ex: _Executor, specs: list[RunSpec], train_
             bar.write(_line(r))
             bar.update(1)
             continue
-        rec = _read_json(run_dir / "harness.json")
-        if rec and rec.get("status") == "ok" and rec.get("config_hash") == spec.hash() \
-                and (run_dir / "metrics.json").is_file():
-            r = RunResult.from_json(rec)
-            r.cached = True
-            results.append(r)
-            bar.write(_line(r))
+        cached = finished_run(spec, run_dir)
+        if cached is not None:
+            results.append(cached)
+            bar.write(_line(cached))
             bar.update(1)
             continue
 
-        def ok(r: RunResult, prep: float = prep) -> None:
-            r.prep_time_s = prep
-            Path(r.run_dir).mkdir(parents=True, exist_ok=True)
-            (Path(r.run_dir) / "harness.json").write_text(json.dumps(r.to_json(), indent=2))
+        def ok(r: RunResult) -> None:
             results.append(r)
             bar.write(_line(r))
 
@@ -391,7 +426,7 @@ def execute_runs(cfg: HarnessConfig, ex: _Executor, specs: list[RunSpec], train_
             results.append(r)
             bar.write(_line(r))
 
-        jobs.append((run_task, (spec, str(run_dir), train_fn, threads), ok, fail))
+        jobs.append((run_task, (spec, str(run_dir), train_fn, threads, prep), ok, fail))
     if jobs:
         _drain(ex, jobs, bar)
     bar.close()

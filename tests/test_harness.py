@@ -9,6 +9,9 @@ from __future__ import annotations
 
 import csv
 import json
+import time
+from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +21,7 @@ from PIL import Image
 
 from eval import harness, harness_cli
 from eval.harness import HarnessConfig, regenerate
-from eval.runs import source_digest
+from eval.runs import RunSpec, source_digest
 from eval.metrics import psnr, ssim_3dgs
 from generator.profiles import get_profile
 
@@ -225,3 +228,43 @@ def test_end_to_end_demo_tiny_budget(tmp_path: Path) -> None:
     for r in runs:
         assert np.isfinite(r["metrics"]["psnr"])
     assert (out / "table1.md").is_file() and (out / "figure3_qualitative.png").is_file()
+
+
+def slow_identity_train(dataset: Path, out: Path, mode: str, profile: str = "quick", seed: int = 0,
+                        overrides: dict[str, Any] | None = None) -> dict[str, Any]:
+    """identity_train that takes long enough for a second invocation to arrive mid-run."""
+    time.sleep(0.5)
+    return identity_train(dataset, out, mode, profile, seed, overrides)
+
+
+def test_overlapping_invocations_share_a_run(tmp_path: Path) -> None:
+    """Two invocations on one --out that plan the same run: one trains, the other waits and takes
+    its result (without the lock the second deleted the folder the first was training in)."""
+    ds = write_tiny_dataset(tmp_path / "ds", "alpha")
+    spec = RunSpec("alpha", "full", "full", 0, "quick", {}, str(ds), "h", "code")
+    run_dir = str(spec.run_dir(tmp_path / "out"))
+    with ThreadPoolExecutor(2) as pool:
+        results = list(pool.map(lambda _: harness.run_task(spec, run_dir, slow_identity_train, 1), range(2)))
+    assert [r.status for r in results] == ["ok", "ok"]
+    assert sorted(r.cached for r in results) == [False, True]
+    assert _calls(tmp_path / "out") == 1
+    assert results[0].metrics["psnr"] == results[1].metrics["psnr"]
+    assert json.loads((Path(run_dir) / "harness.json").read_text())["status"] == "ok"
+
+
+def slow_generate(preset: str, out: Path, **overrides: Any) -> Path:
+    with open(out.parent / "generate_calls.log", "a") as f:
+        f.write(f"{preset}\n")
+    time.sleep(0.5)
+    return tiny_generate(preset, out, **overrides)
+
+
+def test_overlapping_invocations_share_a_dataset(tmp_path: Path) -> None:
+    """The same holds for datasets: generated once, marked done before the lock is released."""
+    o = harness.DatasetOutcome("alpha", "generated", str(tmp_path / "datasets" / "alpha-h"), "h")
+    make = partial(slow_generate, "alpha", seed=0)
+    with ThreadPoolExecutor(2) as pool:
+        outcomes = list(pool.map(lambda _: harness.dataset_task(o, make), range(2)))
+    assert [v[0] for v in outcomes] == ["ok", "ok"], outcomes
+    assert (tmp_path / "datasets" / "generate_calls.log").read_text().splitlines() == ["alpha"]
+    assert json.loads((tmp_path / "datasets" / "alpha-h.done.json").read_text())["hash"] == "h"
