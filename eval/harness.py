@@ -133,7 +133,7 @@ def dataset_task(o: DatasetOutcome, make: Callable[[Path], Any]) -> tuple[str, s
     """Produce one dataset folder under its lock and mark it done before the lock is released,
     so an overlapping invocation reuses it; returns (status, error, seconds)."""
     path = Path(o.path)
-    with _run_lock(path):
+    with _folder_lock(path):
         marker = _read_json(_done_marker(path))
         if marker and marker.get("hash") == o.hash and (path / "dataset.json").is_file():
             return "ok", "", float(marker.get("wall_time_s", 0.0))
@@ -167,7 +167,7 @@ def finished_run(spec: RunSpec, run_dir: Path) -> RunResult | None:
 
 
 @contextmanager
-def _run_lock(run_dir: Path) -> Iterator[None]:
+def _folder_lock(run_dir: Path) -> Iterator[None]:
     """Invocations that share an --out folder may plan the same run: the second waits for the
     first instead of deleting the folder it trains in (POSIX flock, released if it dies)."""
     lock = run_dir.with_name(f".{run_dir.name}.lock")
@@ -183,7 +183,7 @@ def _run_lock(run_dir: Path) -> Iterator[None]:
 def run_task(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int, prep_time_s: float = 0.0) -> RunResult:
     """Train and evaluate one run under its lock, and record it in harness.json before the lock
     is released; a run another invocation finished meanwhile is returned as cached."""
-    with _run_lock(Path(run_dir)):
+    with _folder_lock(Path(run_dir)):
         done = finished_run(spec, Path(run_dir))
         if done is not None:
             return done
