@@ -167,10 +167,10 @@ def finished_run(spec: RunSpec, run_dir: Path) -> RunResult | None:
 
 
 @contextmanager
-def _folder_lock(run_dir: Path) -> Iterator[None]:
-    """Invocations that share an --out folder may plan the same run: the second waits for the
-    first instead of deleting the folder it trains in (POSIX flock, released if it dies)."""
-    lock = run_dir.with_name(f".{run_dir.name}.lock")
+def _folder_lock(folder: Path) -> Iterator[None]:
+    """Invocations that share an --out folder may plan the same dataset or run: the second waits
+    for the first instead of deleting the folder it works in (POSIX flock, released if it dies)."""
+    lock = folder.with_name(f".{folder.name}.lock")
     lock.parent.mkdir(parents=True, exist_ok=True)
     with lock.open("a") as fh:
         fcntl.flock(fh, fcntl.LOCK_EX)
