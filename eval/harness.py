@@ -19,8 +19,8 @@ import sys
 import time
 import traceback
 from contextlib import contextmanager
-from functools import partial
 from dataclasses import asdict, dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
@@ -134,9 +134,9 @@ def dataset_task(o: DatasetOutcome, make: Callable[[Path], Any]) -> tuple[str, s
     so an overlapping invocation reuses it; returns (status, error, seconds)."""
     path = Path(o.path)
     with _folder_lock(path):
-        marker = _read_json(_done_marker(path))
-        if marker and marker.get("hash") == o.hash and (path / "dataset.json").is_file():
-            return "ok", "", float(marker.get("wall_time_s", 0.0))
+        seconds = finished_dataset(path, o.hash)
+        if seconds is not None:
+            return "ok", "", seconds
         t0 = time.perf_counter()
         try:
             if path.exists():
@@ -147,12 +147,26 @@ def dataset_task(o: DatasetOutcome, make: Callable[[Path], Any]) -> tuple[str, s
         except Exception as exc:  # recorded against every run of the scene, never dropped
             return "failed", _error_text(exc), time.perf_counter() - t0
         done = replace(o, status="ok", error="", wall_time_s=time.perf_counter() - t0)
-        _done_marker(path).write_text(json.dumps(asdict(done), indent=2))
+        _write_json_atomic(_done_marker(path), asdict(done))
         return "ok", "", done.wall_time_s
 
 
 def dehaze_into(src: str, dehazer: str, dst: Path) -> None:
     dehaze_dataset(Path(src), dst, get_dehazer(dehazer))
+
+
+def _write_json_atomic(path: Path, doc: dict[str, Any]) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(doc, indent=2))
+    os.replace(tmp, path)
+
+
+def finished_dataset(path: Path, h: str) -> float | None:
+    """Seconds it took, if the dataset at path was finished with this config hash, else None."""
+    marker = _read_json(_done_marker(path))
+    if marker and marker.get("hash") == h and (path / "dataset.json").is_file():
+        return float(marker.get("wall_time_s", 0.0))
+    return None
 
 
 def finished_run(spec: RunSpec, run_dir: Path) -> RunResult | None:
@@ -190,9 +204,7 @@ def run_task(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int, prep_
         res = _train_run(spec, run_dir, train_fn, threads)
         res.prep_time_s = prep_time_s
         Path(run_dir).mkdir(parents=True, exist_ok=True)
-        tmp = Path(run_dir) / "harness.json.tmp"
-        tmp.write_text(json.dumps(res.to_json(), indent=2))
-        os.replace(tmp, Path(run_dir) / "harness.json")
+        _write_json_atomic(Path(run_dir) / "harness.json", res.to_json())
         return res
 
 
@@ -311,9 +323,9 @@ def prepare_datasets(cfg: HarnessConfig, ex: _Executor, generate_fn: GenerateFn)
         path = (Path(cfg.out) / "datasets" / f"{scene}-{h[:12]}").resolve()
         o = DatasetOutcome(scene, "generated", str(path), h)
         outcomes[scene] = o
-        marker = _read_json(_done_marker(path))
-        if marker and marker.get("hash") == h and (path / "dataset.json").is_file():
-            o.cached, o.wall_time_s = True, float(marker.get("wall_time_s", 0.0))
+        seconds = finished_dataset(path, h)
+        if seconds is not None:
+            o.cached, o.wall_time_s = True, seconds
             continue
 
         def ok(v: tuple[str, str, float], o: DatasetOutcome = o) -> None:
@@ -350,9 +362,9 @@ def prepare_dehazed(cfg: HarnessConfig, ex: _Executor, sources: dict[str, Datase
         if src.status != "ok":
             o.status, o.error = "failed", "source dataset unavailable"
             continue
-        marker = _read_json(_done_marker(path))
-        if marker and marker.get("hash") == h and (path / "dataset.json").is_file():
-            o.cached, o.wall_time_s = True, float(marker.get("wall_time_s", 0.0))
+        seconds = finished_dataset(path, h)
+        if seconds is not None:
+            o.cached, o.wall_time_s = True, seconds
             continue
 
         def ok(v: tuple[str, str, float], o: DatasetOutcome = o) -> None:
