@@ -31,6 +31,7 @@ from tqdm import tqdm
 from eval.dehaze import dehaze_dataset, get_dehazer
 from eval.metrics import load_lpips
 from eval.runs import ABLATIONS, METHODS, VARIANTS, RunResult, RunSpec, config_hash, source_digest
+from generator.imageio import write_json
 
 log = logging.getLogger("regenerate-tables")
 
@@ -147,18 +148,12 @@ def dataset_task(o: DatasetOutcome, make: Callable[[Path], Any]) -> tuple[str, s
         except Exception as exc:  # recorded against every run of the scene, never dropped
             return "failed", _error_text(exc), time.perf_counter() - t0
         done = replace(o, status="ok", error="", wall_time_s=time.perf_counter() - t0)
-        _write_json_atomic(_done_marker(path), asdict(done))
+        write_json(_done_marker(path), asdict(done))
         return "ok", "", done.wall_time_s
 
 
 def dehaze_into(src: str, dehazer: str, dst: Path) -> None:
     dehaze_dataset(Path(src), dst, get_dehazer(dehazer))
-
-
-def _write_json_atomic(path: Path, doc: dict[str, Any]) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(doc, indent=2))
-    os.replace(tmp, path)
 
 
 def finished_dataset(path: Path, h: str) -> float | None:
@@ -204,7 +199,7 @@ def run_task(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int, prep_
         res = _train_run(spec, run_dir, train_fn, threads)
         res.prep_time_s = prep_time_s
         Path(run_dir).mkdir(parents=True, exist_ok=True)
-        _write_json_atomic(Path(run_dir) / "harness.json", res.to_json())
+        write_json(Path(run_dir) / "harness.json", res.to_json())
         return res
 
 

@@ -1,12 +1,14 @@
-"""Image files of the dataset: EXR (float32) and PNG (8- and 16-bit), written atomically.
+"""Files of the dataset: EXR (float32), PNG (8- and 16-bit) and JSON, written atomically.
 
 Every writer writes a sibling temporary file and renames it into place, so an
-interrupted run never leaves a truncated image that a resume would trust.
+interrupted run never leaves a truncated file that a resume would trust.
 """
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import OpenEXR
@@ -17,6 +19,13 @@ from generator.errors import DatasetError
 
 def _tmp(path: Path) -> Path:
     return path.with_name(f".{path.name}.tmp{path.suffix}")
+
+
+def write_json(path: Path, data: Any) -> None:
+    """Atomic, like the image writers: a reader never sees a half-written file."""
+    tmp = _tmp(path)
+    tmp.write_text(json.dumps(data, indent=2))
+    os.replace(tmp, path)
 
 
 def write_exr(path: Path, channels: dict[str, np.ndarray]) -> None:

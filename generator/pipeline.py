@@ -24,6 +24,7 @@ from generator import postprocess
 from generator.assets import Manifest, load_manifest
 from generator.dataset_format import FORMAT, FORMAT_VERSION, PASS_FILES, file_path, transforms_name, validate_dataset
 from generator.errors import GeneratorError
+from generator.imageio import write_json
 from generator.job import without_absent_passes, Plan, make_job, make_plan, resolve_asset_materials, smoke_coefficients
 from generator.optics.sensor import ThermalSensor, ThermalSensorConfig
 from generator.rig import FrameSample, Intrinsics
@@ -46,12 +47,6 @@ def versions() -> dict[str, str]:
     return out
 
 
-def _write_json(path: Path, data: Any) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(data, indent=2))
-    os.replace(tmp, path)
-
-
 def _staging(out: Path, spec: SceneSpec) -> Path:
     """The staging folder for this spec: reused when the spec hash matches, else replaced."""
     work = out.parent / f".{out.name}.partial"
@@ -64,7 +59,7 @@ def _staging(out: Path, spec: SceneSpec) -> Path:
         log.info("discarding stale staging folder %s (different spec)", work)
         shutil.rmtree(work)
     (work / "dataset").mkdir(parents=True)
-    _write_json(mark, {"spec_sha256": spec.sha256(), "scene": spec.name})
+    write_json(mark, {"spec_sha256": spec.sha256(), "scene": spec.name})
     return work
 
 
@@ -169,7 +164,7 @@ def generate(spec: SceneSpec, out: Path, manifest: Manifest | None = None, sourc
     dataset = work / "dataset"
     for modality in spec.passes:
         cam = spec.rig.rgb if modality == "rgb" else spec.rig.thermal
-        _write_json(dataset / transforms_name(modality),
+        write_json(dataset / transforms_name(modality),
                     _transforms(modality, plan.intrinsics[modality], cam.fps, cam.time_offset_s,
                                 plan.frames[modality]))
     (dataset / "scene.yaml").write_text(yaml.safe_dump(spec.to_dict(), sort_keys=False))
@@ -179,7 +174,7 @@ def generate(spec: SceneSpec, out: Path, manifest: Manifest | None = None, sourc
                "worker": summary.get("wall_s"), "postprocess": post_s,
                "render": {k: v["seconds_per_frame"] for k, v in summary["passes"].items()},
                "total": time.perf_counter() - started}
-    _write_json(dataset / "dataset.json", _metadata(spec, plan, sensor, summary, stats, timings))
+    write_json(dataset / "dataset.json", _metadata(spec, plan, sensor, summary, stats, timings))
     validate_dataset(dataset)
     if out.exists():
         shutil.rmtree(out)
