@@ -21,7 +21,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from generator.api import generate  # noqa: E402
-from generator.imageio import read_png  # noqa: E402
+from contracts.imageio import read_png  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 

@@ -28,10 +28,10 @@ import numpy as np
 from PIL import Image
 from tqdm import tqdm
 
+from contracts.atomic import write_json
+from contracts.metrics import load_lpips
 from eval.dehaze import dehaze_dataset, get_dehazer
-from eval.metrics import load_lpips
 from eval.runs import ABLATIONS, METHODS, VARIANTS, RunResult, RunSpec, config_hash, source_digest
-from generator.imageio import write_json
 
 log = logging.getLogger("regenerate-tables")
 

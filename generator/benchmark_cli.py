@@ -27,9 +27,10 @@ import numpy as np
 
 from generator.api import generate, resolve_spec
 from generator.assets import load_manifest
-from generator.dataset_format import PASS_FILES
+from contracts.dataset_format import PASS_FILES
+from contracts.errors import DatasetError
+from contracts.imageio import read_exr_channel
 from generator.errors import GeneratorError
-from generator.imageio import read_exr_channel
 from generator.job import resolve_asset_materials
 from generator.profiles import (
     BENCHMARK_SCENES,
@@ -180,7 +181,7 @@ def main(argv: list[str] | None = None) -> int:
     for scene in scenes:
         try:
             record = run_scene(scene, profile, args.out, args.force, args.threads, not args.quiet)
-        except GeneratorError as exc:
+        except (GeneratorError, DatasetError) as exc:
             print(f"{scene:<11} FAILED: {exc}", file=sys.stderr)
             failed.append(scene)
             continue

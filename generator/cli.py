@@ -6,6 +6,7 @@ import logging
 import sys
 from pathlib import Path
 
+from contracts.errors import DatasetError
 from generator.errors import GeneratorError
 from generator.presets import list_presets
 
@@ -53,7 +54,7 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
             print(name)
         return 0
     if args.validate:
-        from generator.dataset_format import validate_dataset
+        from contracts.dataset_format import validate_dataset
 
         meta = validate_dataset(args.validate)
         frames = ", ".join(f"{m}: {', '.join(p)}" for m, p in meta["passes"].items() if p)
@@ -79,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return _run(args, parser)
-    except GeneratorError as exc:
+    except (GeneratorError, DatasetError) as exc:
         print(f"generate-scene: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

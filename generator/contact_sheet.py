@@ -20,9 +20,10 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from PIL import Image
 
-from generator.dataset_format import PASS_FILES, file_path, transforms_name
-from generator.errors import DatasetError, GeneratorError
-from generator.imageio import read_exr_channel, read_png
+from contracts.dataset_format import PASS_FILES, file_path, transforms_name
+from contracts.errors import DatasetError
+from contracts.imageio import read_exr_channel, read_png
+from generator.errors import GeneratorError
 
 COLUMNS = ("RGB smoky", "RGB clean", "thermal smoky", "smoke mask", "depth")
 STRETCH_PERCENTILES = (1.0, 99.0)
@@ -192,7 +193,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         for dataset in find_datasets(args.datasets):
             print(make_contact_sheet(dataset, args.out / f"{dataset.name}.png"))
-    except GeneratorError as exc:
+    except (GeneratorError, DatasetError) as exc:
         print(f"contact-sheet: error: {exc}", file=sys.stderr)
         return 2
     return 0

@@ -25,8 +25,3 @@ class AssetError(GeneratorError):
 
 class WorkerError(GeneratorError):
     """The Blender worker failed; the message carries its log path."""
-
-
-class DatasetError(GeneratorError, ValueError):
-    """A dataset or capture on disk does not follow docs/dataset-format.md (also raised by the
-    trainer's loader, so one error type covers both readers of the format)."""

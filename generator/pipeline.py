@@ -22,9 +22,9 @@ from tqdm import tqdm
 
 from generator import postprocess
 from generator.assets import Manifest, load_manifest
-from generator.dataset_format import FORMAT, FORMAT_VERSION, PASS_FILES, file_path, transforms_name, validate_dataset
+from contracts.atomic import write_json
+from contracts.dataset_format import FORMAT, FORMAT_VERSION, PASS_FILES, file_path, transforms_name, validate_dataset
 from generator.errors import GeneratorError
-from generator.imageio import write_json
 from generator.job import without_absent_passes, Plan, make_job, make_plan, resolve_asset_materials, smoke_coefficients
 from generator.optics.sensor import ThermalSensor, ThermalSensorConfig
 from generator.rig import FrameSample, Intrinsics

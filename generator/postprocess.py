@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from generator.dataset_format import PASS_FILES, file_path
-from generator.imageio import read_exr, read_exr_channel, read_png, write_exr, write_png
+from contracts.dataset_format import PASS_FILES, file_path
+from contracts.imageio import read_exr, read_exr_channel, read_png, write_exr, write_png
 from generator.optics.planck import band_radiance
 from generator.optics.sensor import ThermalSensor, area_average
 

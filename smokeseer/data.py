@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
-from generator.dataset_format import load_json, need_field
-from generator.errors import DatasetError
+from contracts.dataset_format import load_json, need_field
+from contracts.errors import DatasetError
 from smokeseer.cameras import c2w_gl_to_viewmat, intrinsics
 
 __all__ = ["DatasetError", "Frame", "ModalityData", "SceneData", "load_scene"]

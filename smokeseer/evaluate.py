@@ -12,7 +12,7 @@ import numpy as np
 import torch
 from PIL import Image
 
-from eval.metrics import depth_errors, load_lpips, mask_iou, psnr, ssim_3dgs
+from contracts.metrics import depth_errors, load_lpips, mask_iou, psnr, ssim_3dgs
 from smokeseer.data import SceneData
 from smokeseer.model import SceneModel, View, make_view, sh_coeffs, smoke_sh
 from smokeseer.raster import GaussianPly, write_ply

@@ -295,7 +295,7 @@ def test_user_mesh_asset_renders_with_its_manifest_defaults(tmp_path: Path, monk
     spec_path = tmp_path / "scene.yaml"
     spec_path.write_text(yaml.safe_dump(spec))
     from generator.api import generate
-    from generator.imageio import read_exr_channel
+    from contracts.imageio import read_exr_channel
 
     out = generate(spec_path, tmp_path / "dataset", show_progress=False, threads=1)
     depth = read_exr_channel(out / "rgb" / "depth" / "0000.exr", "Z")

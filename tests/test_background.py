@@ -11,7 +11,7 @@ import torch
 
 from PIL import Image
 
-from generator.imageio import read_exr_channel
+from contracts.imageio import read_exr_channel
 from smokeseer.background import EnvironmentBackground, ray_directions
 from smokeseer.cli import main
 from smokeseer.model import Placed, View, render

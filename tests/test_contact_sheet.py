@@ -17,7 +17,7 @@ from generator.contact_sheet import (
     make_contact_sheet,
     pick_rows,
 )
-from generator.errors import DatasetError
+from contracts.errors import DatasetError
 
 pytestmark = pytest.mark.blender
 

@@ -15,9 +15,9 @@ import pytest
 import yaml
 from scipy.ndimage import map_coordinates, maximum_filter, minimum_filter
 
-from generator.dataset_format import load_transforms, validate_dataset
-from generator.errors import DatasetError
-from generator.imageio import read_exr_channel, read_png
+from contracts.dataset_format import load_transforms, validate_dataset
+from contracts.errors import DatasetError
+from contracts.imageio import read_exr_channel, read_png
 from generator.optics.slab import slab_radiance
 from generator.optics.planck import band_radiance
 from generator.presets import PRESET_DIR

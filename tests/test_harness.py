@@ -22,7 +22,7 @@ from PIL import Image
 from eval import harness, harness_cli
 from eval.harness import HarnessConfig, regenerate
 from eval.runs import RunSpec, source_digest
-from eval.metrics import psnr, ssim_3dgs
+from contracts.metrics import psnr, ssim_3dgs
 from generator.profiles import get_profile
 
 

@@ -10,8 +10,8 @@ import torch
 import torch.nn.functional as F
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
-from eval import metrics
-from eval.metrics import depth_errors, load_lpips, mask_iou, psnr, ssim_3dgs, ssim_map_3dgs
+from contracts import metrics
+from contracts.metrics import depth_errors, load_lpips, mask_iou, psnr, ssim_3dgs, ssim_map_3dgs
 
 
 def _pair(seed: int = 0, shape: tuple[int, ...] = (40, 56, 3)) -> tuple[np.ndarray, np.ndarray]:

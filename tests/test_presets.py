@@ -157,7 +157,7 @@ def test_forest_generates_for_real_at_tiny_size(tmp_path) -> None:
     """Terrain and rock files, 46 recipe objects, fire and wind through the whole pipeline; the
     smoke is denser in RGB than in LWIR (thermal sees through it)."""
     from generator.api import generate
-    from generator.dataset_format import validate_dataset
+    from contracts.dataset_format import validate_dataset
 
     out = generate("forest", tmp_path / "forest", show_progress=False, frames=2, resolution=(32, 24),
                    thermal_resolution=(16, 12), sim_resolution=16, samples=4)

@@ -9,7 +9,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from eval.metrics import ssim_3dgs
+from contracts.metrics import ssim_3dgs
 from smokeseer.config import DeformConfig
 from smokeseer.deform import DeformNetwork, positional_encoding, temporal_opacity
 from smokeseer.losses import (align_scale_shift, depth_consistency, mask_alignment, monochromaticity,

@@ -16,7 +16,7 @@ import torch
 
 from smokeseer.cli import main
 from smokeseer.raster import read_ply
-from smokeseer.results_format import validate_run_dir
+from contracts.results_format import validate_run_dir
 from tests.test_smokeseer_data import write_splat_dataset
 
 TINY = ["--iterations-stage2", "12", "--iterations-stage3", "12", "--no-progress",

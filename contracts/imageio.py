@@ -1,40 +1,24 @@
-"""Files of the dataset: EXR (float32), PNG (8- and 16-bit) and JSON, written atomically.
-
-Every writer writes a sibling temporary file and renames it into place, so an
-interrupted run never leaves a truncated file that a resume would trust.
+"""Image files of the dataset: EXR (float32) and PNG (8- and 16-bit), read with errors that name
+the file, and written atomically (contracts.atomic) so a resume never trusts a truncated file.
 """
 from __future__ import annotations
 
-import json
-import os
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import OpenEXR
 from PIL import Image
 
-from generator.errors import DatasetError
-
-
-def _tmp(path: Path) -> Path:
-    return path.with_name(f".{path.name}.tmp{path.suffix}")
-
-
-def write_json(path: Path, data: Any) -> None:
-    """Atomic, like the image writers: a reader never sees a half-written file."""
-    tmp = _tmp(path)
-    tmp.write_text(json.dumps(data, indent=2))
-    os.replace(tmp, path)
+from contracts.atomic import atomic_path
+from contracts.errors import DatasetError
 
 
 def write_exr(path: Path, channels: dict[str, np.ndarray]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     data = {name: np.ascontiguousarray(arr, dtype=np.float32) for name, arr in channels.items()}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    tmp = _tmp(path)
-    OpenEXR.File(header, data).write(str(tmp))
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        OpenEXR.File(header, data).write(str(tmp))
 
 
 def read_exr(path: Path) -> dict[str, np.ndarray]:
@@ -59,9 +43,8 @@ def write_png(path: Path, image: np.ndarray) -> None:
     if not (image.dtype == np.uint16 and image.ndim == 2) and image.dtype != np.uint8:
         raise ValueError(f"cannot write {image.dtype} {image.shape} as PNG")
     pil = Image.fromarray(np.ascontiguousarray(image))
-    tmp = _tmp(path)
-    pil.save(tmp, format="PNG", compress_level=6)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        pil.save(tmp, format="PNG", compress_level=6)
 
 
 def read_png(path: Path) -> np.ndarray:

@@ -9,8 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from generator.errors import DatasetError
-from generator.imageio import read_exr_channel, read_png
+from contracts.errors import DatasetError
+from contracts.imageio import read_exr_channel, read_png
 
 FORMAT = "smokeseer-synth-dataset"
 FORMAT_VERSION = 1
