@@ -1,4 +1,4 @@
-"""One entry point for differentiable Gaussian rasterization: pure-PyTorch or gsplat (CUDA)."""
+"""One entry point for differentiable Gaussian rasterization: compiled CPU tiles, pure PyTorch, or gsplat (CUDA)."""
 
 from __future__ import annotations
 
@@ -8,11 +8,12 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from smokeseer.raster.cpu_backend import composite_tiles
 from smokeseer.raster.projection import project_gaussians
 from smokeseer.raster.sh import eval_sh, num_sh_bases
 from smokeseer.raster.torch_backend import composite
 
-BACKENDS = ("auto", "torch", "gsplat")
+BACKENDS = ("auto", "cpu", "torch", "gsplat")
 DEPTH_ALPHA_EPS = 1e-6  # below this accumulated alpha, normalised depth is reported as 0
 RADIUS_INT_MAX = 2**30  # radii of enormous footprints saturate here instead of overflowing int32
 
@@ -28,7 +29,7 @@ class RasterOutput:
     means2d: Tensor  # [C, N, 2] pixel centres; retains its grad for densification
     radii: Tensor  # [C, N] int32, 0 where culled
     visible: Tensor  # [C, N] bool
-    n_pairs: int = -1  # blended (Gaussian, pixel) pairs (torch backend; -1 when unknown)
+    n_pairs: int = -1  # blended (Gaussian, pixel) pairs (cpu and torch backends; -1 from gsplat)
 
 
 def gsplat_available() -> bool:
@@ -102,9 +103,13 @@ def _resolve_backend(backend: str, device: torch.device) -> str:
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
     if backend == "auto":
+        if device.type == "cpu":
+            return "cpu"
         return "gsplat" if device.type == "cuda" and gsplat_available() else "torch"
     if backend == "gsplat" and (device.type != "cuda" or not gsplat_available()):
         raise ValueError("backend='gsplat' needs CUDA tensors and the gsplat package")
+    if backend == "cpu" and device.type != "cpu":
+        raise ValueError(f"backend='cpu' needs CPU tensors, got {device}")
     return backend
 
 
@@ -166,7 +171,7 @@ def rasterize(
     proj = project_gaussians(means, quats, lin_scales, viewmats, Ks, width, height, near_plane, far_plane)
     if proj.means2d.requires_grad:
         proj.means2d.retain_grad()
-    comp = composite(
+    comp = (composite_tiles if chosen == "cpu" else composite)(
         proj, opacities, view_colors(colors, means, viewmats, sh_degree), width, height,
         render_depth=render_depth, subset_mask=subset_mask,
     )

@@ -1,0 +1,84 @@
+"""Compiled CPU compositing: 16x16 tile binning in C++ with an analytic backward.
+
+Projection and SH stay in torch (autograd differentiates them); this module composites the
+projected Gaussians. The kernel takes one feature table per camera, [C, N, F] = colours, then
+depth and the subset flag when asked, so one pass yields every image ``rasterize`` returns.
+The alpha image is 1 - T_final. Backward follows 3DGS: walk each pixel's blended Gaussians back
+to front, rebuilding transmittance from the final one (kept in float64 per pixel), so no
+per-pair state is stored; per-Gaussian sums use a fixed reduction order (see csrc/tile_raster.cpp).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from torch import Tensor
+from torch.autograd.function import once_differentiable
+
+from smokeseer.raster.extension import load_kernel
+from smokeseer.raster.projection import Projection
+from smokeseer.raster.torch_backend import Composite
+
+
+class _TileComposite(torch.autograd.Function):
+    """(means2d, conics, opacities, feats) -> (feature image [C,H,W,F], alpha [C,H,W], pairs)."""
+
+    @staticmethod
+    def forward(ctx: Any, means2d: Tensor, conics: Tensor, opacities: Tensor, feats: Tensor,
+                radii: Tensor, order: Tensor, visible: Tensor, width: int, height: int) -> tuple[Tensor, Tensor, Tensor]:
+        kernel = load_kernel()
+        (image, alpha, t_final, last, n_pairs, rects, tile_offsets, entries, gauss_offsets,
+         entry_of) = kernel.forward(means2d, conics, opacities, feats, radii, order, visible, width, height)
+        ctx.save_for_backward(means2d, conics, opacities, feats, t_final, last, rects, tile_offsets,
+                              entries, gauss_offsets, entry_of)
+        ctx.size = (width, height)
+        ctx.mark_non_differentiable(n_pairs)
+        return image, alpha, n_pairs
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx: Any, grad_image: Tensor, grad_alpha: Tensor, _grad_pairs: Tensor) -> tuple:
+        width, height = ctx.size
+        g_means2d, g_conics, g_opac, g_feats = load_kernel().backward(
+            *ctx.saved_tensors, grad_image.contiguous(), grad_alpha.contiguous(), width, height)
+        return g_means2d, g_conics, g_opac.sum(0), g_feats, None, None, None, None, None
+
+
+def composite_tiles(
+    proj: Projection,
+    opacities: Tensor,
+    colors: Tensor,
+    width: int,
+    height: int,
+    *,
+    render_depth: bool,
+    subset_mask: Tensor | None,
+) -> Composite:
+    """Front-to-back compositing with the compiled kernel; same contract as ``torch_backend.composite``.
+
+    ``colors`` is [N, D] (shared by all cameras) or [C, N, D] (per camera, e.g. from SH).
+    """
+    if opacities.device.type != "cpu":
+        raise ValueError(f"backend='cpu' needs CPU tensors, got {opacities.device}")
+    c_count, n = proj.depths.shape
+    d = colors.shape[-1]
+    columns = [colors if colors.dim() == 3 else colors[None].expand(c_count, n, d)]
+    if render_depth:
+        columns.append(proj.depths[..., None])
+    if subset_mask is not None:
+        columns.append(subset_mask.to(opacities.dtype)[None, :, None].expand(c_count, n, 1))
+    feats = torch.cat(columns, dim=-1).contiguous()
+    order = torch.argsort(proj.depths.detach(), dim=1, stable=True)
+    image, alpha, n_pairs = _TileComposite.apply(
+        proj.means2d.contiguous(), proj.conics.contiguous(), opacities.contiguous(), feats,
+        proj.radii.detach().contiguous(), order, proj.visible.contiguous(), width, height,
+    )
+    flat = image.reshape(c_count * height * width, -1)
+    return Composite(
+        colors=flat[:, :d],
+        alphas=alpha.reshape(-1),
+        depths=flat[:, d] if render_depth else None,
+        subset_alphas=flat[:, -1] if subset_mask is not None else None,
+        n_pairs=int(n_pairs),
+    )
