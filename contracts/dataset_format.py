@@ -106,7 +106,7 @@ def load_transforms(root: Path, modality: str) -> dict[str, Any]:
         if not isinstance(frame, dict):
             raise DatasetError(f"{where}: must be an object")
         for key, kind in (("file_stem", str), ("time", (int, float)), ("timestamp_s", (int, float)),
-                          ("sim_frame", int), ("split", str)):
+                          ("sim_frame", (int, float)), ("split", str)):
             if key not in frame or not isinstance(frame[key], kind):
                 raise DatasetError(f"{where}: field {key!r} missing or of the wrong type")
         if not (0.0 <= frame["time"] <= 1.0):
