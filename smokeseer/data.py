@@ -70,21 +70,48 @@ class SceneData:
     synthetic: bool
     init_points: np.ndarray | None = None
     meta: dict[str, Any] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    """What the loader assumed or left out (no masks, no timestamps, ...): logged and written
+    to metrics.json so a substitution is never silent."""
+
+
+def png_bit_depth(path: Path) -> int:
+    """Bits per sample from the PNG header (IHDR byte 24): how raw values are scaled to [0, 1]."""
+    with path.open("rb") as fh:
+        head = fh.read(25)
+    if len(head) < 25 or head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
+        raise DatasetError(f"{path}: not a PNG file (no IHDR header)")
+    return int(head[24])
 
 
 def read_png(path: Path) -> np.ndarray:
-    """PNG as an array: uint8 or uint16 values kept as they are (H×W or H×W×C)."""
+    """PNG as an array with its stored integer type: uint8, or uint16 for 16-bit grey.
+
+    Pillow reads 16-bit colour PNGs as 8-bit RGB, so the dtype, not the values, says which
+    full scale applies (``image01``); a dark 16-bit frame is never mistaken for an 8-bit one.
+    """
     if not path.is_file():
         raise DatasetError(f"{path}: missing file")
     try:
         with Image.open(path) as im:
             if im.mode in ("I;16", "I;16B", "I;16L", "I"):
-                return np.asarray(im, dtype=np.uint16 if im.mode != "I" else np.int32).astype(np.float64)
+                if im.mode == "I" and path.suffix.lower() == ".png" and png_bit_depth(path) > 16:
+                    raise DatasetError(f"{path}: {png_bit_depth(path)}-bit PNG is not supported")
+                return np.asarray(im).astype(np.uint16)
             if im.mode not in ("L", "RGB", "RGBA", "LA"):
                 im = im.convert("RGB")
-            return np.asarray(im).astype(np.float64)
+            return np.asarray(im).astype(np.uint8)
     except OSError as exc:
         raise DatasetError(f"{path}: unreadable image ({exc})") from exc
+
+
+def image01(arr: np.ndarray) -> np.ndarray:
+    """Integer image to float64 in [0, 1] by its type's full scale (8- or 16-bit)."""
+    if arr.dtype == np.uint16:
+        return arr.astype(np.float64) / 65535.0
+    if arr.dtype == np.uint8:
+        return arr.astype(np.float64) / 255.0
+    raise TypeError(f"image01: expected uint8 or uint16, got {arr.dtype}")
 
 
 def read_exr(path: Path, channel: str) -> np.ndarray:
@@ -133,17 +160,19 @@ def _check_image(arr: np.ndarray, path: Path, h: int, w: int) -> None:
 
 
 def _rgb01(arr: np.ndarray, path: Path) -> np.ndarray:
+    """RGB in [0, 1]; grey is repeated, alpha dropped (straight RGB, docs/dataset-format.md)."""
     if arr.ndim == 2:
         arr = np.repeat(arr[..., None], 3, axis=-1)
     if arr.shape[-1] == 4:
         arr = arr[..., :3]
     if arr.shape[-1] != 3:
         raise DatasetError(f"{path}: expected an RGB image, got {arr.shape[-1]} channels")
-    scale = 65535.0 if arr.max() > 255 else 255.0
-    return arr / scale
+    return image01(arr)
 
 
 def _gray(arr: np.ndarray) -> np.ndarray:
+    """Raw values as float64, colour averaged (thermal counts keep their own units)."""
+    arr = arr.astype(np.float64)
     return arr if arr.ndim == 2 else arr[..., :3].mean(-1)
 
 
@@ -193,13 +222,19 @@ def _frames_from_transforms(path: Path, data: dict[str, Any], frames: list[dict[
 
 
 def load_scene(path: Path, max_width: int = 0) -> SceneData:
-    """Load a generated dataset (has dataset.json) or a real capture (has capture.json or
-    COLMAP/transforms poses without dataset.json)."""
+    """Load a generated dataset (has dataset.json), one of the official SmokeSeer layouts
+    (transforms_train.json or sparse/0/images.bin), or a real capture (capture.json or
+    COLMAP/transforms poses per modality)."""
     path = Path(path)
     if not path.is_dir():
         raise DatasetError(f"{path}: not a directory")
     if (path / "dataset.json").exists():
         return _load_synthetic(path, max_width)
+    from smokeseer.official_layouts import detect_official_layout, load_official  # reads data.py's types
+
+    layout = detect_official_layout(path)
+    if layout is not None:
+        return load_official(path, layout, max_width)
     return _load_capture(path, max_width)
 
 
@@ -318,10 +353,11 @@ def _load_capture(path: Path, max_width: int) -> SceneData:
     meta = load_json(path / "capture.json") if (path / "capture.json").exists() else {}
     smoke = meta.get("smoke", {}) if isinstance(meta.get("smoke", {}), dict) else {}
     test_every = int(meta.get("test_every", 8))
-    rgb = _load_capture_modality(path, "rgb", max_width, test_every)
+    notes: list[str] = []
+    rgb = _load_capture_modality(path, "rgb", max_width, test_every, notes)
     if rgb is None:
         raise DatasetError(f"{path}: no RGB poses (need transforms_rgb.json or rgb/sparse/images.txt)")
-    thermal = _load_capture_modality(path, "thermal", max_width, 0)
+    thermal = _load_capture_modality(path, "thermal", max_width, 0, notes)
     _set_times(rgb, thermal, meta.get("duration_s"))
     points = None
     pts_file = path / "rgb" / "sparse" / "points3D.txt"
@@ -331,11 +367,25 @@ def _load_capture(path: Path, max_width: int) -> SceneData:
         name=str(meta.get("scene", path.name)), path=path.resolve(), rgb=rgb, thermal=thermal,
         smoke_present=bool(smoke.get("present", True)), smoke_static=bool(smoke.get("static", False)),
         mask_threshold=float(smoke.get("mask_threshold", 0.5)), synthetic=False,
-        init_points=points, meta=meta)
+        init_points=points, meta=meta, notes=notes)
+
+
+def load_masks(files: list[Path], factor: int, what: str, notes: list[str]) -> np.ndarray | None:
+    """Binary smoke masks (> half scale = smoke) for every frame, or None with a note when the
+    folder has none. Some but not all present is an error: a silent partial mask term is worse."""
+    present = [p.exists() for p in files]
+    if not any(present):
+        notes.append(f"{what}: no smoke masks; the mask term is dropped unless Stage 1 estimates masks")
+        return None
+    if not all(present):
+        missing = files[present.index(False)]
+        raise DatasetError(f"{missing}: missing mask ({sum(present)} of {len(files)} frames have one)")
+    return np.stack([box_downscale((_gray(image01(read_png(p))) > 0.5).astype(np.float64), factor)
+                     for p in files]).astype(np.float32)
 
 
 def _load_capture_modality(path: Path, modality: str, max_width: int,
-                           test_every: int) -> ModalityData | None:
+                           test_every: int, notes: list[str]) -> ModalityData | None:
     tpath = path / f"transforms_{modality}.json"
     colmap = path / modality / "sparse"
     if tpath.exists():
@@ -347,10 +397,13 @@ def _load_capture_modality(path: Path, modality: str, max_width: int,
                 f.split = "train"
         files = [path / str(fr.get("file_path", f"{modality}/images/{f.file_stem}.png")) for fr, f in zip(raw, frames)]
         sizes = [(int(data["h"]), int(data["w"]))] * len(frames)
+        from_poses = all("timestamp_s" in fr for fr in raw)
     elif (colmap / "images.txt").exists():
         frames, files, sizes, factor = _frames_from_colmap(path, modality, max_width, test_every)
+        from_poses = False
     else:
         return None
+    _apply_timestamps(path, modality, frames, from_poses, notes)
     imgs = []
     for fpath, (h, w) in zip(files, sizes):
         if not fpath.suffix:
@@ -362,10 +415,8 @@ def _load_capture_modality(path: Path, modality: str, max_width: int,
     if modality == "rgb":
         images = np.stack([box_downscale(_rgb01(a, p), factor) for a, p in zip(imgs, files)])
         counts = None
-        mask_files = [path / "rgb" / "masks" / f"{f.file_stem}.png" for f in frames]
-        if all(p.exists() for p in mask_files):
-            masks = np.stack([box_downscale((_gray(read_png(p)) > 127).astype(np.float64), factor)
-                              for p in mask_files]).astype(np.float32)
+        masks = load_masks([path / "rgb" / "masks" / f"{f.file_stem}.png" for f in frames], factor,
+                           f"{path / 'rgb' / 'masks'}", notes)
     else:
         norm, counts = _normalise_counts(np.stack([_gray(a) for a in imgs]))
         images = np.stack([box_downscale(x, factor)[..., None] for x in norm])
@@ -374,20 +425,43 @@ def _load_capture_modality(path: Path, modality: str, max_width: int,
                         masks=masks, counts_range=counts)
 
 
-def _timestamps(path: Path, modality: str) -> dict[str, float]:
-    tfile = path / modality / "timestamps.csv"
-    if not tfile.exists():
-        return {}
+def read_timestamps(tfile: Path) -> dict[str, float]:
+    """``name,timestamp_s`` rows → {stem: seconds}; a bad row names the file, line and value."""
     out: dict[str, float] = {}
-    with tfile.open() as fh:
+    with tfile.open(newline="") as fh:
         for row_no, row in enumerate(csv.reader(fh), start=1):
-            if not row or row[0].startswith("#") or row[0] == "name":
+            if not row or not row[0].strip() or row[0].startswith("#") or row[0].strip() == "name":
                 continue
+            if len(row) < 2:
+                raise DatasetError(f"{tfile}: line {row_no}: expected 'name,timestamp_s', got {','.join(row)!r}")
             try:
-                out[Path(row[0]).stem] = float(row[1])
-            except (IndexError, ValueError) as exc:
-                raise DatasetError(f"{tfile}: line {row_no} must be 'name,timestamp_s'") from exc
+                value = float(row[1])
+            except ValueError:
+                raise DatasetError(f"{tfile}: line {row_no}: timestamp {row[1]!r} is not a number") from None
+            if not math.isfinite(value):
+                raise DatasetError(f"{tfile}: line {row_no}: timestamp {row[1]!r} is not finite")
+            stem = Path(row[0].strip()).stem
+            if stem in out:
+                raise DatasetError(f"{tfile}: line {row_no}: {row[0]!r} is listed twice")
+            out[stem] = value
     return out
+
+
+def _apply_timestamps(path: Path, modality: str, frames: list[Frame], from_poses: bool,
+                      notes: list[str]) -> None:
+    """Honour ``MODALITY/timestamps.csv`` whatever the pose source; without any timestamps say
+    that the frame index stands in for time."""
+    tfile = path / modality / "timestamps.csv"
+    if tfile.exists():
+        stamps = read_timestamps(tfile)
+        for f in frames:
+            if f.file_stem not in stamps:
+                raise DatasetError(f"{tfile}: no row for frame {f.file_stem!r}")
+            f.timestamp_s = stamps[f.file_stem]
+        return
+    if not from_poses:
+        notes.append(f"{modality}: no timestamps (no {tfile.name}, none in the poses); "
+                     "frame index used as timestamp in seconds")
 
 
 def read_colmap_cameras(path: Path) -> dict[int, tuple[int, int, np.ndarray]]:
@@ -471,7 +545,6 @@ def _frames_from_colmap(path: Path, modality: str, max_width: int,
     sparse = path / modality / "sparse"
     cams = read_colmap_cameras(sparse / "cameras.txt")
     images = read_colmap_images(sparse / "images.txt")
-    stamps = _timestamps(path, modality)
     widths = {w for w, _, _ in cams.values()}
     factor = _factor(max(widths), max_width)
     frames, files, sizes = [], [], []
@@ -484,7 +557,7 @@ def _frames_from_colmap(path: Path, modality: str, max_width: int,
         split = "test" if test_every > 0 and i % test_every == test_every // 2 else "train"
         stem = Path(name).stem
         frames.append(Frame(file_stem=stem, viewmat=v, K=kk, width=w // factor, height=h // factor,
-                            timestamp_s=stamps.get(stem, float(i)), time=0.0, split=split))
+                            timestamp_s=float(i), time=0.0, split=split))
         files.append(path / modality / "images" / name)
         sizes.append((h, w))
     return frames, files, sizes, factor

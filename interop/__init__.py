@@ -1,0 +1,1 @@
+"""Converters between our dataset format and other programs' layouts (``convert-dataset``)."""
