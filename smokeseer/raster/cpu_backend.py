@@ -27,21 +27,19 @@ class _TileComposite(torch.autograd.Function):
     @staticmethod
     def forward(ctx: Any, means2d: Tensor, conics: Tensor, opacities: Tensor, feats: Tensor,
                 radii: Tensor, order: Tensor, visible: Tensor, width: int, height: int) -> tuple[Tensor, Tensor, Tensor]:
-        kernel = load_kernel()
-        (image, alpha, t_final, last, n_pairs, rects, tile_offsets, entries, gauss_offsets,
-         entry_of) = kernel.forward(means2d, conics, opacities, feats, radii, order, visible, width, height)
-        ctx.save_for_backward(means2d, conics, opacities, feats, t_final, last, rects, tile_offsets,
-                              entries, gauss_offsets, entry_of)
-        ctx.size = (width, height)
+        image, alpha, n_pairs, *state = load_kernel().forward(
+            means2d, conics, opacities, feats, radii, order, visible, width, height)
+        ctx.save_for_backward(*state)
+        ctx.shape = (means2d.shape[0], means2d.shape[1], width, height)
         ctx.mark_non_differentiable(n_pairs)
         return image, alpha, n_pairs
 
     @staticmethod
     @once_differentiable
     def backward(ctx: Any, grad_image: Tensor, grad_alpha: Tensor, _grad_pairs: Tensor) -> tuple:
-        width, height = ctx.size
+        cams, n, width, height = ctx.shape
         g_means2d, g_conics, g_opac, g_feats = load_kernel().backward(
-            *ctx.saved_tensors, grad_image.contiguous(), grad_alpha.contiguous(), width, height)
+            cams, n, *ctx.saved_tensors, grad_image.contiguous(), grad_alpha.contiguous(), width, height)
         return g_means2d, g_conics, g_opac.sum(0), g_feats, None, None, None, None, None
 
 
