@@ -22,8 +22,51 @@ def _tree(name: str) -> tuple[bpy.types.Material, bpy.types.NodeTree]:
     return mat, tree
 
 
+#: Textures that read only the x and y of their vector: on a face whose normal lies in the
+#: xy plane those coordinates degenerate to a line, and the pattern turns into stripes.
+PLANAR_TEXTURES = ("brick",)
+
+
+def _math(tree: bpy.types.NodeTree, operation: str, a: Any, b: Any) -> bpy.types.NodeSocket:
+    node = tree.nodes.new("ShaderNodeMath")
+    node.operation = operation
+    for socket, value in zip(node.inputs, (a, b)):
+        if isinstance(value, float):
+            socket.default_value = value
+        else:
+            tree.links.new(value, socket)
+    return node.outputs["Value"]
+
+
+def _box_coordinates(tree: bpy.types.NodeTree, coords: bpy.types.Node) -> bpy.types.NodeSocket:
+    """Box (per-face planar) mapping in object space: a face takes the two object axes
+    across it, (y, z), (x, z) or (x, y), chosen by the largest component of its normal, so
+    2D patterns lie flat on every face and brick courses stay horizontal on vertical faces."""
+    position = tree.nodes.new("ShaderNodeSeparateXYZ")
+    tree.links.new(coords.outputs["Object"], position.inputs["Vector"])
+    normal = tree.nodes.new("ShaderNodeVectorMath")
+    normal.operation = "ABSOLUTE"
+    tree.links.new(coords.outputs["Normal"], normal.inputs[0])
+    n = tree.nodes.new("ShaderNodeSeparateXYZ")
+    tree.links.new(normal.outputs["Vector"], n.inputs["Vector"])
+    nx, ny, nz = n.outputs["X"], n.outputs["Y"], n.outputs["Z"]
+    x_major = _math(tree, "MULTIPLY", _math(tree, "GREATER_THAN", nx, ny), _math(tree, "GREATER_THAN", nx, nz))
+    y_major = _math(tree, "MULTIPLY", _math(tree, "SUBTRACT", 1.0, x_major), _math(tree, "GREATER_THAN", ny, nz))
+    z_major = _math(tree, "SUBTRACT", _math(tree, "SUBTRACT", 1.0, x_major), y_major)
+    px, py, pz = position.outputs["X"], position.outputs["Y"], position.outputs["Z"]
+    u = _math(tree, "ADD", _math(tree, "MULTIPLY", x_major, py),
+              _math(tree, "MULTIPLY", _math(tree, "SUBTRACT", 1.0, x_major), px))
+    v = _math(tree, "ADD", _math(tree, "MULTIPLY", z_major, py),
+              _math(tree, "MULTIPLY", _math(tree, "SUBTRACT", 1.0, z_major), pz))
+    combine = tree.nodes.new("ShaderNodeCombineXYZ")
+    tree.links.new(u, combine.inputs["X"])
+    tree.links.new(v, combine.inputs["Y"])
+    return combine.outputs["Vector"]
+
+
 def _texture(tree: bpy.types.NodeTree, tex: dict[str, Any]) -> bpy.types.Node | None:
-    """The texture node driven by object coordinates, or None for a plain material."""
+    """The texture node driven by object coordinates (box-mapped for 2D textures), or None
+    for a plain material."""
     kind = tex["kind"]
     if kind == "none":
         return None
@@ -32,7 +75,8 @@ def _texture(tree: bpy.types.NodeTree, tex: dict[str, Any]) -> bpy.types.Node | 
         "noise": "ShaderNodeTexNoise", "checker": "ShaderNodeTexChecker", "brick": "ShaderNodeTexBrick",
         "wave": "ShaderNodeTexWave", "voronoi": "ShaderNodeTexVoronoi", "magic": "ShaderNodeTexMagic",
     }[kind])
-    tree.links.new(coords.outputs["Object"], node.inputs["Vector"])
+    vector = _box_coordinates(tree, coords) if kind in PLANAR_TEXTURES else coords.outputs["Object"]
+    tree.links.new(vector, node.inputs["Vector"])
     node.inputs["Scale"].default_value = tex["scale"]
     if "Detail" in node.inputs:
         node.inputs["Detail"].default_value = tex["detail"]
@@ -117,24 +161,34 @@ def thermal_surface(spec: dict[str, Any]) -> bpy.types.Material:
     return mat
 
 
-def _density(tree: bpy.types.NodeTree, per_unit: float) -> bpy.types.NodeSocket:
-    attr = tree.nodes.new("ShaderNodeAttribute")
-    attr.attribute_name = "density"
+SMOKE_WEIGHT = "smoke_weight"  # object property: this domain's share of the interpolated smoke state
+
+
+def _multiply(tree: bpy.types.NodeTree, a: bpy.types.NodeSocket, b: bpy.types.NodeSocket | float,
+              ) -> bpy.types.NodeSocket:
     mul = tree.nodes.new("ShaderNodeMath")
     mul.operation = "MULTIPLY"
-    tree.links.new(attr.outputs["Fac"], mul.inputs[0])
-    mul.inputs[1].default_value = per_unit
+    tree.links.new(a, mul.inputs[0])
+    if isinstance(b, float):
+        mul.inputs[1].default_value = b
+    else:
+        tree.links.new(b, mul.inputs[1])
     return mul.outputs["Value"]
 
 
-def _flame_temperature(tree: bpy.types.NodeTree, ambient_k: float, flame_k: float) -> bpy.types.NodeSocket:
+def _domain_weight(tree: bpy.types.NodeTree) -> bpy.types.NodeSocket:
+    """The domain object's interpolation weight: two domains showing consecutive baked frames,
+    weighted (1-w) and w, sum to the linearly interpolated coefficients (volumes add in Cycles)."""
     attr = tree.nodes.new("ShaderNodeAttribute")
-    attr.attribute_name = "flame"
-    remap = tree.nodes.new("ShaderNodeMapRange")
-    tree.links.new(attr.outputs["Fac"], remap.inputs["Value"])
-    remap.inputs["To Min"].default_value = ambient_k
-    remap.inputs["To Max"].default_value = flame_k
-    return remap.outputs["Result"]
+    attr.attribute_type = "OBJECT"
+    attr.attribute_name = SMOKE_WEIGHT
+    return attr.outputs["Fac"]
+
+
+def _density(tree: bpy.types.NodeTree, per_unit: float) -> bpy.types.NodeSocket:
+    attr = tree.nodes.new("ShaderNodeAttribute")
+    attr.attribute_name = "density"
+    return _multiply(tree, _multiply(tree, attr.outputs["Fac"], float(per_unit)), _domain_weight(tree))
 
 
 def _add(tree: bpy.types.NodeTree, a: bpy.types.NodeSocket, b: bpy.types.NodeSocket) -> bpy.types.NodeSocket:
@@ -142,6 +196,22 @@ def _add(tree: bpy.types.NodeTree, a: bpy.types.NodeSocket, b: bpy.types.NodeSoc
     tree.links.new(a, node.inputs[0])
     tree.links.new(b, node.inputs[1])
     return node.outputs["Shader"]
+
+
+def _fire_glow(tree: bpy.types.NodeTree, table: Sequence[Sequence[float]]) -> bpy.types.NodeSocket:
+    """Blackbody glow: per-channel emission tabulated over the flame grid by the generator
+    (colour and relative luminance of T(flame)), scaled by the domain's interpolation weight."""
+    flame = tree.nodes.new("ShaderNodeAttribute")
+    flame.attribute_name = "flame"
+    combine = tree.nodes.new("ShaderNodeCombineColor")
+    weight = _domain_weight(tree)
+    for channel, socket in enumerate(("Red", "Green", "Blue"), start=1):
+        column = _curve(tree, [[row[0], row[channel]] for row in table], flame.outputs["Fac"])
+        tree.links.new(_multiply(tree, column, weight), combine.inputs[socket])
+    glow = tree.nodes.new("ShaderNodeEmission")
+    glow.inputs["Strength"].default_value = 1.0
+    tree.links.new(combine.outputs["Color"], glow.inputs["Color"])
+    return glow.outputs["Emission"]
 
 
 def rgb_smoke(spec: dict[str, Any]) -> bpy.types.Material:
@@ -161,19 +231,7 @@ def rgb_smoke(spec: dict[str, Any]) -> bpy.types.Material:
     tree.links.new(_density(tree, spec["absorb_density"]), absorb.inputs["Density"])
     shader = _add(tree, scatter.outputs["Volume"], absorb.outputs["Volume"])
     if spec.get("fire"):
-        fire = spec["fire"]
-        glow = tree.nodes.new("ShaderNodeEmission")
-        body = tree.nodes.new("ShaderNodeBlackbody")
-        tree.links.new(_flame_temperature(tree, fire["ambient_k"], fire["flame_k"]), body.inputs["Temperature"])
-        tree.links.new(body.outputs["Color"], glow.inputs["Color"])
-        flame = tree.nodes.new("ShaderNodeAttribute")
-        flame.attribute_name = "flame"
-        gain = tree.nodes.new("ShaderNodeMath")
-        gain.operation = "MULTIPLY"
-        tree.links.new(flame.outputs["Fac"], gain.inputs[0])
-        gain.inputs[1].default_value = fire["visible_strength"]
-        tree.links.new(gain.outputs["Value"], glow.inputs["Strength"])
-        shader = _add(tree, shader, glow.outputs["Emission"])
+        shader = _add(tree, shader, _fire_glow(tree, spec["fire"]["glow_table"]))
     tree.links.new(shader, out.inputs["Volume"])
     return mat
 

@@ -12,6 +12,7 @@ from typing import Any
 import bpy
 from mathutils import Matrix
 
+from blender.materials import SMOKE_WEIGHT
 from blender.scene import BuiltScene
 
 
@@ -26,16 +27,26 @@ class PassSetup:
     point_filter: bool
     file_format: str  # "PNG" (8-bit sRGB) or "EXR" (float32, linear)
     depth_pass: bool = False
+    denoise: str = "none"  # OpenImageDenoise guides, or none
+    volume_step_rate: float = 1.0
 
 
-def pass_setup(modality: str, name: str, samples: int) -> PassSetup:
+#: Cycles' denoising inputs for each `denoise` setting of the spec.
+DENOISE_INPUTS = {"color": "RGB", "albedo": "RGB_ALBEDO", "albedo_normal": "RGB_ALBEDO_NORMAL"}
+
+
+def pass_setup(modality: str, name: str, camera: dict[str, Any]) -> PassSetup:
+    """Only the smoky image (what a real camera records) is denoised; ground truth stays exact."""
+    samples, step_rate = camera["samples"], camera["volume_step_rate"]
     if name == "depth":
         return PassSetup(False, False, 1, 0, True, "EXR", depth_pass=True)
     if name == "smoke_alpha":
-        return PassSetup(True, True, samples, 0, False, "EXR")
+        return PassSetup(True, True, samples, 0, False, "EXR", volume_step_rate=step_rate)
     fmt = "PNG" if modality == "rgb" else "EXR"
     bounces = 4 if modality == "rgb" else 0
-    return PassSetup(name == "smoky", False, samples, bounces, False, fmt)
+    denoise = camera["denoise"] if name == "smoky" else "none"
+    return PassSetup(name == "smoky", False, samples, bounces, False, fmt, denoise=denoise,
+                     volume_step_rate=step_rate)
 
 
 def configure_engine(seed: int, threads: int) -> None:
@@ -46,8 +57,11 @@ def configure_engine(seed: int, threads: int) -> None:
     cycles.seed = seed
     cycles.use_animated_seed = False
     cycles.use_denoising = False
+    cycles.denoiser = "OPENIMAGEDENOISE"
+    cycles.denoising_prefilter = "ACCURATE"
+    cycles.denoising_quality = "HIGH"
+    cycles.denoising_use_gpu = False
     cycles.use_adaptive_sampling = False
-    cycles.volume_biased = True
     cycles.volume_bounces = 1
     cycles.transparent_max_bounces = 8
     cycles.caustics_reflective = False
@@ -94,11 +108,13 @@ def apply_pass(setup: PassSetup, built: BuiltScene, camera: dict[str, Any]) -> N
     cycles.diffuse_bounces = cycles.glossy_bounces = min(setup.max_bounces, 4)
     cycles.transmission_bounces = min(setup.max_bounces, 4)
     cycles.filter_width = 0.01 if setup.point_filter else 1.5
+    cycles.volume_step_rate = setup.volume_step_rate
+    cycles.use_denoising = setup.denoise != "none"
+    if cycles.use_denoising:
+        cycles.denoising_input_passes = DENOISE_INPUTS[setup.denoise]
     render.film_transparent = setup.holdout_surfaces
     for obj_name in built.surfaces:
         bpy.data.objects[obj_name].is_holdout = setup.holdout_surfaces
-    if built.domain:
-        bpy.data.objects[built.domain].hide_render = not setup.smoke_visible
     scene.view_layers[0].use_pass_z = setup.depth_pass
     settings = render.image_settings
     if setup.file_format == "PNG":
@@ -111,6 +127,22 @@ def apply_pass(setup: PassSetup, built: BuiltScene, camera: dict[str, Any]) -> N
         settings.color_mode = "RGBA"
         settings.color_depth = "32"
         settings.exr_codec = "ZIP"
+
+
+def show_smoke_state(built: BuiltScene, visible: bool, next_weight: float) -> None:
+    """The smoke at a fractional frame: the domain shows the current baked frame weighted
+    1-w, its twin the next baked frame weighted w; a twin with weight 0 is hidden."""
+    if not built.domain:
+        return
+    current = bpy.data.objects[built.domain]
+    current[SMOKE_WEIGHT] = 1.0 - next_weight
+    current.hide_render = not visible
+    if built.domain_next:
+        twin = bpy.data.objects[built.domain_next]
+        twin[SMOKE_WEIGHT] = next_weight
+        twin.hide_render = not visible or next_weight == 0.0
+    elif next_weight != 0.0:
+        raise RuntimeError("a fractional frame needs the interpolation twin of the smoke domain")
 
 
 def render_to(path: str, c2w: list[list[float]], blender_frame: int) -> None:

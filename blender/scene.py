@@ -20,13 +20,17 @@ class BuiltScene:
     surfaces: dict[str, tuple[str, str]] = field(default_factory=dict)
     domain: str | None = None
     sun: str | None = None
+    domain_next: str | None = None  # the domain's twin, one baked frame ahead (interpolation)
+    obstacles: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
-        return {"surfaces": self.surfaces, "domain": self.domain, "sun": self.sun}
+        return {"surfaces": self.surfaces, "domain": self.domain, "sun": self.sun,
+                "domain_next": self.domain_next, "obstacles": self.obstacles}
 
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> "BuiltScene":
-        return cls({k: tuple(v) for k, v in data["surfaces"].items()}, data["domain"], data["sun"])
+        return cls({k: tuple(v) for k, v in data["surfaces"].items()}, data["domain"], data["sun"],
+                   data["domain_next"], list(data["obstacles"]))
 
 
 def reset() -> None:
@@ -59,13 +63,34 @@ def _assign(obj: bpy.types.Object, mat: bpy.types.Material) -> None:
             child.data.materials.append(mat)
 
 
-def build_surfaces(job: dict[str, Any], built: BuiltScene) -> None:
+def build_surfaces(job: dict[str, Any], built: BuiltScene) -> list[bpy.types.Object]:
     rgb_mats = {n: materials.rgb_surface(m) for n, m in job["materials"].items()}
     thermal_mats = {n: materials.thermal_surface(m) for n, m in job["materials"].items()}
+    made = []
     for spec in job["objects"]:
         obj = _make_object(spec)
         _assign(obj, rgb_mats[spec["material"]])
         built.surfaces[obj.name] = (rgb_mats[spec["material"]].name, thermal_mats[spec["material"]].name)
+        made.append(obj)
+    return made
+
+
+PLANE_THICKNESS_M = 1e-6
+
+
+def add_obstacles(objects: list[bpy.types.Object], built: BuiltScene) -> None:
+    """Every scene mesh becomes a Mantaflow collision effector, so smoke flows around it.
+    A mesh with no thickness (a ground plane) is voxelised as a plane, not as a closed solid."""
+    for root in objects:
+        for obj in [root, *root.children_recursive]:
+            if obj.type != "MESH" or not obj.data.polygons:
+                continue
+            mod = obj.modifiers.new("Fluid", "FLUID")
+            mod.fluid_type = "EFFECTOR"
+            effector = mod.effector_settings
+            effector.effector_type = "COLLISION"
+            effector.use_plane_init = min(obj.dimensions) < PLANE_THICKNESS_M
+            built.obstacles.append(obj.name)
 
 
 def build_lights(job: dict[str, Any], built: BuiltScene) -> None:
@@ -176,16 +201,34 @@ def bake(domain_name: str) -> None:
         raise RuntimeError(f"Mantaflow bake did not finish: {result}")
 
 
+def add_interpolation_twin(built: BuiltScene) -> None:
+    """After the bake: a second domain reading the same cache one frame ahead
+    (`cache_frame_offset` -1), so a render between baked frames can blend the two."""
+    if not built.domain:
+        return
+    dom = bpy.data.objects[built.domain]
+    dom[materials.SMOKE_WEIGHT] = 1.0
+    twin = dom.copy()
+    twin.data = dom.data
+    twin.name = f"{dom.name}.next"
+    bpy.context.scene.collection.objects.link(twin)
+    twin.modifiers["Fluid"].domain_settings.cache_frame_offset = -1
+    twin[materials.SMOKE_WEIGHT] = 0.0
+    twin.hide_render = True
+    built.domain_next = twin.name
+
+
 def build(job: dict[str, Any]) -> BuiltScene:
     reset()
     scene = bpy.context.scene
     scene.unit_settings.system = "METRIC"
     scene.unit_settings.scale_length = 1.0
     built = BuiltScene()
-    build_surfaces(job, built)
+    objects = build_surfaces(job, built)
     build_lights(job, built)
     build_camera()
     if job["sources"]:
+        add_obstacles(objects, built)
         build_smoke(job, built)
         materials.rgb_smoke(job["smoke_rgb"])
         materials.thermal_smoke(job["smoke_thermal"])

@@ -43,6 +43,7 @@ def _prepare(job: dict[str, Any]):
         scene_mod.bake(built.domain)
         timings["bake"] = time.perf_counter() - t0
         emit("stage", name="bake", status="done", seconds=timings["bake"])
+        scene_mod.add_interpolation_twin(built)
     tmp = blend.with_name(blend.stem + ".tmp.blend")
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp), compress=False)
     os.replace(tmp, blend)
@@ -68,7 +69,7 @@ def _render_all(job: dict[str, Any], built, timings: dict[str, float]) -> dict[s
         camera = job["cameras"][modality]
         render.select_modality(modality, built)
         for name in passes:
-            setup = render.pass_setup(modality, name, camera["samples"])
+            setup = render.pass_setup(modality, name, camera)
             cam = camera["depth"] if name == "depth" else camera["render"]
             render.apply_pass(setup, built, cam)
             folder = Path(job["raw_dir"]) / modality / name
@@ -83,6 +84,7 @@ def _render_all(job: dict[str, Any], built, timings: dict[str, float]) -> dict[s
                 fresh = not path.exists()
                 if fresh:
                     t0 = time.perf_counter()
+                    render.show_smoke_state(built, setup.smoke_visible, frame["next_weight"])
                     render.render_to(str(path), frame["c2w"], frame["blender_frame"])
                     seconds += time.perf_counter() - t0
                     done += 1

@@ -9,14 +9,17 @@ from typing import Any
 import numpy as np
 
 from generator.assets import Manifest, load_mesh
+from generator.optics.blackbody import glow_table
 from generator.optics.mie import ORGANIC_SMOKE, SOOT, SmokeOptics, smoke_optics
 from generator.optics.planck import band_radiance
-from generator.rig import FrameSample, Intrinsics, Timeline, intrinsics, rgb_frames, thermal_frames, timeline
-from generator.spec import MaterialSpec, SceneSpec
+from generator.rig import (FrameSample, Intrinsics, Timeline, intrinsics, last_baked_frame, rgb_frames,
+                           thermal_frames, timeline)
+from generator.spec import CameraSpec, MaterialSpec, SceneSpec
 
 POPULATIONS = {"organic_smoke": ORGANIC_SMOKE, "soot": SOOT}
-FIRE_VISIBLE_STRENGTH = 8.0
+FIRE_VISIBLE_STRENGTH = 8.0  # scene-linear RGB emission per metre of gas at the flame temperature
 THERMAL_CURVE_POINTS = 17
+GLOW_TABLE_POINTS = 65  # luminance rises ~e^0.25 per table step near 1300 K: linear lookup within ~1%
 
 
 @dataclass(frozen=True)
@@ -28,6 +31,11 @@ class Plan:
     intrinsics: dict[str, Intrinsics]
     optics: SmokeOptics
     render_passes: dict[str, tuple[str, ...]]
+
+    @property
+    def last_frame(self) -> int:
+        """The bake must reach the last frame any camera's instant interpolates from."""
+        return max(last_baked_frame(f) for f in self.frames.values() if f)
 
 
 def without_absent_passes(spec: SceneSpec) -> SceneSpec:
@@ -108,15 +116,19 @@ def _fire(spec: SceneSpec) -> dict[str, Any] | None:
     factors = np.linspace(0.0, 1.0, THERMAL_CURVE_POINTS)
     radiance = band_radiance(ambient + factors * (flame - ambient))
     return {"ambient_k": ambient, "flame_k": flame, "visible_strength": FIRE_VISIBLE_STRENGTH,
+            "glow_table": glow_table(ambient, flame, FIRE_VISIBLE_STRENGTH, GLOW_TABLE_POINTS),
             "radiance_curve": [[float(f), float(r)] for f, r in zip(factors, radiance)]}
 
 
-def _camera(k: Intrinsics, supersample: int, samples: int, frames: list[FrameSample]) -> dict[str, Any]:
+def _camera(k: Intrinsics, supersample: int, cam: CameraSpec, frames: list[FrameSample]) -> dict[str, Any]:
     return {
         "render": {"width": k.width * supersample, "height": k.height * supersample, "fl_x": k.fl_x * supersample},
         "depth": {"width": k.width, "height": k.height, "fl_x": k.fl_x},
-        "samples": samples,
-        "frames": [{"stem": f.stem, "blender_frame": f.sim_frame, "c2w": f.c2w.tolist()} for f in frames],
+        "samples": cam.samples,
+        "denoise": cam.denoise,
+        "volume_step_rate": cam.volume_step_rate,
+        "frames": [{"stem": f.stem, "blender_frame": f.base_frame, "next_weight": f.next_weight,
+                    "c2w": f.c2w.tolist()} for f in frames],
     }
 
 
@@ -169,16 +181,16 @@ def make_job(spec: SceneSpec, plan: Plan, manifest: Manifest, source: str, work:
                 "size": spec.sim.size, "vorticity": spec.sim.vorticity,
                 "buoyancy_density": spec.sim.buoyancy_density, "buoyancy_heat": spec.sim.buoyancy_heat,
                 "wind": spec.sim.wind, "dissolve_frames": int(round(spec.sim.dissolve_s * spec.sim.fps)),
-                "noise_upres": spec.sim.noise_upres, "frame_end": plan.timeline.last_frame},
+                "noise_upres": spec.sim.noise_upres, "frame_end": plan.last_frame},
         "sources": [{"kind": s.kind, "position": s.position, "radius": s.radius, "rate": s.rate,
                      "heat": source_heat(s.temperature_k, spec.lights.ambient_temperature_k), "velocity": s.velocity} for s in spec.sources],
         "smoke_rgb": {**{k: coeffs[k] for k in ("scatter_density", "scatter_color", "absorb_density",
                                                  "absorb_color", "anisotropy")}, "fire": fire},
         "smoke_thermal": {"absorption_per_density": coeffs["lwir_absorption"], "fire": fire},
         "cameras": {
-            "rgb": _camera(plan.intrinsics["rgb"], 1, spec.rig.rgb.samples, plan.frames["rgb"]),
+            "rgb": _camera(plan.intrinsics["rgb"], 1, spec.rig.rgb, plan.frames["rgb"]),
             "thermal": _camera(plan.intrinsics["thermal"], spec.rig.thermal.supersample,
-                               spec.rig.thermal.samples, plan.frames["thermal"]),
+                               spec.rig.thermal, plan.frames["thermal"]),
         },
         "passes": {m: list(p) for m, p in plan.render_passes.items() if p},
     }

@@ -155,7 +155,7 @@ def generate(spec: SceneSpec, out: Path, manifest: Manifest | None = None, sourc
     log.info("scene %s: %d RGB + %d thermal frames, passes %s, sim %d^3 over %d frames",
              spec.name, len(plan.frames["rgb"]), len(plan.frames["thermal"]),
              ",".join(f"{m}.{p}" for m, ps in spec.passes.items() for p in ps), spec.sim.resolution,
-             plan.timeline.last_frame)
+             plan.last_frame)
     summary = run_worker(job, work, show_progress) if job["passes"] else {"timings": {}, "passes": {}}
     log.info("worker finished in %.1f s", summary.get("wall_s", 0.0))
     sensor = sensor_for(spec) if spec.passes.get("thermal") else None

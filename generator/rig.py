@@ -1,9 +1,10 @@
 """The drone camera rig: unsynchronised RGB and thermal cameras on one moving body.
 
 Poses are camera-to-world in the Blender/OpenGL camera convention (+X right, +Y up,
-looking along -Z), the same convention `transforms_*.json` stores. Both cameras
-sample the simulation's frame grid, so every timestamp is an instant whose smoke
-state exists in the bake; their rates and offsets differ, so they rarely coincide.
+looking along -Z), the same convention `transforms_*.json` stores. Each camera keeps
+its own clock: a frame's timestamp is exact (never snapped to the simulation grid), and
+the smoke state rendered for it is the bake interpolated linearly between the two
+simulation frames around that instant (`FrameSample.sim_frame` is fractional).
 """
 from __future__ import annotations
 
@@ -32,18 +33,31 @@ class Intrinsics:
         return np.array([[self.fl_x, 0.0, self.cx], [0.0, self.fl_y, self.cy], [0.0, 0.0, 1.0]])
 
 
+SIM_WEIGHT_DIGITS = 6  # interpolation weights are rounded so that plans are exactly reproducible
+
+
 @dataclass(frozen=True)
 class FrameSample:
     index: int
     timestamp_s: float
     time: float
-    sim_frame: int
+    sim_frame: float  # Blender frame position of the smoke state; fractional between baked frames
     c2w: np.ndarray
     split: str
 
     @property
     def stem(self) -> str:
         return f"{self.index:04d}"
+
+    @property
+    def base_frame(self) -> int:
+        """The baked frame at or before the instant."""
+        return int(np.floor(self.sim_frame))
+
+    @property
+    def next_weight(self) -> float:
+        """Weight of the following baked frame in the linear interpolation (0 = on a baked frame)."""
+        return round(self.sim_frame - self.base_frame, SIM_WEIGHT_DIGITS)
 
 
 @dataclass(frozen=True)
@@ -55,19 +69,14 @@ class Timeline:
     duration_s: float
     static: bool
 
-    def sim_frame(self, timestamp_s: float) -> int:
-        step = 0 if self.static else int(round(timestamp_s * self.sim_fps))
-        return 1 + self.warmup_frames + step
-
-    def snap(self, timestamp_s: float) -> float:
-        return round(timestamp_s * self.sim_fps) / self.sim_fps
+    def sim_frame(self, timestamp_s: float) -> float:
+        """Blender frame position of the smoke state at `timestamp_s` (frozen when static)."""
+        step = 0.0 if self.static else round(timestamp_s * self.sim_fps, SIM_WEIGHT_DIGITS)
+        return 1 + self.warmup_frames + (step if step != int(step) else int(step))
 
     def normalised(self, timestamp_s: float) -> float:
         return 0.0 if self.duration_s <= 0 else min(1.0, max(0.0, timestamp_s / self.duration_s))
 
-    @property
-    def last_frame(self) -> int:
-        return self.sim_frame(self.duration_s) if not self.static else 1 + self.warmup_frames
 
 
 def intrinsics(camera: CameraSpec, width: int | None = None, height: int | None = None) -> Intrinsics:
@@ -120,9 +129,13 @@ def thermal_pose(rgb_c2w: np.ndarray, baseline_m: tuple[float, float, float]) ->
 
 def timeline(spec: SceneSpec) -> Timeline:
     duration = (spec.frames - 1) / spec.rig.rgb.fps if spec.frames > 1 else 0.0
-    duration = round(duration * spec.sim.fps) / spec.sim.fps
     warmup = int(round(spec.sim.warmup_s * spec.sim.fps))
     return Timeline(spec.sim.fps, warmup, duration, spec.sim.static)
+
+
+def last_baked_frame(frames: list[FrameSample]) -> int:
+    """The last baked frame any of these frames interpolates from."""
+    return max(f.base_frame + (f.next_weight > 0) for f in frames)
 
 
 def held_out_indices(frames: int, test_every: int) -> set[int]:
@@ -133,7 +146,7 @@ def rgb_frames(spec: SceneSpec, line: Timeline) -> list[FrameSample]:
     held_out = held_out_indices(spec.frames, spec.test_every)
     out = []
     for i in range(spec.frames):
-        ts = line.snap(i / spec.rig.rgb.fps)
+        ts = i / spec.rig.rgb.fps
         u = line.normalised(ts)
         out.append(FrameSample(i, ts, u, line.sim_frame(ts), rig_pose(spec.rig.trajectory, u),
                                "test" if i in held_out else "train"))
@@ -145,8 +158,8 @@ def thermal_frames(spec: SceneSpec, line: Timeline) -> list[FrameSample]:
     out: list[FrameSample] = []
     j = 0
     while True:
-        ts = line.snap(cam.time_offset_s + j / cam.fps)
-        if ts > line.duration_s + 1e-9 or (line.duration_s == 0 and j > 0):
+        ts = cam.time_offset_s + j / cam.fps
+        if j > 0 and ts > line.duration_s + 1e-9:  # the first thermal frame is always taken
             break
         u = line.normalised(ts)
         pose = thermal_pose(rig_pose(spec.rig.trajectory, u), cam.baseline_m)

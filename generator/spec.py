@@ -18,6 +18,7 @@ SOURCE_KINDS = ("smoke", "fire", "both")
 TRAJECTORY_KINDS = ("orbit", "flyover")
 PARTICLE_KINDS = ("organic_smoke", "soot")
 MODALITIES = ("rgb", "thermal")
+DENOISERS = ("none", "color", "albedo", "albedo_normal")
 PASSES = ("smoky", "clean", "depth", "smoke_alpha")
 
 
@@ -124,12 +125,18 @@ class TrajectorySpec:
 
 @dataclass(frozen=True)
 class CameraSpec:
+    """`denoise` runs OpenImageDenoise on the smoky image only (the image a real camera gives);
+    ground-truth passes are never denoised. `volume_step_rate` scales Cycles' volume ray-march
+    step (larger is faster and coarser)."""
+
     width: int
     height: int
     fov_deg: float
     fps: float
     samples: int
     time_offset_s: float = 0.0
+    denoise: str = "albedo_normal"
+    volume_step_rate: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -337,6 +344,8 @@ def _camera_fields(f: Fields, defaults: CameraSpec) -> dict[str, Any]:
         fps=f.number("fps", defaults.fps, minimum=0.0, maximum=1000.0, exclusive_minimum=True),
         samples=f.integer("samples", defaults.samples, 1, 65536),
         time_offset_s=f.number("time_offset_s", defaults.time_offset_s, 0.0, 10.0),
+        denoise=f.string("denoise", defaults.denoise, DENOISERS),
+        volume_step_rate=f.number("volume_step_rate", defaults.volume_step_rate, 0.01, 100.0),
     )
 
 

@@ -5,23 +5,37 @@ import math
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from generator.presets import load_preset
 from generator.rig import intrinsics, look_at, rgb_frames, thermal_frames, timeline
 
 
-def test_clocks_are_unsynchronised_and_on_the_sim_grid() -> None:
+def test_clocks_are_unsynchronised_with_exact_timestamps() -> None:
     spec = load_preset("demo")
     line = timeline(spec)
     rgb, th = rgb_frames(spec, line), thermal_frames(spec, line)
     assert len(rgb) == spec.frames and len(th) >= 2
+    for f in rgb:
+        assert f.timestamp_s == f.index / spec.rig.rgb.fps
+    for f in th:
+        assert f.timestamp_s == spec.rig.thermal.time_offset_s + f.index / spec.rig.thermal.fps
     for f in rgb + th:
-        assert abs(f.timestamp_s * spec.sim.fps - round(f.timestamp_s * spec.sim.fps)) < 1e-9
         assert 0.0 <= f.time <= 1.0
-        assert f.sim_frame == 1 + line.warmup_frames + round(f.timestamp_s * spec.sim.fps)
+        # The smoke state is the bake at this very instant: a fractional frame when between steps.
+        assert f.sim_frame == pytest.approx(1 + line.warmup_frames + f.timestamp_s * spec.sim.fps, abs=1e-6)
     assert rgb[0].time == 0.0 and rgb[-1].time == 1.0
-    assert {f.timestamp_s for f in th} != {f.timestamp_s for f in rgb}
+    assert {f.sim_frame for f in th}.isdisjoint({f.sim_frame for f in rgb})
     assert any(f.split == "test" for f in rgb) and all(f.split == "train" for f in th)
+
+
+def test_static_smoke_freezes_every_frame_at_the_first_state() -> None:
+    spec = load_preset("demo")
+    spec = replace(spec, sim=replace(spec.sim, static=True))
+    line = timeline(spec)
+    frames = rgb_frames(spec, line) + thermal_frames(spec, line)
+    assert {f.sim_frame for f in frames} == {1 + line.warmup_frames}
+    assert all(f.next_weight == 0.0 for f in frames)
 
 
 def test_poses_are_rigid_and_look_at_the_target() -> None:

@@ -50,8 +50,11 @@ def main() -> None:
         camera = {"width": 16, "height": 16, "fl_x": 160.0}  # ~6° FOV: every ray crosses the slab nearly normally
         c2w = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 5.0], [0, 0, 0, 1]]
         paths = {}
+        settings = {"samples": 4, "denoise": "none", "volume_step_rate": 1.0}
         for name in ("smoky", "smoke_alpha"):
-            render.apply_pass(render.pass_setup("thermal", name, 4), built, camera)
+            setup = render.pass_setup("thermal", name, settings)
+            render.apply_pass(setup, built, camera)
+            render.show_smoke_state(built, setup.smoke_visible, 0.0)
             paths[name] = os.path.join(os.path.dirname(out), f"slab{i}_{name}.exr")
             render.render_to(paths[name], c2w, 1)
         centre = (slice(4, 12), slice(4, 12))

@@ -1,0 +1,54 @@
+"""Renders the demo's smoke opacity at two consecutive baked frames, halfway between them, and
+with only the interpolation twin shown, using the generator's own job, scene builder, twin and
+render passes; writes the four alpha images as JSON.
+Run in a subprocess: python interpolated_smoke.py OUT.json WORK_DIR
+"""
+import json
+import os
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import bpy  # noqa: F401
+
+from blender import render
+from blender import scene as scene_mod
+from blender.manta_repair import repair_manta_hierarchy
+from generator.api import resolve_spec
+from generator.assets import load_manifest
+from generator.job import make_job, make_plan, resolve_asset_materials
+from generator.postprocess import read_alpha
+
+#: (label, baked frame, weight of the next baked frame)
+STATES = (("start", 0, 0.0), ("end", 1, 0.0), ("halfway", 0, 0.5), ("twin_only", 0, 1.0))
+
+
+def main() -> None:
+    out, work = sys.argv[1], Path(sys.argv[2])
+    repair_manta_hierarchy()
+    spec, source = resolve_spec("demo")
+    manifest = load_manifest()
+    spec = resolve_asset_materials(replace(spec, frames=2), manifest, source)
+    job = make_job(spec, make_plan(spec), manifest, source, work, 1)
+    built = scene_mod.build(job)
+    scene_mod.bake(built.domain)
+    scene_mod.add_interpolation_twin(built)
+    render.configure_engine(seed=0, threads=1)
+    camera = job["cameras"]["rgb"]
+    frame = camera["frames"][0]
+    render.select_modality("rgb", built)
+    setup = render.pass_setup("rgb", "smoke_alpha", {**camera, "samples": 64})
+    render.apply_pass(setup, built, camera["render"])
+    images = {}
+    for label, offset, weight in STATES:
+        path = str(work / f"{label}.exr")
+        render.show_smoke_state(built, True, weight)
+        render.render_to(path, frame["c2w"], frame["blender_frame"] + offset)
+        images[label] = read_alpha(Path(path)).tolist()
+    with open(out, "w") as fh:
+        json.dump(images, fh)
+    sys.stdout.flush()
+    os._exit(0)
+
+
+main()
