@@ -3,7 +3,13 @@ the file, and written atomically (contracts.atomic) so a resume never trusts a t
 """
 from __future__ import annotations
 
+import contextlib
+import io
+import os
+import sys
+import tempfile
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 import OpenEXR
@@ -21,13 +27,42 @@ def write_exr(path: Path, channels: dict[str, np.ndarray]) -> None:
         OpenEXR.File(header, data).write(str(tmp))
 
 
+@contextlib.contextmanager
+def _library_output() -> Iterator[list[str]]:
+    """Capture what the OpenEXR library prints itself on file descriptors 1 and 2 (it reports
+    corrupt chunks there), so a bad file gives one line from us instead of library noise."""
+    captured: list[str] = []
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = {fd: os.dup(fd) for fd in (1, 2)}
+    python_level = io.StringIO()
+    with tempfile.TemporaryFile(mode="w+b") as sink, contextlib.redirect_stderr(python_level), \
+            contextlib.redirect_stdout(python_level):
+        for fd in saved:
+            os.dup2(sink.fileno(), fd)
+        try:
+            yield captured
+        finally:
+            for fd, original in saved.items():
+                os.dup2(original, fd)
+                os.close(original)
+            sink.seek(0)
+            text = sink.read().decode(errors="replace") + python_level.getvalue()
+            captured.extend(line for line in text.splitlines() if line.strip())
+
+
 def read_exr(path: Path) -> dict[str, np.ndarray]:
     """All channels of every part by full name (Blender's multilayer names kept, e.g. 'ViewLayer.Depth.Z')."""
-    try:
-        with OpenEXR.File(str(path), separate_channels=True) as exr:
-            return {name: np.asarray(ch.pixels) for part in exr.parts for name, ch in part.channels.items()}
-    except Exception as exc:  # OpenEXR raises RuntimeError/OSError variants for bad files
-        raise DatasetError(f"{path}: not a readable EXR image ({exc})") from None
+    with _library_output() as library_messages:
+        try:
+            with OpenEXR.File(str(path), separate_channels=True) as exr:
+                channels = {name: np.asarray(ch.pixels) for part in exr.parts for name, ch in part.channels.items()}
+        except Exception as exc:  # OpenEXR raises RuntimeError/OSError variants for bad files
+            channels, library_messages[:0] = {}, [str(exc)]
+    if not channels or any(a.dtype == object or a.ndim != 2 for a in channels.values()):
+        detail = library_messages[0].replace(f"{path}: ", "") if library_messages else "no pixel data"
+        raise DatasetError(f"{path}: not a readable EXR image, truncated or corrupt ({detail})")
+    return channels
 
 
 def read_exr_channel(path: Path, channel: str) -> np.ndarray:
