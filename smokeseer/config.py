@@ -132,6 +132,9 @@ class TrainConfig:
     pose_noise_rot_deg: float = 0.0
     pose_noise_trans: float = 0.0
     registration: str = "auto"
+    registration_lever_arm: tuple[float, ...] = ()
+    stage1: str = "ground-truth"
+    mask_dir: str = ""
     checkpoint_every: int = 1000
     log_every: int = 10
     smoke_ply_times: tuple[float, ...] = (0.0, 0.5, 1.0)
@@ -157,6 +160,11 @@ class TrainConfig:
             raise ValueError(f"depth_prior: {self.depth_prior!r} is not thermal-render, mono or none")
         if self.registration not in ("auto", "off", "trajectory"):
             raise ValueError(f"registration: {self.registration!r} is not auto, off or trajectory")
+        if len(self.registration_lever_arm) not in (0, 3):
+            raise ValueError("registration_lever_arm: give 3 numbers (thermal centre in the RGB camera's "
+                             "OpenCV axes), or none to leave the offset unmodelled")
+        if self.stage1 not in ("ground-truth", "estimate"):
+            raise ValueError(f"stage1: {self.stage1!r} is not ground-truth or estimate")
         if self.deform.skip_layer >= self.deform.depth:
             raise ValueError("deform.skip_layer: must be below deform.depth")
         for t in self.smoke_ply_times:

@@ -1,20 +1,26 @@
 """Stage 1: poses, masks, and one world frame for both cameras.
 
-Poses and masks come from the dataset. When a capture's RGB and thermal poses were solved
-separately, the thermal poses are mapped into the RGB frame by the Sim(3) between the two
-camera-centre trajectories. Optional pose noise perturbs training poses for robustness studies.
+Poses come from the dataset. When a capture's RGB and thermal poses were solved separately,
+the thermal poses are mapped into the RGB frame by the rig registration (orientations, centres
+and the lever arm; ``registration.register_rig``), and what it found is reported. Masks come
+from the dataset, from an external segmenter's files (``mask_dir``), or are estimated from the
+images (``stage1=estimate``), which then also decides from the data whether there is smoke.
+Optional pose noise perturbs training poses for robustness studies.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from smokeseer.cameras import SceneBounds, camera_center, scene_bounds
 from smokeseer.config import TrainConfig
-from smokeseer.data import ModalityData, SceneData
-from smokeseer.registration import Sim3, register_trajectories
+from smokeseer.data import ModalityData, SceneData, load_masks
+from smokeseer.registration import Sim3, register_rig
+from smokeseer.smoke_masks import ESTIMATOR, SMOKE_PRESENT_FRACTION, estimate_smoke_masks
 
 
 @dataclass
@@ -27,6 +33,9 @@ class Stage1Report:
     registration_inliers: int | None
     pose_noise: bool
     bounds: SceneBounds
+    registration: dict[str, Any] | None = None
+    masks: str = "dataset"
+    notes: list[str] = field(default_factory=list)
 
 
 def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
@@ -61,15 +70,20 @@ def _needs_registration(cfg: TrainConfig, scene: SceneData) -> bool:
 
 
 def run_stage1(cfg: TrainConfig, scene: SceneData) -> Stage1Report:
-    """Register, perturb, and bound the scene, editing ``scene``'s poses in place."""
-    registered, scale, rmse, inliers = False, 1.0, None, None
+    """Register, choose the masks, perturb, and bound the scene, editing ``scene`` in place."""
+    notes = list(scene.notes)
+    registered, scale, rmse, inliers, registration = False, 1.0, None, None, None
     if _needs_registration(cfg, scene) and scene.thermal is not None:
-        src = np.stack([camera_center(f.viewmat) for f in scene.thermal.frames])
-        dst = np.stack([camera_center(f.viewmat) for f in scene.rgb.frames])
-        res = register_trajectories(src, np.array([f.timestamp_s for f in scene.thermal.frames]),
-                                    dst, np.array([f.timestamp_s for f in scene.rgb.frames]), seed=cfg.seed)
+        th, rgb = scene.thermal.frames, scene.rgb.frames
+        lever = np.asarray(cfg.registration_lever_arm, dtype=np.float64) if cfg.registration_lever_arm else None
+        res = register_rig(np.stack([f.viewmat for f in th]), np.array([f.timestamp_s for f in th]),
+                           np.stack([f.viewmat for f in rgb]), np.array([f.timestamp_s for f in rgb]),
+                           lever_arm=lever)
         _apply(res.sim3, scene.thermal)
-        registered, scale, rmse, inliers = True, res.sim3.scale, res.rmse, int(res.inliers.sum())
+        registration = res.to_dict()
+        registered, scale, rmse, inliers = True, res.sim3.scale, res.centre_rmse, int(res.inliers.sum())
+        notes += [f"registration: {n}" for n in res.notes]
+    masks = _choose_masks(cfg, scene, notes)
     mods = [scene.rgb] + ([scene.thermal] if scene.thermal is not None else [])
     train = [f for m in mods for f in m.frames if f.split == "train"]
     bounds = scene_bounds(np.stack([f.viewmat for f in train]), np.stack([f.K for f in train]),
@@ -79,7 +93,48 @@ def run_stage1(cfg: TrainConfig, scene: SceneData) -> Stage1Report:
         rng = np.random.default_rng(cfg.seed + 7)
         for m in mods:
             perturb_poses(m, cfg.pose_noise_rot_deg, cfg.pose_noise_trans * bounds.extent, rng)
-    return Stage1Report(registered, scale, rmse, inliers, noisy, bounds)
+    return Stage1Report(registered, scale, rmse, inliers, noisy, bounds, registration, masks, notes)
+
+
+def _choose_masks(cfg: TrainConfig, scene: SceneData, notes: list[str]) -> str:
+    """Replace the dataset's masks when asked; returns where the masks came from."""
+    rgb = scene.rgb
+    if cfg.mask_dir:
+        files = [Path(cfg.mask_dir) / f"{f.file_stem}.png" for f in rgb.frames]
+        factor = _mask_factor(files, rgb.frames[0].width)
+        rgb.masks = load_masks(files, factor, cfg.mask_dir, notes)
+        if rgb.masks is None:
+            raise ValueError(f"mask_dir: {cfg.mask_dir} has no NAME.png mask for any RGB frame")
+        notes.append(f"masks: loaded from {cfg.mask_dir} (external segmenter)")
+        return f"files: {cfg.mask_dir}"
+    if cfg.stage1 != "estimate":
+        return "dataset" if rgb.masks is not None else "none"
+    est = estimate_smoke_masks(rgb.images)
+    rgb.masks = est.masks
+    train = rgb.indices("train")
+    fraction = float(est.masks[train].mean())
+    was = (scene.smoke_present, scene.smoke_static)
+    scene.smoke_present = fraction >= SMOKE_PRESENT_FRACTION
+    scene.smoke_static = False
+    notes.append(f"masks: estimated from the RGB frames ({ESTIMATOR}); smoke covers {100 * fraction:.1f} % of the "
+                 f"training pixels, so smoke is {'present' if scene.smoke_present else 'absent'} "
+                 f"(dataset said present={was[0]}); static smoke cannot be told from a moving camera's masks, "
+                 "so the deformation network stays on")
+    return f"estimated: {ESTIMATOR}"
+
+
+def _mask_factor(files: list[Path], width: int) -> int:
+    """External masks are stored at the capture's resolution; the factor brings them to ours."""
+    from PIL import Image
+
+    for p in files:
+        if p.is_file():
+            with Image.open(p) as im:
+                mask_width = im.size[0]
+            if mask_width % width:
+                raise ValueError(f"{p}: mask is {mask_width} px wide, not a multiple of the working width {width}")
+            return mask_width // width
+    return 1
 
 
 def _apply(sim: Sim3, mod: ModalityData) -> None:

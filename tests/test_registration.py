@@ -9,7 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from smokeseer.registration import Sim3, pair_by_timestamp, ransac_sim3, register_trajectories, umeyama
+from smokeseer.registration import (Sim3, pair_by_timestamp, ransac_sim3, register_rig, register_trajectories,
+                                    umeyama)
 
 
 def _known_sim3(seed: int) -> Sim3:
@@ -115,3 +116,97 @@ def test_invalid_input_raises_named_errors() -> None:
         ransac_sim3(np.random.rand(5, 3), np.random.rand(5, 3), threshold=0.0)
     with pytest.raises(ValueError, match="NaN"):
         umeyama(np.full((4, 3), np.nan), np.zeros((4, 3)))
+
+
+# ----------------------------------------------------------------------------- rig registration
+
+def _orbit_rig(n: int, times: np.ndarray, lever: np.ndarray, straight: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """RGB viewmats along an orbit (or a straight pass) looking at the origin, and the thermal
+    viewmats of a camera ``lever`` away in the RGB camera's axes, same orientation."""
+    rgb, th = [], []
+    for t in times:
+        if straight:
+            eye = np.array([-3.0 + 6.0 * t, -4.0, 1.5])
+            fwd = np.array([0.0, 1.0, -0.2])
+        else:
+            a = 2.0 * t
+            eye = np.array([4 * math.cos(a), 4 * math.sin(a), 1.5 + 0.3 * math.sin(3 * a)])
+            fwd = -eye
+        fwd = fwd / np.linalg.norm(fwd)
+        right = np.cross(fwd, [0, 0, 1.0])
+        right /= np.linalg.norm(right)
+        down = np.cross(fwd, right)
+        r = np.stack([right, down, fwd])  # OpenCV w2c rotation rows
+        v = np.eye(4)
+        v[:3, :3], v[:3, 3] = r, -r @ eye
+        w = np.eye(4)
+        c_th = eye + r.T @ lever
+        w[:3, :3], w[:3, 3] = r, -r @ c_th
+        rgb.append(v)
+        th.append(w)
+    return np.stack(rgb), np.stack(th)
+
+
+def _truth() -> Sim3:
+    """The issue's known similarity: scale 1/1.7, 35 deg about (1, 2, 3), a 2.3 m shift."""
+    axis = np.array([1.0, 2.0, 3.0]) / math.sqrt(14.0)
+    shift = np.array([1.0, -1.0, 0.5])
+    return Sim3(1 / 1.7, Rotation.from_rotvec(math.radians(35) * axis).as_matrix(), 2.3 * shift / np.linalg.norm(shift))
+
+
+def _inverse(s: Sim3) -> Sim3:
+    r = s.rotation.T
+    return Sim3(1 / s.scale, r, -r @ s.translation / s.scale)
+
+
+@pytest.mark.parametrize("straight", [False, True])
+def test_rig_registration_recovers_a_known_sim3_with_a_lever_arm(straight: bool) -> None:
+    """Unsynchronised cameras 6 cm apart: a centre-only fit folds the offset into a rotation
+    (the issue measured 0.955 deg); orientations plus the lever arm recover it to 0.1 deg."""
+    t_rgb = np.arange(0, 1.5, 1 / 12)
+    t_th = np.arange(0.04, 1.45, 1 / 9)
+    lever = np.array([0.06, 0.0, 0.0])
+    rgb, _ = _orbit_rig(len(t_rgb), t_rgb, lever, straight)
+    _, th_true = _orbit_rig(len(t_th), t_th, lever, straight)
+    truth = _truth()
+    th_own = np.stack([truth.transform_viewmat(v) for v in th_true])
+    want = _inverse(truth)
+    for given in (lever, None):
+        res = register_rig(th_own, t_th, rgb, t_rgb, lever_arm=given)
+        assert res.geometry == ("straight line" if straight else "general")
+        assert _rot_err_deg(res.sim3.rotation, want.rotation) < 0.1
+        assert res.sim3.scale == pytest.approx(want.scale, rel=1e-3)
+        if given is not None:
+            assert np.linalg.norm(res.sim3.translation - want.translation) < 0.01
+        mapped = np.stack([res.sim3.transform_viewmat(v) for v in th_own])
+        centre_err = np.linalg.norm([(-m[:3, :3].T @ m[:3, 3]) - (-w[:3, :3].T @ w[:3, 3])
+                                     for m, w in zip(mapped, th_true)], axis=1)
+        assert centre_err.max() < (0.01 if given is not None else 0.07)
+        doc = res.to_dict()
+        assert doc["scale"] == res.sim3.scale and len(doc["translation"]) == 3 and doc["inliers"] == res.pairs
+    if not straight:
+        # The centre-only fit is the one the issue caught: it is off by more than the 0.1 deg bound.
+        old = register_trajectories(np.stack([-v[:3, :3].T @ v[:3, 3] for v in th_own]), t_th,
+                                    np.stack([-v[:3, :3].T @ v[:3, 3] for v in rgb]), t_rgb)
+        assert _rot_err_deg(old.sim3.rotation, want.rotation) > 0.1
+
+
+def test_rig_registration_rejects_bad_pairs_and_a_still_camera() -> None:
+    t = np.arange(0, 1.5, 1 / 12)
+    rgb, th = _orbit_rig(len(t), t, np.zeros(3))
+    broken = th.copy()
+    broken[::6, :3, 3] += 3.0  # gross pose failures
+    res = register_rig(broken, t, rgb, t)
+    assert not res.inliers[::6].any() and res.inliers.sum() == len(t) - len(t[::6])
+    assert _rot_err_deg(res.sim3.rotation, np.eye(3)) < 1e-6
+    still = np.repeat(th[:1], len(t), axis=0)
+    with pytest.raises(ValueError, match="do not move"):
+        register_rig(still, t, rgb, t)
+    with pytest.raises(ValueError, match="timestamps"):
+        register_rig(th, t + 100.0, rgb, t)
+
+
+def test_ransac_without_consensus_is_an_error() -> None:
+    rng = np.random.default_rng(0)
+    with pytest.raises(ValueError, match="no 3 correspondences agree"):
+        ransac_sim3(rng.normal(size=(12, 3)), rng.normal(size=(12, 3)) * 50, threshold=1e-6, iterations=50)

@@ -35,12 +35,14 @@ def test_separate_pose_frames_are_registered(ds: Path) -> None:
     scene.meta["pose_frames"] = "separate"
     report = run_stage1(make_config(), scene)
     assert report.registered and report.sim3_scale == pytest.approx(1 / 2.5, rel=0.02)
+    assert report.registration is not None and report.registration["inliers"] == len(truth)
     for f, v in zip(scene.thermal.frames, truth):
-        # The arc is sampled at different instants by the two cameras, so centres agree only
-        # to a fraction of the inter-frame motion; orientation must agree closely.
-        assert np.linalg.norm(camera_center(f.viewmat) - camera_center(v)) < 0.1
+        # The splat scene's two cameras sweep the arc at different rates (index, not time, sets
+        # the angle), so they are not one rigid rig: centres agree to a fraction of a frame's
+        # motion (0.24 m per RGB frame), orientations to a fraction of its 4.5 deg turn.
+        assert np.linalg.norm(camera_center(f.viewmat) - camera_center(v)) < 0.15
         angle = Rotation.from_matrix(f.viewmat[:3, :3] @ v[:3, :3].T).magnitude()
-        assert math.degrees(angle) < 1.5
+        assert math.degrees(angle) < 2.5
 
 
 def test_shared_frame_is_left_alone(ds: Path) -> None:
@@ -71,3 +73,32 @@ def test_pose_noise_statistics(ds: Path) -> None:
     # |N(0, 2°)| has mean 2·sqrt(2/π) ≈ 1.60°; per-axis shift std is 0.05.
     assert np.mean(angles) == pytest.approx(2.0 * math.sqrt(2 / math.pi), rel=0.1)
     assert np.std(np.concatenate(shifts)) == pytest.approx(0.05, rel=0.1)
+
+
+@pytest.mark.blender
+def test_demo_capture_with_a_known_sim3(demo_dataset: Path) -> None:
+    """The issue's check: the demo's thermal poses moved by scale 1/1.7, 35 deg about (1, 2, 3)
+    and a 2.3 m shift come back within 0.1 deg and 1 cm, with and without the rig's 6 cm lever."""
+    axis = np.array([1.0, 2.0, 3.0]) / math.sqrt(14.0)
+    shift = np.array([1.0, -1.0, 0.5])
+    moved = Sim3(1 / 1.7, Rotation.from_rotvec(math.radians(35) * axis).as_matrix(),
+                 2.3 * shift / np.linalg.norm(shift))
+    want_rot = moved.rotation.T
+    want_shift = -want_rot @ moved.translation / moved.scale
+    for lever in ((0.06, 0.0, 0.0), ()):
+        scene = load_scene(demo_dataset)
+        truth = [f.viewmat.copy() for f in scene.thermal.frames]
+        for f in scene.thermal.frames:
+            f.viewmat = moved.transform_viewmat(f.viewmat)
+        scene.synthetic = False
+        scene.meta["pose_frames"] = "separate"
+        report = run_stage1(make_config(overrides={"registration_lever_arm": list(lever)}), scene)
+        reg = report.registration
+        assert reg is not None and report.registered
+        got = np.asarray(reg["rotation_matrix"])
+        assert math.degrees(Rotation.from_matrix(got @ want_rot.T).magnitude()) < 0.1
+        assert reg["scale"] == pytest.approx(1.7, rel=1e-3)
+        tolerance = 0.01 if lever else 0.07  # without the lever the 6 cm offset is not modelled
+        assert np.linalg.norm(np.asarray(reg["translation"]) - want_shift) < tolerance
+        for f, v in zip(scene.thermal.frames, truth):
+            assert np.linalg.norm(camera_center(f.viewmat) - camera_center(v)) < tolerance

@@ -1,0 +1,92 @@
+"""Smoke masks from the RGB frames alone, for captures without a segmenter (``stage1=estimate``).
+
+The paper's Stage 1 segments smoke with GroundedSAM, whose weights cannot be had offline. These
+candidates need no weights; ``benchmarks/smoke_masks.py`` measures their IoU against the
+synthetic ground-truth masks, picks the candidate and threshold on the validation frames
+(training views, never test views), and writes the curve to ``benchmarks/results/``.
+
+- **dark channel** (He et al. 2009): haze = 1 − transmission, where transmission comes from the
+  patch minimum of the colour minimum, normalised by the brightest (atmospheric) colour. Grey
+  and white smoke lifts the dark channel of whatever is behind it.
+- **whiteness**: brightness × (1 − saturation); smoke is bright and colourless.
+- **temporal variance**: the per-pixel standard deviation over the frames; only meaningful for
+  a static camera, and measured so that this is shown rather than assumed.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.ndimage import minimum_filter
+
+CANDIDATES = ("dark-channel", "whiteness", "temporal-variance")
+ESTIMATOR = "dark-channel"
+THRESHOLD = 0.35
+PATCH_FRACTION = 1 / 32
+SMOKE_PRESENT_FRACTION = 0.01
+"""Mask coverage of the training pixels above which a scene is said to have smoke."""
+
+
+@dataclass
+class MaskEstimate:
+    masks: np.ndarray
+    scores: np.ndarray
+    estimator: str
+    threshold: float
+
+
+def dark_channel_haze(images: np.ndarray, patch_fraction: float = PATCH_FRACTION) -> np.ndarray:
+    """1 − transmission per pixel, in [0, 1], for N×H×W×3 images in [0, 1]."""
+    n, h, w, _ = images.shape
+    patch = max(1, int(round(patch_fraction * max(h, w))) | 1)
+    darkest = images.min(axis=-1)
+    dark = np.stack([minimum_filter(d, size=patch, mode="nearest") for d in darkest])
+    k = max(1, int(0.001 * h * w))
+    atmosphere = np.empty((n, 3))
+    for i in range(n):
+        top = np.argsort(dark[i].ravel())[-k:]
+        atmosphere[i] = images[i].reshape(-1, 3)[top].mean(0)
+    normalised = images / np.maximum(atmosphere[:, None, None, :], 1e-3)
+    dark_norm = np.stack([minimum_filter(d, size=patch, mode="nearest") for d in normalised.min(axis=-1)])
+    return np.clip(dark_norm, 0.0, 1.0)
+
+
+def whiteness(images: np.ndarray) -> np.ndarray:
+    hi = images.max(axis=-1)
+    lo = images.min(axis=-1)
+    saturation = np.where(hi > 1e-6, (hi - lo) / np.maximum(hi, 1e-6), 0.0)
+    return hi * (1.0 - saturation)
+
+
+def temporal_variance(images: np.ndarray) -> np.ndarray:
+    grey = images.mean(axis=-1)
+    std = grey.std(axis=0, keepdims=True)
+    return np.repeat(np.clip(std / max(float(std.max()), 1e-6), 0.0, 1.0), len(images), axis=0)
+
+
+def candidate_scores(images: np.ndarray, estimator: str) -> np.ndarray:
+    """Per-pixel smoke score in [0, 1] (N×H×W) of one candidate."""
+    if estimator == "dark-channel":
+        return dark_channel_haze(images)
+    if estimator == "whiteness":
+        return whiteness(images)
+    if estimator == "temporal-variance":
+        return temporal_variance(images)
+    raise ValueError(f"estimator: {estimator!r} is not one of {', '.join(CANDIDATES)}")
+
+
+def estimate_smoke_masks(images: np.ndarray, estimator: str = ESTIMATOR,
+                         threshold: float = THRESHOLD) -> MaskEstimate:
+    """Binary smoke masks (float 0/1, N×H×W) for RGB images N×H×W×3 in [0, 1]."""
+    images = np.asarray(images, dtype=np.float64)
+    if images.ndim != 4 or images.shape[-1] != 3:
+        raise ValueError(f"images: expected N×H×W×3, got {images.shape}")
+    scores = candidate_scores(images, estimator)
+    return MaskEstimate((scores > threshold).astype(np.float32), scores.astype(np.float32), estimator, threshold)
+
+
+def iou(pred: np.ndarray, truth: np.ndarray) -> float:
+    """Intersection over union of two binary masks; 1 when both are empty."""
+    p, t = np.asarray(pred) > 0.5, np.asarray(truth) > 0.5
+    union = np.logical_or(p, t).sum()
+    return float(np.logical_and(p, t).sum() / union) if union else 1.0
