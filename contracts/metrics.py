@@ -272,8 +272,12 @@ def _build_lpips(net: str, backbone: dict[str, Any], heads: dict[str, Any]) -> C
         batch = torch.from_numpy(np.stack([p, t]).transpose(0, 3, 1, 2).astype(np.float32))
         batch = ((batch * 2.0 - 1.0) - shift) / scale
         with torch.no_grad():
+            try:
+                feats = features(batch)
+            except RuntimeError:  # a pooling window larger than the feature map
+                raise ValueError(f"pred: {p.shape[0]}x{p.shape[1]} px is too small for LPIPS-{net}") from None
             total = torch.zeros(())
-            for f, w in zip(features(batch), lins):
+            for f, w in zip(feats, lins):
                 f = f / (torch.sqrt(torch.sum(f * f, dim=1, keepdim=True)) + 1e-10)
                 d = (f[0:1] - f[1:2]) ** 2
                 total = total + F.conv2d(d, w).mean()

@@ -7,8 +7,11 @@ import math
 from pathlib import Path
 from typing import Any
 
+RESULTS_FORMAT = "smokeseer-synth-results"
+RESULTS_FORMAT_VERSION = 1
 METRIC_KEYS = ("psnr", "ssim", "lpips", "lpips_status", "psnr_input", "depth_absrel", "depth_rmse", "mask_iou")
-TOP_KEYS = ("format", "format_version", "scene", "dataset", "method", "profile", "seed", "status")
+TOP_KEYS = ("format", "format_version", "scene", "dataset", "method", "profile", "seed", "status", "provenance")
+PROVENANCE_KEYS = ("commit", "version", "source_digest", "threads", "machine")
 RENDER_DIRS = ("composite", "surface", "smoke")
 
 
@@ -23,8 +26,8 @@ def _finite_or_null(path: Path, key: str, value: Any) -> None:
         raise ResultsFormatError(f"{path}: field {key!r} must be a finite number or null, got {value!r}")
 
 
-def validate_run_dir(run_dir: Path) -> dict[str, Any]:
-    """Check metrics.json and, for an ``ok`` run, every output file; returns metrics.json."""
+def read_metrics(run_dir: Path) -> dict[str, Any]:
+    """metrics.json of a run folder, checked field by field (what the tables read)."""
     run_dir = Path(run_dir)
     mpath = run_dir / "metrics.json"
     if not mpath.is_file():
@@ -36,8 +39,11 @@ def validate_run_dir(run_dir: Path) -> dict[str, Any]:
     for key in TOP_KEYS:
         if key not in doc:
             raise ResultsFormatError(f"{mpath}: missing field {key!r}")
-    if doc["format"] != "smokeseer-synth-results" or doc["format_version"] != 1:
+    if doc["format"] != RESULTS_FORMAT or doc["format_version"] != RESULTS_FORMAT_VERSION:
         raise ResultsFormatError(f"{mpath}: field 'format'/'format_version' is not smokeseer-synth-results v1")
+    for key in PROVENANCE_KEYS:
+        if not isinstance(doc["provenance"], dict) or key not in doc["provenance"]:
+            raise ResultsFormatError(f"{mpath}: missing field 'provenance.{key}'")
     if doc["status"] == "failed":
         if not doc.get("error"):
             raise ResultsFormatError(f"{mpath}: a failed run needs field 'error'")
@@ -61,6 +67,15 @@ def validate_run_dir(run_dir: Path) -> dict[str, Any]:
     for key in ("wall_time_s", "versions", "config_sha256"):
         if key not in doc:
             raise ResultsFormatError(f"{mpath}: missing field {key!r}")
+    return doc
+
+
+def validate_run_dir(run_dir: Path) -> dict[str, Any]:
+    """Check metrics.json and, for an ``ok`` run, every output file; returns metrics.json."""
+    run_dir = Path(run_dir)
+    doc = read_metrics(run_dir)
+    if doc["status"] != "ok":
+        return doc
     for name in ("config.json", "train_log.csv", "ply/surface.ply"):
         if not (run_dir / name).is_file():
             raise ResultsFormatError(f"{run_dir / name}: missing file")

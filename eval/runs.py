@@ -4,7 +4,6 @@ records a run leaves behind. Shared by the harness, table and figure writers."""
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -57,23 +56,6 @@ def config_hash(obj: Any) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()
 
 
-def source_digest(*names: str) -> str:
-    """SHA-256 over the files of the named packages or modules, so a cache entry made by other
-    code is never reused. Found by import spec, without importing (``blender`` needs bpy)."""
-    h = hashlib.sha256()
-    for name in names:
-        spec = importlib.util.find_spec(name)
-        if spec is None or spec.origin is None:
-            raise ValueError(f"source_digest: no package or module named {name!r}")
-        origin = Path(spec.origin)
-        files = ([origin] if spec.submodule_search_locations is None else
-                 sorted(f for f in origin.parent.rglob("*") if f.is_file() and "__pycache__" not in f.parts))
-        for f in files:
-            h.update(f"{name}/{f.relative_to(origin.parent).as_posix()}\0".encode())
-            h.update(f.read_bytes())
-    return h.hexdigest()
-
-
 @dataclass(frozen=True)
 class RunSpec:
     """Everything that decides one training run; its hash names the cache entry."""
@@ -86,7 +68,7 @@ class RunSpec:
     overrides: dict[str, Any]
     dataset: str  # path of the (possibly dehazed) dataset the run trains on
     dataset_hash: str
-    code: str  # source_digest of the trainer package
+    code: str  # contracts.source.code_digest of the trainer entry point and what it imports
 
     def key(self) -> dict[str, Any]:
         """Hashed fields: the dataset enters by content hash, not by path."""

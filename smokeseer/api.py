@@ -1,38 +1,38 @@
-"""``train_and_evaluate``: load → Stage 1 → Stage 2 → Stage 3 → evaluate → outputs.
+"""``train_and_evaluate``: validate → load → Stage 1 → Stage 2 → Stage 3 → evaluate → outputs.
 
-The metrics harness calls this function; the CLI is a thin wrapper. Every run leaves a
-metrics.json, with ``status: "failed"`` and the error when something went wrong.
+The metrics harness calls this function; the CLI is a thin wrapper. Bad input (config, dataset,
+Stage 1) is refused before anything is written to ``out``; once training starts, every run
+leaves a metrics.json, with ``status: "failed"`` and the error when something went wrong.
 """
 from __future__ import annotations
 
-import json
 import platform
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-import smokeseer
+from contracts.atomic import write_json
+from contracts.dataset_format import validate_dataset
+from contracts.provenance import provenance
+from contracts.results_format import RESULTS_FORMAT, RESULTS_FORMAT_VERSION
 from smokeseer.cameras import sample_in_view
 from smokeseer.config import TrainConfig, make_config
 from smokeseer.data import ModalityData, SceneData, load_scene
 from smokeseer.depth_prior import DepthPriorMaps, monocular_depth_prior, rendered_depth_prior
-from smokeseer.evaluate import lpips_weights_from_env, quick_test_psnr, score, write_plys, write_renders
-from smokeseer.model import SceneModel
-from smokeseer.stage1 import run_stage1
+from smokeseer.evaluate import quick_test_psnr, score, write_plys, write_renders
+from smokeseer.model import Placed, SceneModel, init_gaussians, render
+from smokeseer.stage1 import Stage1Report, run_stage1
 from smokeseer.stage2 import train_stage2, views_of
-from smokeseer.stage3 import Stage3Switches, build_scene_model, train_stage3
+from smokeseer.stage3 import Stage3Switches, build_scene_model, dropped_term_notes, train_stage3
 from smokeseer.trainutil import RunContext, RunLog
-
-RESULTS_FORMAT = "smokeseer-synth-results"
-RESULTS_FORMAT_VERSION = 1
 
 
 def _versions() -> dict[str, str]:
-    return {"smokeseer_synth": getattr(smokeseer, "__version__", "0.1.0"), "torch": torch.__version__,
-            "numpy": np.__version__, "python": platform.python_version()}
+    return {"torch": torch.__version__, "numpy": np.__version__, "python": platform.python_version()}
 
 
 def _sample(mod: ModalityData, n: int, bounds: Any, rng: np.random.Generator) -> np.ndarray:
@@ -44,7 +44,8 @@ def _sample(mod: ModalityData, n: int, bounds: Any, rng: np.random.Generator) ->
 
 def switches_for(cfg: TrainConfig, scene: SceneData) -> Stage3Switches:
     """Leave out what the data does not need: no smoke in the masks → no smoke Gaussians;
-    static smoke → no deformation network; no thermal → rgb-only."""
+    static smoke → no deformation network; no thermal → rgb-only. Priors the data cannot
+    support are named in ``notes``."""
     masks = scene.rgb.masks
     smoke_seen = scene.smoke_present and (masks is None or bool((masks[scene.rgb.indices("train")] > 0).any()))
     return Stage3Switches(
@@ -52,71 +53,118 @@ def switches_for(cfg: TrainConfig, scene: SceneData) -> Stage3Switches:
         use_smoke=smoke_seen and cfg.mode != "deformable-3dgs",
         use_deform=not scene.smoke_static,
         use_masks=masks is not None,
+        notes=dropped_term_notes(cfg, masks is not None) if cfg.mode != "deformable-3dgs" else [],
     )
 
 
 def _metrics_doc(cfg: TrainConfig, scene_name: str, dataset: Path, status: str) -> dict[str, Any]:
     return {"format": RESULTS_FORMAT, "format_version": RESULTS_FORMAT_VERSION, "scene": scene_name,
             "dataset": str(Path(dataset).resolve()), "method": cfg.mode, "profile": cfg.profile,
-            "seed": cfg.seed, "status": status}
+            "seed": cfg.seed, "status": status, "versions": _versions(), "config_sha256": cfg.sha256(),
+            "provenance": provenance("smokeseer.api", torch.get_num_threads())}
 
 
-def _write_json(path: Path, doc: dict[str, Any]) -> None:
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(doc, indent=2, allow_nan=False))
-    tmp.replace(path)
+@dataclass
+class PreparedRun:
+    """Everything checked and loaded before the run folder is touched."""
+
+    cfg: TrainConfig
+    dataset: Path
+    scene: SceneData
+    report: Stage1Report
+    switches: Stage3Switches
+    load_s: float
+
+
+def prepare(dataset: Path, mode: str = "full", profile: str = "quick", seed: int = 0,
+            overrides: dict[str, Any] | None = None) -> PreparedRun:
+    """Config, dataset validation (the validator of ``generate-scene --validate`` for datasets in
+    our format), loading and Stage 1; raises DatasetError/ValueError naming the bad input."""
+    t = time.perf_counter()
+    cfg = make_config(mode, profile, seed, overrides)
+    dataset = Path(dataset)
+    if cfg.depth_prior == "mono" and not Path(cfg.mono_weights).is_file():
+        raise ValueError(f"mono_weights: no TorchScript file at {cfg.mono_weights!r} (depth_prior=mono "
+                         "uses weights on local disk only)")
+    if (dataset / "dataset.json").is_file():
+        validate_dataset(dataset)
+    scene = load_scene(dataset, cfg.max_width)
+    report = run_stage1(cfg, scene)
+    return PreparedRun(cfg, dataset, scene, report, switches_for(cfg, scene), time.perf_counter() - t)
 
 
 def train_and_evaluate(dataset: Path, out: Path, mode: str = "full", profile: str = "quick", seed: int = 0,
                        overrides: dict[str, Any] | None = None) -> dict[str, Any]:
     """Train ``mode`` on ``dataset``, evaluate the held-out views, write RUN_DIR ``out``;
-    returns the metrics.json content. Raises DatasetError/ValueError for bad input and
-    NaNDetected for a diverged run (after writing a failed metrics.json)."""
-    cfg = make_config(mode, profile, seed, overrides)
-    dataset, out = Path(dataset), Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "checkpoints").mkdir(exist_ok=True)
-    (out / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2))
-    scene_name = dataset.name
+    returns the metrics.json content. Raises DatasetError/ValueError for bad input (nothing is
+    written then) and NaNDetected for a diverged run (after writing a failed metrics.json)."""
+    prep = prepare(dataset, mode, profile, seed, overrides)
+    cfg, out = prep.cfg, Path(out)
+    (out / "checkpoints").mkdir(parents=True, exist_ok=True)
+    write_json(out / "config.json", cfg.to_dict())
     try:
-        return _run(cfg, dataset, out)
+        return _run(prep, out)
     except Exception as exc:
-        doc = _metrics_doc(cfg, scene_name, dataset, "failed")
+        doc = _metrics_doc(cfg, prep.scene.name, prep.dataset, "failed")
         doc["error"] = f"{type(exc).__name__}: {exc}"
-        doc["versions"] = _versions()
-        doc["config_sha256"] = cfg.sha256()
-        _write_json(out / "metrics.json", doc)
+        write_json(out / "metrics.json", doc)
         raise
 
 
-def _run(cfg: TrainConfig, dataset: Path, out: Path) -> dict[str, Any]:
-    if cfg.depth_prior == "mono" and not Path(cfg.mono_weights).is_file():
-        raise ValueError(f"mono_weights: no TorchScript file at {cfg.mono_weights!r} (depth_prior=mono "
-                         "uses weights on local disk only)")
+def estimate_cpu_seconds(ctx: RunContext, geo: ModalityData, init: np.ndarray) -> float:
+    """A lower bound on the training time: one measured forward + backward of the initial
+    Gaussians at the training resolution, times the iterations (Stage 3 renders two images per
+    iteration, and densification only adds Gaussians)."""
+    cfg = ctx.cfg
+    t = init_gaussians(init, cfg.stage2.init_opacity, cfg.stage2.init_scale_max * ctx.extent, ctx.device)
+    means = t["means"].requires_grad_(True)
+    view = views_of(geo, geo.indices("train")[:1], ctx.device)[0]
+    placed = Placed(means, t["quats"], t["log_scales"])
+    start = time.perf_counter()
+    out = render(view, [(placed, torch.sigmoid(t["opacity"]), means.new_full((len(init), geo.channels), 0.5))],
+                 None, None)
+    out.colors.sum().backward()
+    per_iteration = time.perf_counter() - start
+    return per_iteration * (cfg.stage2.iterations + 2 * cfg.stage3.iterations)
+
+
+def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
+    cfg, scene, report, switches = prep.cfg, prep.scene, prep.report, prep.switches
     torch.manual_seed(cfg.seed)
-    wall: dict[str, float] = {}
-    t_start = time.perf_counter()
-    scene = load_scene(dataset, cfg.max_width)
+    wall: dict[str, float] = {"stage1": prep.load_s}
+    t_start = time.perf_counter() - prep.load_s
     log_path = out / "train_log.csv"
     prior_wall = RunLog(log_path).last_wall() if log_path.exists() else 0.0
-    t = time.perf_counter()
-    report = run_stage1(cfg, scene)
-    switches = switches_for(cfg, scene)
-    wall["stage1"] = time.perf_counter() - t
     b = report.bounds
+    dev = torch.device(cfg.device)
     ctx = RunContext(cfg, out, RunLog(log_path, wall_offset=prior_wall),
-                     torch.as_tensor(b.center, dtype=torch.float32), b.extent)
+                     torch.as_tensor(b.center, dtype=torch.float32, device=dev), b.extent)
     geo = scene.thermal if switches.use_thermal else scene.rgb
     ctx.log_line(f"stage 1: {scene.name}: {len(scene.rgb.frames)} RGB frames "
                  f"({len(scene.rgb.indices('test'))} test), "
                  f"{len(scene.thermal.frames) if scene.thermal else 0} thermal; geometry from {geo.name}; "
                  f"smoke={'on' if switches.use_smoke else 'off'} deform={'on' if switches.use_deform else 'off'} "
                  f"registered={report.registered} extent={b.extent:.3g}")
+    for note in report.notes:
+        ctx.log_line(f"stage 1: {note}")
+    if report.registration is not None:
+        r = report.registration
+        ctx.log_line(f"stage 1: registration: scale {r['scale']:.6g}, rotation {r['rotation_angle_deg']:.4g} deg "
+                     f"about {np.round(r['rotation_axis'], 4).tolist()}, translation "
+                     f"{np.round(r['translation'], 4).tolist()}, {r['inliers']}/{r['pairs']} inliers, centre rmse "
+                     f"{r['centre_rmse']:.3g}, rotation rms {r['rotation_rms_deg']:.3g} deg, {r['geometry']} path")
+    for note in switches.notes:
+        ctx.log_line(f"stage 3: {note}")
     rng = np.random.default_rng(cfg.seed)
     init = scene.init_points if scene.init_points is not None and len(scene.init_points) >= 4 else \
         _sample(geo, cfg.stage2.init_points, b, rng)
-    dev = ctx.device
     deformable = cfg.mode == "deformable-3dgs"
+    estimate = None
+    if cfg.profile == "paper" and dev.type == "cpu":
+        estimate = estimate_cpu_seconds(ctx, geo, init)
+        ctx.log_line(f"profile paper on the CPU: {cfg.stage2.iterations} + {cfg.stage3.iterations} iterations, "
+                     f"estimated at least {estimate / 3600:.1f} h (one measured iteration of "
+                     f"{len(init)} Gaussians; the paper's schedule is meant for a GPU: --device cuda)")
 
     def s2_psnr(g: Any, deform: Any, background: Any, it: int) -> float | None:
         if not deformable:
@@ -146,28 +194,30 @@ def _run(cfg: TrainConfig, dataset: Path, out: Path) -> dict[str, Any]:
                      f"Gaussians in {wall['stage3']:.1f} s")
     t = time.perf_counter()
     renders = write_renders(model, scene, out, dev)
-    scores = score(renders, scene, lpips_weights_from_env())
+    scores = score(renders, scene, cfg.lpips_net, cfg.lpips_weights or None, cfg.lpips_heads or None)
     write_plys(model, out, cfg.smoke_ply_times)
     wall["eval"] = time.perf_counter() - t
     wall["total"] = time.perf_counter() - t_start
     m = scores["metrics"]
     ctx.log_line(f"eval: PSNR surface vs clean {m['psnr']}, smoky input vs clean {m['psnr_input']} "
                  f"in {wall['eval']:.1f} s")
-    doc = _metrics_doc(cfg, scene.name, dataset, "ok")
+    doc = _metrics_doc(cfg, scene.name, prep.dataset, "ok")
     doc.update(scores)
     doc["wall_time_s"] = {k: round(v, 3) for k, v in wall.items()}
+    if estimate is not None:
+        doc["wall_time_s"]["estimated_min"] = round(estimate, 3)
     doc["stages"] = {"registered": report.registered, "registration_rmse": report.registration_rmse,
                      "pose_noise": report.pose_noise, "geometry_modality": geo.name,
                      "smoke_gaussians": model.smoke.n if model.smoke is not None else 0,
-                     "surface_gaussians": model.surface.n, "deformation": switches.use_deform}
-    doc["versions"] = _versions()
-    doc["config_sha256"] = cfg.sha256()
-    _write_json(out / "metrics.json", doc)
+                     "surface_gaussians": model.surface.n, "deformation": switches.use_deform,
+                     "registration": report.registration, "masks": report.masks,
+                     "notes": list(report.notes) + list(switches.notes)}
+    write_json(out / "metrics.json", doc)
     return doc
 
 
 def _depth_prior(cfg: TrainConfig, geometry: Any, scene: SceneData, dev: torch.device) -> DepthPriorMaps | None:
-    if cfg.depth_prior == "none" or cfg.mode == "no-depth":
+    if cfg.depth_prior == "none" or cfg.mode == "no-depth" or not cfg.stage3.train_surface_geometry:
         return None
     idx = scene.rgb.indices("train")
     if cfg.depth_prior == "mono":

@@ -29,12 +29,12 @@ class EnvironmentBackground(nn.Module):
     """Radiance at infinity as SH of degree ``degree`` with ``channels`` outputs, in the 3DGS
     convention (value = SH sum + 0.5, clamped at 0), so zero coefficients mean mid grey."""
 
-    def __init__(self, channels: int, degree: int) -> None:
+    def __init__(self, channels: int, degree: int, device: torch.device) -> None:
         super().__init__()
         if not 0 <= degree <= 3:
             raise ValueError(f"background_sh_degree: must be in 0..3, got {degree}")
         self.degree = degree
-        self.coeffs = nn.Parameter(torch.zeros(num_sh_bases(degree), channels))
+        self.coeffs = nn.Parameter(torch.zeros(num_sh_bases(degree), channels, device=device))
 
     def forward(self, viewmat: Tensor, K: Tensor, width: int, height: int) -> Tensor:
         """The environment seen by one camera, [H, W, channels]."""

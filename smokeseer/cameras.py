@@ -19,16 +19,6 @@ def c2w_gl_to_viewmat(c2w: np.ndarray) -> np.ndarray:
     return np.linalg.inv(c2w @ _GL_TO_CV)
 
 
-def viewmat_to_c2w_cv(viewmat: np.ndarray) -> np.ndarray:
-    """OpenCV world-to-camera → OpenCV camera-to-world, computed without a general inverse."""
-    r = viewmat[:3, :3]
-    t = viewmat[:3, 3]
-    out = np.eye(4)
-    out[:3, :3] = r.T
-    out[:3, 3] = -r.T @ t
-    return out
-
-
 def camera_center(viewmat: np.ndarray) -> np.ndarray:
     return -viewmat[:3, :3].T @ viewmat[:3, 3]
 

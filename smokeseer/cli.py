@@ -1,7 +1,8 @@
 """``train-and-evaluate DATASET --mode MODE --out RUN_DIR [--profile quick|paper]``.
 
-Bad input prints one error line and exits 2; a diverged run (NaN) exits 1 after writing a
-checkpoint and a failed metrics.json.
+Bad input (options, dataset, a damaged checkpoint) prints one error line and exits 2, and
+leaves nothing new in RUN_DIR; a diverged run (NaN) exits 1 after writing the last good state
+to checkpoints/stageN_nan.pt and a failed metrics.json.
 """
 from __future__ import annotations
 
@@ -11,55 +12,59 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from smokeseer.config import MODES, PROFILES
-from smokeseer.data import DatasetError
+from contracts.errors import DatasetError
+from smokeseer.config import LPIPS_NETS, MODES, PROFILES, parse_set_items
 from smokeseer.trainutil import NaNDetected
 
 
-def _parser() -> argparse.ArgumentParser:
+def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="train-and-evaluate", description=__doc__.splitlines()[0])
     p.add_argument("dataset", type=Path, help="dataset written by generate-scene, or a real capture")
-    p.add_argument("--mode", default="full", choices=MODES)
+    p.add_argument("--mode", default="full", choices=MODES,
+                   help="method or ablation to train (default full; see docs/method.md)")
     p.add_argument("--out", type=Path, required=True, help="run directory (resumed if it has checkpoints)")
-    p.add_argument("--profile", default="quick", choices=PROFILES)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--profile", default="quick", choices=PROFILES,
+                   help="quick: minutes on a CPU at reduced size; paper: the paper's 15k+15k schedule, for a GPU")
+    p.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
     p.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda")
     p.add_argument("--iterations-stage2", type=int, help="override the profile's Stage 2 iterations")
     p.add_argument("--iterations-stage3", type=int, help="override the profile's Stage 3 iterations")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override any config field by dotted key, e.g. stage3.smoke_points=500")
+                   help="override any config field by dotted key, value read as YAML, e.g. stage3.smoke_points=500")
+    p.add_argument("--lpips-net", choices=LPIPS_NETS, default=None, help="LPIPS backbone (default alex)")
+    p.add_argument("--lpips-weights", default=None,
+                   help="torchvision backbone .pth or its folder (default: $TORCH_HOME/hub/checkpoints)")
+    p.add_argument("--lpips-heads", default=None, help="LPIPS v0.1 linear heads .pth, or an lpips wheel")
     p.add_argument("--no-progress", action="store_true", help="hide the tqdm bars")
     return p
 
 
-def _overrides(args: argparse.Namespace) -> dict[str, Any]:
+def overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:
     ov: dict[str, Any] = {"device": args.device}
-    if args.iterations_stage2 is not None:
-        ov["stage2.iterations"] = args.iterations_stage2
-    if args.iterations_stage3 is not None:
-        ov["stage3.iterations"] = args.iterations_stage3
+    for key, value in (("stage2.iterations", args.iterations_stage2), ("stage3.iterations", args.iterations_stage3),
+                       ("lpips_net", args.lpips_net), ("lpips_weights", args.lpips_weights),
+                       ("lpips_heads", args.lpips_heads)):
+        if value is not None:
+            ov[key] = value
     if args.no_progress:
         ov["progress"] = False
-    for item in args.set:
-        if "=" not in item:
-            raise ValueError(f"--set: expected KEY=VALUE, got {item!r}")
-        key, value = item.split("=", 1)
-        ov[key.strip()] = json.loads(value) if value.strip().startswith("[") else value
+    ov.update(parse_set_items(args.set))
     return ov
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
+    args = build_parser().parse_args(argv)
     from smokeseer.api import train_and_evaluate
 
     try:
         doc = train_and_evaluate(args.dataset, args.out, mode=args.mode, profile=args.profile,
-                                 seed=args.seed, overrides=_overrides(args))
+                                 seed=args.seed, overrides=overrides_from_args(args))
     except (DatasetError, ValueError, FileNotFoundError) as exc:
         print(f"train-and-evaluate: error: {exc}", file=sys.stderr)
         return 2
     except NaNDetected as exc:
-        print(f"train-and-evaluate: diverged: {exc}; checkpoint in {args.out / 'checkpoints'}", file=sys.stderr)
+        print(f"train-and-evaluate: diverged: {exc}; last good state in "
+              f"{args.out / 'checkpoints' / f'stage{exc.stage}_nan.pt'}", file=sys.stderr)
         return 1
     m = doc["metrics"]
     print(json.dumps({"status": doc["status"], "psnr": m["psnr"], "psnr_input": m["psnr_input"],

@@ -11,6 +11,8 @@ import json
 from dataclasses import dataclass, field
 from typing import Any
 
+import yaml
+
 MODES: tuple[str, ...] = (
     "full",
     "rgb-only",
@@ -22,6 +24,7 @@ MODES: tuple[str, ...] = (
     "deformable-3dgs",
 )
 PROFILES: tuple[str, ...] = ("quick", "paper")
+LPIPS_NETS: tuple[str, ...] = ("alex", "vgg")
 
 
 @dataclass
@@ -138,6 +141,9 @@ class TrainConfig:
     checkpoint_every: int = 1000
     log_every: int = 10
     smoke_ply_times: tuple[float, ...] = (0.0, 0.5, 1.0)
+    lpips_net: str = "alex"
+    lpips_weights: str = ""
+    lpips_heads: str = ""
     progress: bool = True
 
     def validate(self) -> None:
@@ -167,6 +173,8 @@ class TrainConfig:
             raise ValueError(f"stage1: {self.stage1!r} is not ground-truth or estimate")
         if self.deform.skip_layer >= self.deform.depth:
             raise ValueError("deform.skip_layer: must be below deform.depth")
+        if self.lpips_net not in LPIPS_NETS:
+            raise ValueError(f"lpips_net: {self.lpips_net!r} is not one of {', '.join(LPIPS_NETS)}")
         for t in self.smoke_ply_times:
             if not 0.0 <= t <= 1.0:
                 raise ValueError(f"smoke_ply_times: {t} is outside [0, 1]")
@@ -179,7 +187,7 @@ class TrainConfig:
         that differ only in Stage 3 (ablations, Stage 3 budgets) on the same geometry."""
         d = self.to_dict()
         for key in ("stage3", "loss", "depth_prior", "mono_weights", "smoke_ply_times", "progress",
-                    "log_every", "checkpoint_every", "profile"):
+                    "log_every", "checkpoint_every", "profile", "lpips_net", "lpips_weights", "lpips_heads"):
             d.pop(key)
         d["mode"] = {"rgb-only": "rgb", "deformable-3dgs": "deformable-3dgs"}.get(self.mode, "thermal")
         if d["mode"] != "deformable-3dgs":
@@ -247,31 +255,43 @@ def _set_dotted(cfg: Any, key: str, value: Any) -> None:
     current = getattr(target, leaf)
     if dataclasses.is_dataclass(current):
         raise ValueError(f"overrides: {key!r} is a section; set one of its fields")
-    if isinstance(current, bool):
-        value = value if isinstance(value, bool) else str(value).lower() in ("1", "true", "yes")
-    elif isinstance(current, int):
-        value = int(value)
-    elif isinstance(current, float):
-        value = float(value)
-    elif isinstance(current, tuple):
-        value = tuple(float(v) for v in value)
-    setattr(target, leaf, value)
+    setattr(target, leaf, _coerce(key, current, value))
 
 
-def config_from_dict(d: dict[str, Any]) -> TrainConfig:
-    """Rebuild a config saved by ``to_dict`` (checkpoints, config.json)."""
-    cfg = TrainConfig()
-    for key, value in _flatten(d).items():
-        _set_dotted(cfg, key, value)
-    cfg.validate()
-    return cfg
+def _coerce(key: str, current: Any, value: Any) -> Any:
+    """``value`` as the type of the field's current value; a ValueError names the key."""
+    words = {"true": True, "yes": True, "1": True, "false": False, "no": False, "0": False}
+    try:
+        if isinstance(current, bool):
+            if isinstance(value, bool):
+                return value
+            return words[str(value).strip().lower()]
+        if isinstance(current, int):
+            if isinstance(value, float) and not value.is_integer():
+                raise ValueError
+            return int(value)
+        if isinstance(current, float):
+            return float(value)
+        if isinstance(current, tuple):
+            if not isinstance(value, (list, tuple)):
+                raise ValueError
+            return tuple(float(v) for v in value)
+        return str(value)
+    except (KeyError, TypeError, ValueError):
+        kind = {bool: "true or false", int: "an integer", float: "a number", tuple: "a list such as [0.0, 0.5]"}
+        raise ValueError(f"overrides: {key!r} needs {kind.get(type(current), 'a string')}, got {value!r}") from None
 
 
-def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+def parse_set_items(items: list[str], flag: str = "--set") -> dict[str, Any]:
+    """``KEY=VALUE`` strings to overrides, each value read as YAML (``3``, ``1e-3``, ``true``,
+    ``[0.0, 1.0]``), so the trainer's and the harness's ``--set`` read values the same way."""
     out: dict[str, Any] = {}
-    for k, v in d.items():
-        if isinstance(v, dict):
-            out.update(_flatten(v, f"{prefix}{k}."))
-        else:
-            out[f"{prefix}{k}"] = v
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise ValueError(f"{flag}: expected KEY=VALUE, got {item!r}")
+        try:
+            out[key.strip()] = yaml.safe_load(value)
+        except yaml.YAMLError as exc:
+            raise ValueError(f"{flag}: {key.strip()}: value {value!r} is not valid YAML ({exc.problem})") from None
     return out

@@ -25,7 +25,7 @@ class DeformNetwork(nn.Module):
     (used by the deformable-3dgs baseline). The output layer starts at zero so training begins
     from the canonical Gaussians."""
 
-    def __init__(self, cfg: DeformConfig, position_scale: float = 1.0) -> None:
+    def __init__(self, cfg: DeformConfig, position_scale: float, device: torch.device) -> None:
         super().__init__()
         self.cfg = cfg
         self.position_scale = position_scale
@@ -37,17 +37,19 @@ class DeformNetwork(nn.Module):
             d_in = self.in_dim if i == 0 else cfg.width
             if i == cfg.skip_layer:
                 d_in += self.in_dim
-            layers.append(nn.Linear(d_in, cfg.width))
+            layers.append(nn.Linear(d_in, cfg.width, device=device))
         self.layers = nn.ModuleList(layers)
         self.out_dim = 3 + (7 if cfg.predict_rotation_scale else 0)
-        self.head = nn.Linear(cfg.width, self.out_dim)
+        self.head = nn.Linear(cfg.width, self.out_dim, device=device)
         nn.init.zeros_(self.head.weight)
         nn.init.zeros_(self.head.bias)
 
     def forward(self, means: Tensor, t: float, center: Tensor) -> tuple[Tensor, Tensor | None, Tensor | None]:
         """Offsets for ``means`` at normalised time ``t``. Positions are encoded relative to the
-        scene centre in units of the scene extent so the frequencies mean the same in any scene."""
-        x = (means - center) / self.position_scale
+        scene centre in units of the scene extent so the frequencies mean the same in any scene.
+        The network sees detached canonical positions, as in Deformable 3DGS: the canonical means
+        learn only through the offset they receive, not through the network's input."""
+        x = (means.detach() - center) / self.position_scale
         tt = torch.full((means.shape[0], 1), float(t), dtype=means.dtype, device=means.device)
         inp = torch.cat([positional_encoding(x, self.cfg.xyz_frequencies),
                          positional_encoding(tt, self.cfg.t_frequencies)], dim=-1)

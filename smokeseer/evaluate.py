@@ -1,9 +1,10 @@
 """Held-out evaluation and run outputs: renders, metrics against the smoke-free ground truth,
-and PLY exports. Scoring uses eval.metrics so trainer and tables share one convention."""
+and PLY exports. Scoring uses contracts.metrics, the one implementation of every metric; LPIPS
+is scored here too, from the float renders at the training resolution against the ground truth
+loaded at that same resolution, so no other code re-scores saved PNGs."""
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -12,6 +13,7 @@ import numpy as np
 import torch
 from PIL import Image
 
+from contracts.atomic import atomic_path
 from contracts.metrics import depth_errors, load_lpips, mask_iou, psnr, ssim_3dgs
 from smokeseer.data import SceneData
 from smokeseer.model import SceneModel, View, make_view, sh_coeffs, smoke_sh
@@ -50,15 +52,15 @@ def quick_test_psnr(model: SceneModel, scene: SceneData, device: torch.device) -
 
 
 def _save_png8(path: Path, img: np.ndarray) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
     arr = np.clip(np.round(np.clip(img, 0.0, 1.0) * 255.0), 0, 255).astype(np.uint8)
-    Image.fromarray(arr[..., 0] if arr.shape[-1] == 1 else arr).save(path)
+    with atomic_path(path) as tmp:
+        Image.fromarray(arr[..., 0] if arr.shape[-1] == 1 else arr).save(tmp, format="PNG")
 
 
 def _save_png16(path: Path, counts: np.ndarray) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
     arr = np.clip(np.round(counts), 0, 65535).astype(np.uint16)
-    Image.fromarray(arr).save(path)
+    with atomic_path(path) as tmp:
+        Image.fromarray(arr).save(tmp, format="PNG")
 
 
 def thermal_test_view(scene: SceneData, i: int, device: torch.device) -> View | None:
@@ -101,7 +103,8 @@ def write_renders(model: SceneModel, scene: SceneData, out: Path, device: torch.
     return res
 
 
-def score(renders: TestRenders, scene: SceneData, lpips_weights: str | None) -> dict[str, Any]:
+def score(renders: TestRenders, scene: SceneData, lpips_net: str = "alex", lpips_weights: str | None = None,
+          lpips_heads: str | None = None) -> dict[str, Any]:
     """metrics + per_image for metrics.json; metrics are None where the data has no GT."""
     idx = scene.rgb.indices("test")
     rgb = scene.rgb
@@ -112,7 +115,7 @@ def score(renders: TestRenders, scene: SceneData, lpips_weights: str | None) -> 
     if not idx:
         metrics["lpips_status"] = "skipped: no test views"
         return {"metrics": metrics, "per_image": per_image}
-    scorer, status = load_lpips(lpips_weights)
+    scorer, status = load_lpips(lpips_weights, lpips_net, lpips_heads)
     metrics["lpips_status"] = status
     if rgb.clean is None:
         metrics["lpips_status"] = "skipped: no clean ground truth"
@@ -124,8 +127,13 @@ def score(renders: TestRenders, scene: SceneData, lpips_weights: str | None) -> 
         entry = {"file_stem": renders.stems[k], "psnr": psnr(pred, gt), "ssim": ssim_3dgs(pred, gt),
                  "psnr_input": psnr(rgb.images[i], gt)}
         if scorer is not None:
-            entry["lpips"] = float(scorer(pred, gt))
-            lp_vals.append(entry["lpips"])
+            try:
+                entry["lpips"] = float(scorer(pred, gt))
+            except ValueError as exc:  # e.g. views too small for the network's pooling
+                scorer, metrics["lpips_status"] = None, f"skipped: {exc}"
+                lp_vals = []
+            else:
+                lp_vals.append(entry["lpips"])
         per_image.append(entry)
         if rgb.depth is not None and np.any(rgb.depth[i] > 0):
             de = depth_errors(renders.surface_depth[k], rgb.depth[i])
@@ -182,7 +190,3 @@ def write_plys(model: SceneModel, out: Path, times: tuple[float, ...]) -> list[P
                 written.append(path)
     return written
 
-
-def lpips_weights_from_env() -> str | None:
-    """LPIPS backbone location: $SMOKESEER_LPIPS_WEIGHTS, else eval.metrics' own search."""
-    return os.environ.get("SMOKESEER_LPIPS_WEIGHTS") or None

@@ -25,9 +25,10 @@ def rgb_to_sh_dc(rgb: Tensor) -> Tensor:
     return (rgb - 0.5) / SH_C0
 
 
-def logit(p: Tensor | float, eps: float = 1e-6) -> Tensor:
-    p = torch.as_tensor(p).clamp(eps, 1 - eps)
-    return torch.log(p) - torch.log1p(-p)
+def logit(p: float, eps: float = 1e-6) -> float:
+    """Inverse sigmoid of a probability, clamped away from 0 and 1."""
+    p = min(max(float(p), eps), 1.0 - eps)
+    return math.log(p) - math.log1p(-p)
 
 
 def knn_log_scales(points: np.ndarray, k: int = 3) -> np.ndarray:
@@ -112,8 +113,8 @@ class DensifyState:
     max_radii: Tensor
 
     @classmethod
-    def zeros(cls, n: int) -> "DensifyState":
-        return cls(torch.zeros(n), torch.zeros(n), torch.zeros(n))
+    def zeros(cls, n: int, device: torch.device) -> "DensifyState":
+        return cls(torch.zeros(n, device=device), torch.zeros(n, device=device), torch.zeros(n, device=device))
 
 
 class DensifyStrategy:
@@ -124,16 +125,17 @@ class DensifyStrategy:
         self.cfg = cfg
         self.opacity_keys = opacity_keys
         self.extent = scene_extent
-        self.state = DensifyState.zeros(0)
+        self.state: DensifyState | None = None
 
-    def reset(self, n: int) -> None:
-        self.state = DensifyState.zeros(n)
+    def reset(self, n: int, device: torch.device) -> None:
+        self.state = DensifyState.zeros(n, device)
 
     def accumulate(self, means2d_grad: Tensor, radii: Tensor, width: int, height: int) -> None:
         """Add one view's screen-space gradient norms. Pixel gradients are scaled by half the
         image size to NDC units, so the 3DGS threshold (2e-4) keeps its meaning."""
-        if self.state.grad_accum.shape[0] != means2d_grad.shape[0]:
-            self.reset(means2d_grad.shape[0])
+        if self.state is None or self.state.grad_accum.shape[0] != means2d_grad.shape[0] \
+                or self.state.grad_accum.device != means2d_grad.device:
+            self.reset(means2d_grad.shape[0], means2d_grad.device)
         g = means2d_grad.detach().clone()
         g[:, 0] *= 0.5 * width
         g[:, 1] *= 0.5 * height
@@ -155,17 +157,17 @@ class DensifyStrategy:
         report = {"cloned": 0, "split": 0, "pruned": 0}
         if c.every <= 0 or it < c.start or it > c.stop:
             return report
-        if it % c.every == 0 and self.state.count.numel() == gset.n:
+        if it % c.every == 0 and self.state is not None and self.state.count.numel() == gset.n:
             report = self._densify_and_prune(gset, opt, generator, prune_big=bool(
                 c.opacity_reset_every and it > c.opacity_reset_every))
-            self.reset(gset.n)
+            self.reset(gset.n, gset["means"].device)
         if c.opacity_reset_every and it % c.opacity_reset_every == 0:
             self.reset_opacity(gset, opt)
         return report
 
     def reset_opacity(self, gset: GaussianSet, opt: torch.optim.Optimizer) -> None:
         """3DGS: clamp opacities to ≤ 0.01 so floaters must earn their opacity back."""
-        cap = float(logit(0.01))
+        cap = logit(0.01)
 
         def fn(name: str, t: Tensor, moment: bool = False) -> Tensor:
             if name in self.opacity_keys:
@@ -176,6 +178,8 @@ class DensifyStrategy:
     def _densify_and_prune(self, gset: GaussianSet, opt: torch.optim.Optimizer,
                            generator: torch.Generator, prune_big: bool) -> dict[str, int]:
         c = self.cfg
+        assert self.state is not None
+        dev = gset["means"].device
         grads = self.state.grad_accum / self.state.count.clamp_min(1.0)
         max_scale = gset["log_scales"].detach().exp().max(-1).values
         hot = grads >= c.grad_threshold
@@ -192,7 +196,8 @@ class DensifyStrategy:
 
             def grow(name: str, t: Tensor, moment: bool = False) -> Tensor:
                 if moment:
-                    extra = torch.zeros((clone_idx.numel() + 2 * n_split,) + t.shape[1:], dtype=t.dtype)
+                    extra = torch.zeros((clone_idx.numel() + 2 * n_split,) + t.shape[1:], dtype=t.dtype,
+                                        device=t.device)
                     return torch.cat([t, extra])
                 cloned = t[clone_idx]
                 split = t[split_idx]
@@ -205,12 +210,13 @@ class DensifyStrategy:
                 return torch.cat([t, cloned, split_a, split_b])
             _edit_rows(gset, opt, grow)
         n_after = gset.n
-        prune = torch.zeros(n_after, dtype=torch.bool)
+        prune = torch.zeros(n_after, dtype=torch.bool, device=dev)
         prune[split_idx] = True
         opac = self._opacity(gset)
         prune |= opac < c.prune_opacity
         if prune_big:
-            radii = torch.cat([self.state.max_radii, torch.zeros(n_after - self.state.max_radii.numel())])
+            radii = torch.cat([self.state.max_radii,
+                               torch.zeros(n_after - self.state.max_radii.numel(), device=dev)])
             prune |= radii > c.screen_size_threshold
             prune |= gset["log_scales"].detach().exp().max(-1).values > 0.1 * self.extent
         if prune.all():
@@ -225,16 +231,17 @@ class DensifyStrategy:
 
     @staticmethod
     def _split_positions(gset: GaussianSet, idx: Tensor, generator: torch.Generator) -> Tensor:
-        """Two samples from each split Gaussian's own distribution (3DGS)."""
-        if idx.numel() == 0:
-            return torch.zeros(2, 0, 3)
+        """Two samples from each split Gaussian's own distribution (3DGS). The normal draws come
+        from the run's CPU generator (the same stream on every device) and move to the means."""
         means = gset["means"].detach()[idx]
+        if idx.numel() == 0:
+            return means.new_zeros((2, 0, 3))
         scales = gset["log_scales"].detach()[idx].exp()
         q = gset.quats.detach()[idx]
         rot = quat_to_rotmat(q)
         out = []
         for _ in range(2):
-            z = torch.randn(idx.numel(), 3, generator=generator) * scales
+            z = torch.randn(idx.numel(), 3, generator=generator, device=generator.device).to(scales.device) * scales
             out.append(means + torch.einsum("nij,nj->ni", rot, z))
         return torch.stack(out)
 

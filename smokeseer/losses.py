@@ -10,8 +10,8 @@ _SSIM_C1 = 0.01 ** 2
 _SSIM_C2 = 0.03 ** 2
 
 
-def _gauss_window(size: int = 11, sigma: float = 1.5, dtype: torch.dtype = torch.float32) -> Tensor:
-    x = torch.arange(size, dtype=dtype) - size // 2
+def _gauss_window(device: torch.device, dtype: torch.dtype, size: int = 11, sigma: float = 1.5) -> Tensor:
+    x = torch.arange(size, dtype=dtype, device=device) - size // 2
     g = torch.exp(-(x ** 2) / (2 * sigma ** 2))
     g = g / g.sum()
     return torch.outer(g, g)
@@ -25,7 +25,7 @@ def ssim(pred: Tensor, target: Tensor) -> Tensor:
     c = pred.shape[-1]
     x = pred.permute(2, 0, 1)[None]
     y = target.permute(2, 0, 1)[None]
-    w = _gauss_window(dtype=pred.dtype).to(pred.device).expand(c, 1, 11, 11).contiguous()
+    w = _gauss_window(pred.device, pred.dtype).expand(c, 1, 11, 11).contiguous()
 
     def blur(z: Tensor) -> Tensor:
         return F.conv2d(z, w, padding=5, groups=c)
@@ -71,8 +71,8 @@ def align_scale_shift(pred: Tensor, prior: Tensor, valid: Tensor) -> tuple[Tenso
     q = pred.detach()[valid].double()
     n = p.numel()
     if n < 2:
-        return torch.ones((), dtype=pred.dtype), torch.zeros((), dtype=pred.dtype)
-    a = torch.stack([torch.stack([(p * p).sum(), p.sum()]), torch.stack([p.sum(), torch.tensor(float(n), dtype=p.dtype)])])
+        return pred.new_ones(()), pred.new_zeros(())
+    a = torch.stack([torch.stack([(p * p).sum(), p.sum()]), torch.stack([p.sum(), p.new_tensor(float(n))])])
     rhs = torch.stack([(p * q).sum(), q.sum()])
     det = torch.det(a)
     if not torch.isfinite(det) or det.abs() < 1e-12 * max(float((p * p).sum()), 1.0) * n:

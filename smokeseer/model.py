@@ -38,7 +38,7 @@ def make_view(viewmat: np.ndarray, K: np.ndarray, width: int, height: int, time:
                 torch.as_tensor(K, dtype=torch.float32, device=device)[None], width, height, time)
 
 
-def init_gaussians(points: np.ndarray, opacity: float, max_scale: float) -> dict[str, Tensor]:
+def init_gaussians(points: np.ndarray, opacity: float, max_scale: float, device: torch.device) -> dict[str, Tensor]:
     """3DGS initialisation: identity rotation, kNN isotropic scale capped at ``max_scale``
     (sparse random clouds otherwise start with Gaussians covering whole images, which costs
     rasterization time and gains nothing), uniform low opacity."""
@@ -46,37 +46,39 @@ def init_gaussians(points: np.ndarray, opacity: float, max_scale: float) -> dict
     quats = np.zeros((n, 4))
     quats[:, 0] = 1.0
     return {
-        "means": torch.as_tensor(points, dtype=torch.float32),
-        "quats": torch.as_tensor(quats, dtype=torch.float32),
-        "log_scales": torch.as_tensor(np.minimum(knn_log_scales(points), np.log(max_scale)), dtype=torch.float32),
-        "opacity": torch.full((n,), float(logit(opacity))),
+        "means": torch.as_tensor(points, dtype=torch.float32, device=device),
+        "quats": torch.as_tensor(quats, dtype=torch.float32, device=device),
+        "log_scales": torch.as_tensor(np.minimum(knn_log_scales(points), np.log(max_scale)), dtype=torch.float32,
+                                      device=device),
+        "opacity": torch.full((n,), logit(opacity), device=device),
     }
 
 
 def add_rgb_sh(tensors: dict[str, Tensor], sh_degree: int, init_rgb: Tensor | None = None) -> None:
-    """Give Gaussians an RGB SH colour (grey unless ``init_rgb`` is given)."""
-    n = tensors["means"].shape[0]
-    rgb = init_rgb if init_rgb is not None else torch.full((n, 3), 0.5)
+    """Give Gaussians an RGB SH colour (grey unless ``init_rgb`` is given), on the means' device."""
+    means = tensors["means"]
+    n = means.shape[0]
+    rgb = init_rgb if init_rgb is not None else means.new_full((n, 3), 0.5)
     tensors["sh_dc"] = rgb_to_sh_dc(rgb)[:, None, :].float()
-    tensors["sh_rest"] = torch.zeros((n, (sh_degree + 1) ** 2 - 1, 3))
+    tensors["sh_rest"] = means.new_zeros((n, (sh_degree + 1) ** 2 - 1, 3))
 
 
 def make_smoke(points: np.ndarray, opacity: float, scale: float, max_scale: float,
-               rng: np.random.Generator) -> GaussianSet:
+               rng: np.random.Generator, device: torch.device) -> GaussianSet:
     """Smoke Gaussians at random positions, grey, faint (opacity and kNN scale × ``scale``
     chosen so the initial cloud hides little of the surface), with random temporal windows."""
-    base = init_gaussians(points, opacity, max_scale)
+    base = init_gaussians(points, opacity, max_scale, device)
     base["log_scales"] = base["log_scales"] + float(np.log(scale))
     n = len(points)
     base["opacity_rgb"] = base.pop("opacity")
-    base["opacity_thermal"] = torch.full((n,), float(logit(opacity)))
-    base["color"] = torch.zeros((n, 3))
-    base["thermal"] = torch.zeros((n, 1))
-    centre = torch.as_tensor(rng.uniform(0.0, 1.0, n), dtype=torch.float32)
-    half = torch.as_tensor(rng.uniform(0.25, 0.5, n), dtype=torch.float32)
+    base["opacity_thermal"] = torch.full((n,), logit(opacity), device=device)
+    base["color"] = torch.zeros((n, 3), device=device)
+    base["thermal"] = torch.zeros((n, 1), device=device)
+    centre = torch.as_tensor(rng.uniform(0.0, 1.0, n), dtype=torch.float32, device=device)
+    half = torch.as_tensor(rng.uniform(0.25, 0.5, n), dtype=torch.float32, device=device)
     base["t_lo"] = centre - half
     base["t_hi"] = centre + half
-    base["t_log_sigma"] = torch.full((n,), float(np.log(0.2)))
+    base["t_log_sigma"] = torch.full((n,), float(np.log(0.2)), device=device)
     return GaussianSet(base)
 
 
@@ -140,8 +142,9 @@ def render(view: View, parts: list[tuple[Placed, Tensor, Tensor]], sh_degree: in
         else background
     mask = None
     if subset is not None:
-        flags = [torch.full((p.means.shape[0],), i == subset, dtype=torch.bool) for i, (p, _, _) in enumerate(parts)]
-        mask = torch.cat(flags).to(means.device)
+        flags = [torch.full((p.means.shape[0],), i == subset, dtype=torch.bool, device=means.device)
+                 for i, (p, _, _) in enumerate(parts)]
+        mask = torch.cat(flags)
     out = rasterize(means, quats, scales, opac, cols, view.viewmat, view.K, view.width, view.height,
                     sh_degree=sh_degree, log_scales=True, backgrounds=flat,
                     subset_mask=mask, render_depth=True, normalize_depth=normalize_depth)

@@ -1,14 +1,13 @@
 """Stage 2: vanilla 3DGS on one modality (thermal for SmokeSeer: smoke barely touches LWIR, so
-thermal images reveal the geometry). With a deformation network the same loop is the
+thermal images reveal the geometry). With a deformation network the same problem is the
 Deformable-3DGS backbone used by the ``deformable-3dgs`` baseline."""
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from smokeseer.background import EnvironmentBackground
 from smokeseer.config import DeformConfig, TrainConfig
@@ -17,8 +16,8 @@ from smokeseer.deform import DeformNetwork
 from smokeseer.gaussians import DensifyStrategy, GaussianSet, make_optimizer
 from smokeseer.losses import render_loss
 from smokeseer.model import View, add_rgb_sh, init_gaussians, make_view, place_deformed, render, sh_coeffs
-from smokeseer.trainutil import (NaNDetected, RunContext, check_finite, exp_lr, grads_of, load_checkpoint,
-                                 save_checkpoint)
+from smokeseer.trainloop import IterationOutput, StageProblem, StageSchedule, run_stage
+from smokeseer.trainutil import RunContext, exp_lr, grads_of
 
 
 @dataclass
@@ -54,117 +53,131 @@ def stage2_lrs(cfg: TrainConfig, g: GaussianSet, extent: float) -> dict[str, flo
 def make_background(cfg: TrainConfig, channels: int, device: torch.device) -> EnvironmentBackground | None:
     if cfg.background == "black":
         return None
-    return EnvironmentBackground(channels, cfg.background_sh_degree).to(device)
+    return EnvironmentBackground(channels, cfg.background_sh_degree, device)
+
+
+def draw_index(ctx: RunContext, n: int) -> int:
+    """A uniformly drawn training-view index from the run's seeded CPU generator."""
+    return int(torch.randint(n, (1,), generator=ctx.generator, device=ctx.generator.device))
+
+
+Stage2TestPsnr = Callable[[GaussianSet, DeformNetwork | None, EnvironmentBackground | None, int], float | None]
+
+
+class Stage2Problem(StageProblem):
+    """Fit Gaussians to one modality's training frames with the 3DGS recipe (L1 + D-SSIM,
+    densification, opacity reset, SH degree schedule)."""
+
+    stage = 2
+    name = "stage 2"
+
+    def __init__(self, ctx: RunContext, mod: ModalityData, init_points: np.ndarray, deformable: bool,
+                 test_psnr: Stage2TestPsnr | None) -> None:
+        cfg, dev = ctx.cfg, ctx.device
+        self.ctx, self.cfg, self.test_fn = ctx, cfg, test_psnr
+        self.color = "thermal" if mod.name == "thermal" else "rgb"
+        tensors = init_gaussians(init_points, cfg.stage2.init_opacity, cfg.stage2.init_scale_max * ctx.extent, dev)
+        if self.color == "thermal":
+            tensors["thermal"] = torch.zeros((len(init_points), 1), device=dev)
+        else:
+            add_rgb_sh(tensors, cfg.sh_degree)
+        self.g = GaussianSet(tensors)
+        self.deform = DeformNetwork(_deform_cfg(cfg, deformable), ctx.extent, dev) if deformable else None
+        self.background = make_background(cfg, mod.channels, dev)
+        self.opt = make_optimizer(self.g, stage2_lrs(cfg, self.g, ctx.extent))
+        self.dopt = torch.optim.Adam(self.deform.parameters(), lr=cfg.deform.lr_init) if self.deform else None
+        self.bopt = torch.optim.Adam(self.background.parameters(), lr=cfg.lr.background) if self.background else None
+        self.strategy = DensifyStrategy(cfg.stage2.densify, ("opacity",), ctx.extent)
+        idx = mod.indices("train")
+        self.views = views_of(mod, idx, dev)
+        self.images = torch.as_tensor(mod.images[idx], device=dev)
+
+    def forward(self, it: int) -> IterationOutput:
+        cfg = self.cfg
+        k = draw_index(self.ctx, len(self.views))
+        view = self.views[k]
+        deform_on = self.deform is not None and it > cfg.deform.warmup_iterations
+        placed = place_deformed(self.g, self.deform, view.time, self.ctx.center, deform_on)
+        cols, is_sh = colors_for(self.g, self.color)
+        degree = min(cfg.sh_degree, (it - 1) // max(cfg.sh_increase_every, 1)) if is_sh else None
+        out = render(view, [(placed, torch.sigmoid(self.g["opacity"]), cols)], degree, self.background)
+        loss = render_loss(out.colors[0], self.images[k], cfg.loss.dssim)
+        return IterationOutput(cfg.loss.render * loss, {f"render_{self.color}": loss},
+                               {"raster": out, "view": view, "deform_on": deform_on})
+
+    def named_gradients(self) -> list[tuple[str, torch.Tensor | None]]:
+        named = grads_of("gaussians", self.g.params)
+        if self.background is not None:
+            named.append(("background.coeffs.grad", self.background.coeffs.grad))
+        if self.deform is not None:
+            named += [(f"deform.{n}.grad", p.grad) for n, p in self.deform.named_parameters()]
+        return named
+
+    def named_parameters(self) -> list[tuple[str, torch.Tensor]]:
+        return [(f"gaussians.{k}", p) for k, p in self.g.params.items()]
+
+    def optimizer_step(self, it: int) -> None:
+        cfg, total = self.cfg, self.cfg.stage2.iterations
+        for group in self.opt.param_groups:
+            if group["name"] == "means":
+                group["lr"] = exp_lr(it, total, cfg.lr.means_init * self.ctx.extent, cfg.lr.means_final * self.ctx.extent)
+        self.opt.step()
+        self.opt.zero_grad(set_to_none=True)
+        if self.dopt is not None:
+            for group in self.dopt.param_groups:
+                group["lr"] = exp_lr(it, total, cfg.deform.lr_init, cfg.deform.lr_final)
+            if it > cfg.deform.warmup_iterations:
+                self.dopt.step()
+            self.dopt.zero_grad(set_to_none=True)
+        if self.bopt is not None:
+            self.bopt.step()
+            self.bopt.zero_grad(set_to_none=True)
+
+    def after_step(self, it: int, out: IterationOutput) -> None:
+        raster, view = out.extra["raster"], out.extra["view"]
+        if raster.means2d.grad is not None:
+            self.strategy.accumulate(raster.means2d.grad[0], raster.radii[0], view.width, view.height)
+        self.strategy.step(it, self.g, self.opt, self.ctx.generator)
+
+    def state(self) -> dict[str, Any]:
+        return {"gaussians": self.g.state_dict(), "optimizer": self.opt.state_dict(),
+                "deform": self.deform.state_dict() if self.deform is not None else None,
+                "deform_optimizer": self.dopt.state_dict() if self.dopt is not None else None,
+                "background": self.background.state_dict() if self.background is not None else None,
+                "background_optimizer": self.bopt.state_dict() if self.bopt is not None else None}
+
+    def load_state(self, payload: dict[str, Any]) -> None:
+        dev = self.ctx.device
+        self.g = GaussianSet({k: v.to(dev) for k, v in payload["gaussians"].items()})
+        self.opt = make_optimizer(self.g, stage2_lrs(self.cfg, self.g, self.ctx.extent))
+        self.opt.load_state_dict(payload["optimizer"])
+        for module, opt, key in ((self.deform, self.dopt, "deform"), (self.background, self.bopt, "background")):
+            if module is not None and payload.get(key) is not None:
+                module.load_state_dict(payload[key])
+                opt.load_state_dict(payload[f"{key}_optimizer"])
+
+    def log_row(self, it: int, out: IterationOutput, test_psnr: float | None) -> dict[str, Any]:
+        row: dict[str, Any] = {"stage": 2, "iteration": it, "n_gaussians": self.g.n,
+                               "loss": float(out.loss.detach()), "test_psnr": test_psnr}
+        row.update({n: float(v.detach()) for n, v in out.terms.items()})
+        return row
+
+    def test_psnr(self, it: int) -> float | None:
+        return None if self.test_fn is None else self.test_fn(self.g, self.deform, self.background, it)
+
+    def result(self) -> Stage2Result:
+        return Stage2Result(self.g, self.deform, self.color, self.background)
 
 
 def train_stage2(ctx: RunContext, mod: ModalityData, init_points: np.ndarray, deformable: bool,
-                 test_psnr: Callable[[GaussianSet, DeformNetwork | None, EnvironmentBackground | None, int],
-                                     float | None] | None = None
-                 ) -> Stage2Result:
-    """Fit Gaussians to ``mod``'s training frames with the 3DGS recipe (L1 + D-SSIM,
-    densification, opacity reset, SH degree schedule); resumes from checkpoints/stage2.pt."""
-    cfg, dev = ctx.cfg, ctx.device
-    s2 = cfg.stage2
-    color = "thermal" if mod.name == "thermal" else "rgb"
-    tensors = init_gaussians(init_points, s2.init_opacity, s2.init_scale_max * ctx.extent)
-    if color == "thermal":
-        tensors["thermal"] = torch.zeros((len(init_points), 1))
-    else:
-        add_rgb_sh(tensors, cfg.sh_degree)
-    g = GaussianSet(tensors)
-    deform = DeformNetwork(_deform_cfg(cfg, deformable), ctx.extent).to(dev) if deformable else None
-    background = make_background(cfg, mod.channels, dev)
-    start = 0
-    ckpt = load_checkpoint(ctx.checkpoint_path(2), ctx.stage2_sha)
-    if ckpt is not None:
-        g = GaussianSet.from_state_dict(ckpt["gaussians"])
-        if deform is not None and ckpt.get("deform") is not None:
-            deform.load_state_dict(ckpt["deform"])
-        if background is not None and ckpt.get("background") is not None:
-            background.load_state_dict(ckpt["background"])
-        start = int(ckpt["iteration"])
-    for p in g.params.values():
-        p.data = p.data.to(dev)
-    opt = make_optimizer(g, stage2_lrs(cfg, g, ctx.extent))
-    dopt = torch.optim.Adam(deform.parameters(), lr=cfg.deform.lr_init) if deform is not None else None
-    bopt = torch.optim.Adam(background.parameters(), lr=cfg.lr.background) if background is not None else None
-    if ckpt is not None:
-        opt.load_state_dict(ckpt["optimizer"])
-        if dopt is not None and ckpt.get("deform_optimizer") is not None:
-            dopt.load_state_dict(ckpt["deform_optimizer"])
-        if bopt is not None and ckpt.get("background_optimizer") is not None:
-            bopt.load_state_dict(ckpt["background_optimizer"])
-        if ckpt.get("done"):
-            ctx.log_line(f"stage 2: resumed finished stage from {ctx.checkpoint_path(2)}")
-            return Stage2Result(g, deform, color, background)
-    strategy = DensifyStrategy(s2.densify, ("opacity",), ctx.extent)
-    idx = mod.indices("train")
-    views = views_of(mod, idx, dev)
-    images = torch.as_tensor(mod.images[idx], device=dev)
-    total = s2.iterations
-
-    def payload(it: int, done: bool) -> dict:
-        return {"stage": 2, "iteration": it, "done": done, "config_sha256": ctx.stage2_sha,
-                "gaussians": g.state_dict(), "optimizer": opt.state_dict(),
-                "deform": deform.state_dict() if deform is not None else None,
-                "deform_optimizer": dopt.state_dict() if dopt is not None else None,
-                "background": background.state_dict() if background is not None else None,
-                "background_optimizer": bopt.state_dict() if bopt is not None else None}
-
-    bar = tqdm(range(start + 1, total + 1), desc="stage 2", disable=not cfg.progress, leave=False)
-    for it in bar:
-        for group in opt.param_groups:
-            if group["name"] == "means":
-                group["lr"] = exp_lr(it, total, cfg.lr.means_init * ctx.extent, cfg.lr.means_final * ctx.extent)
-        k = int(torch.randint(len(views), (1,), generator=ctx.generator))
-        view = views[k]
-        deform_on = deform is not None and it > cfg.deform.warmup_iterations
-        placed = place_deformed(g, deform, view.time, ctx.center, deform_on)
-        cols, is_sh = colors_for(g, color)
-        degree = min(cfg.sh_degree, (it - 1) // max(cfg.sh_increase_every, 1)) if is_sh else None
-        out = render(view, [(placed, torch.sigmoid(g["opacity"]), cols)], degree, background)
-        loss = cfg.loss.render * render_loss(out.colors[0], images[k], cfg.loss.dssim)
-        try:
-            check_finite(2, it, [("loss.render", loss)])
-            loss.backward()
-            check_finite(2, it, grads_of("gaussians", g.params) + _background_grads("background", background))
-        except NaNDetected:
-            save_checkpoint(ctx.out / "checkpoints" / "stage2_nan.pt", payload(it - 1, False))
-            raise
-        if out.means2d.grad is not None:
-            strategy.accumulate(out.means2d.grad[0], out.radii[0], view.width, view.height)
-        opt.step()
-        opt.zero_grad(set_to_none=True)
-        if dopt is not None:
-            for group in dopt.param_groups:
-                group["lr"] = exp_lr(it, total, cfg.deform.lr_init, cfg.deform.lr_final)
-            if deform_on:
-                dopt.step()
-            dopt.zero_grad(set_to_none=True)
-        if bopt is not None:
-            bopt.step()
-            bopt.zero_grad(set_to_none=True)
-        try:
-            check_finite(2, it, [(f"gaussians.{k}", p) for k, p in g.params.items()])
-        except NaNDetected:
-            save_checkpoint(ctx.out / "checkpoints" / "stage2_nan.pt", payload(it, False))
-            raise
-        strategy.step(it, g, opt, ctx.generator)
-        if it % cfg.log_every == 0 or it == total:
-            due = test_psnr is not None and it % cfg.stage3.test_every == 0
-            tp = test_psnr(g, deform, background, it) if due else None
-            ctx.log.write({"stage": 2, "iteration": it, "n_gaussians": g.n, "loss": float(loss.detach()),
-                           f"render_{'thermal' if color == 'thermal' else 'rgb'}": float(loss.detach()),
-                           "test_psnr": tp})
-            bar.set_postfix(loss=f"{float(loss.detach()):.4f}", n=g.n)
-        if cfg.checkpoint_every and it % cfg.checkpoint_every == 0 and it < total:
-            save_checkpoint(ctx.checkpoint_path(2), payload(it, False))
-    save_checkpoint(ctx.checkpoint_path(2), payload(total, True))
-    return Stage2Result(g, deform, color, background)
-
-
-def _background_grads(prefix: str, background: EnvironmentBackground | None) -> list[tuple[str, torch.Tensor | None]]:
-    return [] if background is None else [(f"{prefix}.coeffs.grad", background.coeffs.grad)]
+                 test_psnr: Stage2TestPsnr | None = None) -> Stage2Result:
+    """Stage 2 through the shared loop; resumes from checkpoints/stage2.pt. Its checkpoint is keyed
+    by the Stage-2 settings only, so ablations that differ in Stage 3 share it."""
+    cfg = ctx.cfg
+    problem = Stage2Problem(ctx, mod, init_points, deformable, test_psnr)
+    run_stage(ctx, problem, StageSchedule(cfg.stage2.iterations, cfg.log_every, cfg.stage3.test_every,
+                                          cfg.checkpoint_every, ctx.stage2_sha))
+    return problem.result()
 
 
 def _deform_cfg(cfg: TrainConfig, deformable: bool) -> DeformConfig:

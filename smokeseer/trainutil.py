@@ -3,14 +3,15 @@ from __future__ import annotations
 
 import csv
 import math
-import os
 import sys
 import time
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable
 
 import torch
 from tqdm import tqdm
+
+from contracts.atomic import atomic_path
 
 
 class NaNDetected(RuntimeError):
@@ -83,36 +84,46 @@ def _fmt(v: Any) -> str:
     return str(v)
 
 
+class CheckpointError(ValueError):
+    """A checkpoint that exists but cannot be resumed from; the message names the file."""
+
+
 def save_checkpoint(path: Path, payload: dict[str, Any]) -> None:
     """Atomic write, so an interrupted save never leaves a truncated checkpoint to resume from."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    torch.save(payload, tmp)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
 
 
-def load_checkpoint(path: Path, config_sha: str) -> dict[str, Any] | None:
-    """A checkpoint from the same config, or None (absent, unreadable, or other settings)."""
+def load_checkpoint(path: Path, config_sha: str, log_line: Callable[[str], None]) -> dict[str, Any] | None:
+    """The checkpoint at ``path`` if it was written with these settings; None when there is none
+    or it holds other settings (said in the log). An unreadable file is an error: restarting a
+    stage silently would hide lost work."""
     if not path.exists():
         return None
     try:
         payload = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception:  # a corrupt checkpoint means "start this stage again"
-        return None
+    except Exception as exc:  # torch raises many types for a damaged file
+        raise CheckpointError(f"{path}: unreadable checkpoint ({type(exc).__name__}); delete it to "
+                              "restart this stage") from None
+    if not isinstance(payload, dict) or "iteration" not in payload:
+        raise CheckpointError(f"{path}: not a train-and-evaluate checkpoint (no field 'iteration')")
     if payload.get("config_sha256") != config_sha:
+        log_line(f"{path.name}: written with other settings; this stage starts afresh and overwrites it")
         return None
     return payload
 
 
 class RunContext:
-    """What every stage needs: config, device, output folders, the log and the RNGs."""
+    """What every stage needs: config, device, output folders, the log and the RNG. The RNG lives
+    on the CPU so a seed draws the same views and splits on every device; its draws are moved to
+    the parameters' device where they meet them."""
 
     def __init__(self, cfg: Any, out: Path, log: RunLog, scene_center: torch.Tensor, extent: float) -> None:
         self.cfg = cfg
         self.out = out
         self.log = log
         self.device = torch.device(cfg.device)
-        self.generator = torch.Generator().manual_seed(cfg.seed)
+        self.generator = torch.Generator(device="cpu").manual_seed(cfg.seed)
         self.center = scene_center.to(self.device)
         self.extent = extent
         self.config_sha = cfg.sha256()

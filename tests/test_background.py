@@ -47,7 +47,7 @@ def test_rays_project_back_to_their_pixel_centres(seed: int) -> None:
 
 def test_sh_values_are_the_analytic_bands() -> None:
     vm, k = _camera(3)
-    env = EnvironmentBackground(2, degree=1).double()
+    env = EnvironmentBackground(2, degree=1, device=torch.device("cpu")).double()
     with torch.no_grad():
         env.coeffs.zero_()
         env.coeffs[0, 0] = 0.4
@@ -59,7 +59,7 @@ def test_sh_values_are_the_analytic_bands() -> None:
     assert torch.allclose(img[..., 0], torch.full_like(z, 0.5 + c0 * 0.4), atol=1e-12)
     assert torch.allclose(img[..., 1], 0.5 + c1 * 0.3 * z, atol=1e-12)
     with pytest.raises(ValueError, match="background_sh_degree"):
-        EnvironmentBackground(3, degree=4)
+        EnvironmentBackground(3, degree=4, device=torch.device("cpu"))
 
 
 def _one_blob() -> tuple[Placed, torch.Tensor, torch.Tensor, View]:
@@ -74,7 +74,7 @@ def _one_blob() -> tuple[Placed, torch.Tensor, torch.Tensor, View]:
 def test_constant_environment_matches_the_rasterizers_own_background() -> None:
     placed, opac, col, view = _one_blob()
     sky = torch.tensor([0.3, 0.6, 0.8], dtype=torch.float64)
-    env = EnvironmentBackground(3, degree=2).double()
+    env = EnvironmentBackground(3, degree=2, device=torch.device("cpu")).double()
     with torch.no_grad():
         env.coeffs.zero_()
         env.coeffs[0] = (sky - 0.5) * 2.0 * math.sqrt(math.pi)
@@ -86,7 +86,7 @@ def test_constant_environment_matches_the_rasterizers_own_background() -> None:
 
 def test_environment_gradients_match_finite_differences() -> None:
     placed, opac, col, view = _one_blob()
-    env = EnvironmentBackground(3, degree=2).double()
+    env = EnvironmentBackground(3, degree=2, device=torch.device("cpu")).double()
     with torch.no_grad():
         noise = torch.randn(env.coeffs.shape, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
         env.coeffs.copy_(noise * 0.1)

@@ -159,7 +159,7 @@ def write_splat_dataset(path: Path, smoke: str = "moving", n_rgb: int = 12, n_th
             "duration_s": duration, "sim_fps": n_rgb, "passes": meta_passes,
             "smoke": {"present": smoke != "none", "fire": False, "static": static_flag, "mask_threshold": 0.02,
                       "density_scale": opacity},
-            "thermal_sensor": sensor}
+            "thermal_sensor": sensor, "versions": {"writer": "tests.test_smokeseer_data"}}
     (path / "dataset.json").write_text(json.dumps(meta))
     return path
 

@@ -17,7 +17,7 @@ def _set(n: int, scale: float) -> GaussianSet:
     q[:, 0] = 1
     return GaussianSet({"means": torch.arange(n * 3, dtype=torch.float32).reshape(n, 3),
                         "quats": q, "log_scales": torch.full((n, 3), math.log(scale)),
-                        "opacity": torch.full((n,), float(logit(0.5))),
+                        "opacity": torch.full((n,), logit(0.5)),
                         "color": torch.arange(n, dtype=torch.float32)[:, None]})
 
 
@@ -35,7 +35,7 @@ def test_clone_split_prune_follow_3dgs_rules() -> None:
                         opacity_reset_every=0, prune_opacity=0.005)
     g = _set(4, scale=0.001)
     g.params["log_scales"].data[2:] = math.log(0.5)  # rows 2, 3 are large
-    g.params["opacity"].data[3] = float(logit(0.001))  # row 3 transparent
+    g.params["opacity"].data[3] = logit(0.001)  # row 3 transparent
     opt = _with_adam_state(g)
     c = g["color"].detach().squeeze(-1).tolist()
     parent = g["log_scales"].detach()[2].exp().numpy()

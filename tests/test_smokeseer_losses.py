@@ -103,11 +103,11 @@ def test_positional_encoding_layout() -> None:
 def test_deform_network_defaults_and_zero_start() -> None:
     cfg = DeformConfig()
     assert (cfg.depth, cfg.width, cfg.skip_layer, cfg.xyz_frequencies, cfg.t_frequencies) == (8, 256, 4, 10, 6)
-    net = DeformNetwork(cfg, position_scale=2.0)
+    net = DeformNetwork(cfg, position_scale=2.0, device=torch.device("cpu"))
     assert net.layers[cfg.skip_layer].in_features == cfg.width + 63 + 13
     means = torch.randn(5, 3)
     d_xyz, d_rot, d_scale = net(means, 0.3, torch.zeros(3))
     assert torch.equal(d_xyz, torch.zeros(5, 3)) and d_rot is None and d_scale is None
-    full = DeformNetwork(DeformConfig(depth=3, width=16, skip_layer=1, predict_rotation_scale=True))
+    full = DeformNetwork(DeformConfig(depth=3, width=16, skip_layer=1, predict_rotation_scale=True), 1.0, torch.device("cpu"))
     _, d_rot, d_scale = full(means, 0.3, torch.zeros(3))
     assert d_rot.shape == (5, 4) and d_scale.shape == (5, 3)

@@ -1,0 +1,147 @@
+"""The one training-stage loop Stages 2 and 3 share: resume, iterate, NaN guard, optimiser
+steps, densification, logging, progress bar and checkpoints.
+
+A stage describes itself as a ``StageProblem`` (what one iteration computes, which tensors to
+guard, what a checkpoint holds); the loop owns everything else, so a fix to checkpointing or
+divergence handling lands in both stages at once.
+"""
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+from tqdm import tqdm
+
+from smokeseer.trainutil import NaNDetected, RunContext, check_finite, load_checkpoint, save_checkpoint
+
+
+@dataclass
+class IterationOutput:
+    """What one iteration's forward pass produced: the total loss and its named terms."""
+
+    loss: torch.Tensor
+    terms: dict[str, torch.Tensor]
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+class StageProblem(ABC):
+    """One stage's model, optimisers and loss, as the loop needs them."""
+
+    stage: int
+    name: str
+
+    @abstractmethod
+    def forward(self, it: int) -> IterationOutput:
+        """Render and compute the loss of iteration ``it`` (1-based)."""
+
+    @abstractmethod
+    def named_gradients(self) -> list[tuple[str, torch.Tensor | None]]:
+        """Every gradient the NaN guard checks after backward."""
+
+    @abstractmethod
+    def named_parameters(self) -> list[tuple[str, torch.Tensor]]:
+        """Every parameter the NaN guard checks after the optimiser step."""
+
+    @abstractmethod
+    def optimizer_step(self, it: int) -> None:
+        """Learning-rate schedules, optimiser steps and zeroing the gradients."""
+
+    @abstractmethod
+    def after_step(self, it: int, out: IterationOutput) -> None:
+        """Densification and other edits between iterations."""
+
+    @abstractmethod
+    def state(self) -> dict[str, Any]:
+        """Model and optimiser state for a checkpoint (tensors may alias the live ones)."""
+
+    @abstractmethod
+    def load_state(self, payload: dict[str, Any]) -> None:
+        """Restore what ``state`` returned."""
+
+    @abstractmethod
+    def log_row(self, it: int, out: IterationOutput, test_psnr: float | None) -> dict[str, Any]:
+        """The train_log.csv row of iteration ``it``."""
+
+    def test_psnr(self, it: int) -> float | None:
+        """Held-out PSNR for the log, or None where the stage has none."""
+        return None
+
+
+def detached_copy(obj: Any) -> Any:
+    """A deep copy whose tensors are detached clones on their own device (a state snapshot)."""
+    if isinstance(obj, torch.Tensor):
+        return obj.detach().clone()
+    if isinstance(obj, dict):
+        return {k: detached_copy(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(detached_copy(v) for v in obj)
+    return obj
+
+
+@dataclass
+class StageSchedule:
+    """How long a stage runs and how often it logs, evaluates and checkpoints."""
+
+    iterations: int
+    log_every: int
+    test_every: int
+    checkpoint_every: int
+    checkpoint_sha: str
+
+
+def resume(ctx: RunContext, problem: StageProblem, sched: StageSchedule) -> tuple[int, bool]:
+    """Load the stage's checkpoint if there is one for these settings: (start iteration, done)."""
+    path = ctx.checkpoint_path(problem.stage)
+    payload = load_checkpoint(path, sched.checkpoint_sha, ctx.log_line)
+    if payload is None:
+        return 0, False
+    problem.load_state(payload)
+    start, done = int(payload["iteration"]), bool(payload.get("done"))
+    ctx.log_line(f"{problem.name}: resumed from {path} at iteration {start}{' (finished)' if done else ''}")
+    return start, done
+
+
+def run_stage(ctx: RunContext, problem: StageProblem, sched: StageSchedule) -> None:
+    """Train ``problem`` to ``sched.iterations``, resuming from its checkpoint. On a non-finite
+    loss, gradient or parameter (after the optimiser step and densification) it writes
+    ``stageN_nan.pt`` holding the state that passed the previous iteration's check, and raises
+    NaNDetected. That state is a snapshot taken before the step, so a step or a densification
+    that produces non-finite values never reaches the checkpoint."""
+    start, done = resume(ctx, problem, sched)
+    if done:
+        return
+    nan_path = ctx.out / "checkpoints" / f"stage{problem.stage}_nan.pt"
+
+    def payload(it: int, finished: bool, state: dict[str, Any]) -> dict[str, Any]:
+        return {"stage": problem.stage, "iteration": it, "done": finished, "config_sha256": sched.checkpoint_sha,
+                **state}
+
+    total = sched.iterations
+    bar = tqdm(range(start + 1, total + 1), desc=problem.name, disable=not ctx.cfg.progress, leave=False)
+    for it in bar:
+        out = problem.forward(it)
+        try:
+            check_finite(problem.stage, it, [(f"loss.{n}", v) for n, v in out.terms.items()])
+            out.loss.backward()
+            check_finite(problem.stage, it, problem.named_gradients())
+        except NaNDetected:
+            save_checkpoint(nan_path, payload(it - 1, False, problem.state()))
+            raise
+        last_good = detached_copy(problem.state())
+        problem.optimizer_step(it)
+        problem.after_step(it, out)
+        try:
+            check_finite(problem.stage, it, problem.named_parameters())
+        except NaNDetected:
+            save_checkpoint(nan_path, payload(it - 1, False, last_good))
+            raise
+        del last_good
+        if it % sched.log_every == 0 or it == total:
+            due = sched.test_every > 0 and (it % sched.test_every == 0 or it == total)
+            ctx.log.write(problem.log_row(it, out, problem.test_psnr(it) if due else None))
+            bar.set_postfix(loss=f"{float(out.loss.detach()):.4f}")
+        if sched.checkpoint_every and it % sched.checkpoint_every == 0 and it < total:
+            save_checkpoint(ctx.checkpoint_path(problem.stage), payload(it, False, problem.state()))
+    save_checkpoint(ctx.checkpoint_path(problem.stage), payload(total, True, problem.state()))
