@@ -12,6 +12,8 @@ from typing import Any, Sequence
 
 import bpy
 
+from blender.job import MaterialJob, RgbSmokeJob, TextureJob, ThermalSmokeJob
+
 
 def _tree(name: str) -> tuple[bpy.types.Material, bpy.types.NodeTree]:
     mat = bpy.data.materials.new(name)
@@ -64,10 +66,10 @@ def _box_coordinates(tree: bpy.types.NodeTree, coords: bpy.types.Node) -> bpy.ty
     return combine.outputs["Vector"]
 
 
-def _texture(tree: bpy.types.NodeTree, tex: dict[str, Any]) -> bpy.types.Node | None:
+def _texture(tree: bpy.types.NodeTree, tex: TextureJob) -> bpy.types.Node | None:
     """The texture node driven by object coordinates (box-mapped for 2D textures), or None
     for a plain material."""
-    kind = tex["kind"]
+    kind = tex.kind
     if kind == "none":
         return None
     coords = tree.nodes.new("ShaderNodeTexCoord")
@@ -77,9 +79,9 @@ def _texture(tree: bpy.types.NodeTree, tex: dict[str, Any]) -> bpy.types.Node | 
     }[kind])
     vector = _box_coordinates(tree, coords) if kind in PLANAR_TEXTURES else coords.outputs["Object"]
     tree.links.new(vector, node.inputs["Vector"])
-    node.inputs["Scale"].default_value = tex["scale"]
+    node.inputs["Scale"].default_value = tex.scale
     if "Detail" in node.inputs:
-        node.inputs["Detail"].default_value = tex["detail"]
+        node.inputs["Detail"].default_value = tex.detail
     return node
 
 
@@ -118,41 +120,41 @@ def _curve(tree: bpy.types.NodeTree, points: Sequence[Sequence[float]], source: 
     return mul.outputs["Value"]
 
 
-def rgb_surface(spec: dict[str, Any]) -> bpy.types.Material:
-    mat, tree = _tree(f"{spec['name']}.rgb")
+def rgb_surface(spec: MaterialJob) -> bpy.types.Material:
+    mat, tree = _tree(f"{spec.name}.rgb")
     out = tree.nodes.new("ShaderNodeOutputMaterial")
     bsdf = tree.nodes.new("ShaderNodeBsdfPrincipled")
-    bsdf.inputs["Roughness"].default_value = spec["roughness"]
-    bsdf.inputs["Metallic"].default_value = spec["metallic"]
-    base = (*spec["base_color"], 1.0)
-    tex_spec = spec["texture"]
+    bsdf.inputs["Roughness"].default_value = spec.roughness
+    bsdf.inputs["Metallic"].default_value = spec.metallic
+    base = (*spec.base_color, 1.0)
+    tex_spec = spec.texture
     tex = _texture(tree, tex_spec)
     if tex is None:
         bsdf.inputs["Base Color"].default_value = base
-    elif tex_spec["kind"] == "brick":
+    elif tex_spec.kind == "brick":
         tex.inputs["Color1"].default_value = base
-        tex.inputs["Color2"].default_value = (*tex_spec["color2"], 1.0)
-        tex.inputs["Mortar"].default_value = (*tex_spec["mortar_color"], 1.0)
+        tex.inputs["Color2"].default_value = (*tex_spec.color2, 1.0)
+        tex.inputs["Mortar"].default_value = (*tex_spec.mortar_color, 1.0)
         tree.links.new(tex.outputs["Color"], bsdf.inputs["Base Color"])
     else:
         mix = tree.nodes.new("ShaderNodeMix")
         mix.data_type = "RGBA"
         tree.links.new(_factor(tex), mix.inputs["Factor"])
         mix.inputs["A"].default_value = base
-        mix.inputs["B"].default_value = (*tex_spec["color2"], 1.0)
+        mix.inputs["B"].default_value = (*tex_spec.color2, 1.0)
         tree.links.new(mix.outputs["Result"], bsdf.inputs["Base Color"])
     tree.links.new(bsdf.outputs["BSDF"], out.inputs["Surface"])
     return mat
 
 
-def thermal_surface(spec: dict[str, Any]) -> bpy.types.Material:
+def thermal_surface(spec: MaterialJob) -> bpy.types.Material:
     """Emission = tabulated radiance over the texture factor (constant without a texture)."""
-    mat, tree = _tree(f"{spec['name']}.thermal")
+    mat, tree = _tree(f"{spec.name}.thermal")
     out = tree.nodes.new("ShaderNodeOutputMaterial")
     emission = tree.nodes.new("ShaderNodeEmission")
     emission.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
-    points = spec["thermal_curve"]
-    tex = _texture(tree, spec["texture"])
+    points = spec.thermal_curve
+    tex = _texture(tree, spec.texture)
     if tex is None or len(points) == 1:
         emission.inputs["Strength"].default_value = points[0][1]
     else:
@@ -214,7 +216,7 @@ def _fire_glow(tree: bpy.types.NodeTree, table: Sequence[Sequence[float]]) -> bp
     return glow.outputs["Emission"]
 
 
-def rgb_smoke(spec: dict[str, Any]) -> bpy.types.Material:
+def rgb_smoke(spec: RgbSmokeJob) -> bpy.types.Material:
     """Mie-derived per-channel scattering and absorption, Henyey-Greenstein with Mie's g.
 
     Volume Scatter's coefficient is colour*density and Volume Absorption's is
@@ -223,20 +225,20 @@ def rgb_smoke(spec: dict[str, Any]) -> bpy.types.Material:
     mat, tree = _tree("smoke.rgb")
     out = tree.nodes.new("ShaderNodeOutputMaterial")
     scatter = tree.nodes.new("ShaderNodeVolumeScatter")
-    scatter.inputs["Color"].default_value = (*spec["scatter_color"], 1.0)
-    scatter.inputs["Anisotropy"].default_value = spec["anisotropy"]
-    tree.links.new(_density(tree, spec["scatter_density"]), scatter.inputs["Density"])
+    scatter.inputs["Color"].default_value = (*spec.scatter_color, 1.0)
+    scatter.inputs["Anisotropy"].default_value = spec.anisotropy
+    tree.links.new(_density(tree, spec.scatter_density), scatter.inputs["Density"])
     absorb = tree.nodes.new("ShaderNodeVolumeAbsorption")
-    absorb.inputs["Color"].default_value = (*spec["absorb_color"], 1.0)
-    tree.links.new(_density(tree, spec["absorb_density"]), absorb.inputs["Density"])
+    absorb.inputs["Color"].default_value = (*spec.absorb_color, 1.0)
+    tree.links.new(_density(tree, spec.absorb_density), absorb.inputs["Density"])
     shader = _add(tree, scatter.outputs["Volume"], absorb.outputs["Volume"])
-    if spec.get("fire"):
-        shader = _add(tree, shader, _fire_glow(tree, spec["fire"]["glow_table"]))
+    if spec.fire is not None:
+        shader = _add(tree, shader, _fire_glow(tree, spec.fire.glow_table))
     tree.links.new(shader, out.inputs["Volume"])
     return mat
 
 
-def thermal_smoke(spec: dict[str, Any]) -> bpy.types.Material:
+def thermal_smoke(spec: ThermalSmokeJob) -> bpy.types.Material:
     """LWIR: absorption with the Mie extinction; emission only where the scene has fire.
 
     With fire, emission per unit length is sigma_a * L_band(T(flame)) (Kirchhoff), T from
@@ -247,14 +249,14 @@ def thermal_smoke(spec: dict[str, Any]) -> bpy.types.Material:
     out = tree.nodes.new("ShaderNodeOutputMaterial")
     absorb = tree.nodes.new("ShaderNodeVolumeAbsorption")
     absorb.inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
-    sigma = _density(tree, spec["absorption_per_density"])
+    sigma = _density(tree, spec.absorption_per_density)
     tree.links.new(sigma, absorb.inputs["Density"])
     shader = absorb.outputs["Volume"]
-    if spec.get("fire"):
-        fire = spec["fire"]
+    if spec.fire is not None:
+        fire = spec.fire
         flame = tree.nodes.new("ShaderNodeAttribute")
         flame.attribute_name = "flame"
-        radiance = _curve(tree, fire["radiance_curve"], flame.outputs["Fac"])
+        radiance = _curve(tree, fire.radiance_curve, flame.outputs["Fac"])
         strength = tree.nodes.new("ShaderNodeMath")
         strength.operation = "MULTIPLY"
         tree.links.new(sigma, strength.inputs[0])

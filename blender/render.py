@@ -7,11 +7,12 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
-from typing import Any
+from typing import Sequence
 
 import bpy
 from mathutils import Matrix
 
+from blender.job import CameraJob, ImageSize
 from blender.materials import SMOKE_WEIGHT
 from blender.scene import BuiltScene
 
@@ -35,16 +36,16 @@ class PassSetup:
 DENOISE_INPUTS = {"color": "RGB", "albedo": "RGB_ALBEDO", "albedo_normal": "RGB_ALBEDO_NORMAL"}
 
 
-def pass_setup(modality: str, name: str, camera: dict[str, Any]) -> PassSetup:
+def pass_setup(modality: str, name: str, camera: CameraJob) -> PassSetup:
     """Only the smoky image (what a real camera records) is denoised; ground truth stays exact."""
-    samples, step_rate = camera["samples"], camera["volume_step_rate"]
+    samples, step_rate = camera.samples, camera.volume_step_rate
     if name == "depth":
         return PassSetup(False, False, 1, 0, True, "EXR", depth_pass=True)
     if name == "smoke_alpha":
         return PassSetup(True, True, samples, 0, False, "EXR", volume_step_rate=step_rate)
     fmt = "PNG" if modality == "rgb" else "EXR"
     bounces = 4 if modality == "rgb" else 0
-    denoise = camera["denoise"] if name == "smoky" else "none"
+    denoise = camera.denoise if name == "smoky" else "none"
     return PassSetup(name == "smoky", False, samples, bounces, False, fmt, denoise=denoise,
                      volume_step_rate=step_rate)
 
@@ -97,12 +98,12 @@ def select_modality(modality: str, built: BuiltScene) -> None:
         dom.data.materials.append(bpy.data.materials[f"smoke.{modality}"])
 
 
-def apply_pass(setup: PassSetup, built: BuiltScene, camera: dict[str, Any]) -> None:
+def apply_pass(setup: PassSetup, built: BuiltScene, camera: ImageSize) -> None:
     scene = bpy.context.scene
     render, cycles = scene.render, scene.cycles
-    render.resolution_x, render.resolution_y = camera["width"], camera["height"]
+    render.resolution_x, render.resolution_y = camera.width, camera.height
     cam = scene.camera
-    cam.data.lens = camera["fl_x"] * cam.data.sensor_width / camera["width"]
+    cam.data.lens = camera.fl_x * cam.data.sensor_width / camera.width
     cycles.samples = setup.samples
     cycles.max_bounces = setup.max_bounces
     cycles.diffuse_bounces = cycles.glossy_bounces = min(setup.max_bounces, 4)
@@ -145,7 +146,7 @@ def show_smoke_state(built: BuiltScene, visible: bool, next_weight: float) -> No
         raise RuntimeError("a fractional frame needs the interpolation twin of the smoke domain")
 
 
-def render_to(path: str, c2w: list[list[float]], blender_frame: int) -> None:
+def render_to(path: str, c2w: Sequence[Sequence[float]], blender_frame: int) -> None:
     """Render one image; write aside and rename so a crash never leaves a partial file."""
     scene = bpy.context.scene
     scene.frame_set(blender_frame)  # always: right after a bake the current frame's state is stale

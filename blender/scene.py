@@ -10,6 +10,7 @@ import bpy
 import numpy as np
 
 from blender import materials
+from blender.job import ObjectJob, WorkerJob
 from blender.recipes import RECIPES, mesh_from_arrays
 
 
@@ -37,19 +38,19 @@ def reset() -> None:
     bpy.ops.wm.read_factory_settings(use_empty=True)
 
 
-def _place(obj: bpy.types.Object, spec: dict[str, Any]) -> None:
-    obj.location = spec["location"]
-    obj.rotation_euler = [math.radians(a) for a in spec["rotation_deg"]]
-    obj.scale = spec["scale"]
+def _place(obj: bpy.types.Object, spec: ObjectJob) -> None:
+    obj.location = spec.location
+    obj.rotation_euler = [math.radians(a) for a in spec.rotation_deg]
+    obj.scale = spec.scale
 
 
-def _make_object(spec: dict[str, Any]) -> bpy.types.Object:
-    asset = spec["asset"]
-    if asset["kind"] == "file":
-        with np.load(asset["mesh_npz"]) as data:
-            obj = mesh_from_arrays(spec["name"], data["vertices"], data["faces"])
+def _make_object(spec: ObjectJob) -> bpy.types.Object:
+    asset = spec.asset
+    if asset.kind == "file":
+        with np.load(asset.mesh_npz) as data:
+            obj = mesh_from_arrays(spec.name, data["vertices"], data["faces"])
     else:
-        obj = RECIPES[asset["recipe"]](spec["name"], {**asset.get("params", {}), **spec.get("params", {})})
+        obj = RECIPES[asset.recipe](spec.name, {**asset.params, **spec.params})
     _place(obj, spec)
     return obj
 
@@ -63,14 +64,14 @@ def _assign(obj: bpy.types.Object, mat: bpy.types.Material) -> None:
             child.data.materials.append(mat)
 
 
-def build_surfaces(job: dict[str, Any], built: BuiltScene) -> list[bpy.types.Object]:
-    rgb_mats = {n: materials.rgb_surface(m) for n, m in job["materials"].items()}
-    thermal_mats = {n: materials.thermal_surface(m) for n, m in job["materials"].items()}
+def build_surfaces(job: WorkerJob, built: BuiltScene) -> list[bpy.types.Object]:
+    rgb_mats = {n: materials.rgb_surface(m) for n, m in job.materials.items()}
+    thermal_mats = {n: materials.thermal_surface(m) for n, m in job.materials.items()}
     made = []
-    for spec in job["objects"]:
+    for spec in job.objects:
         obj = _make_object(spec)
-        _assign(obj, rgb_mats[spec["material"]])
-        built.surfaces[obj.name] = (rgb_mats[spec["material"]].name, thermal_mats[spec["material"]].name)
+        _assign(obj, rgb_mats[spec.material])
+        built.surfaces[obj.name] = (rgb_mats[spec.material].name, thermal_mats[spec.material].name)
         made.append(obj)
     return made
 
@@ -93,17 +94,17 @@ def add_obstacles(objects: list[bpy.types.Object], built: BuiltScene) -> None:
             built.obstacles.append(obj.name)
 
 
-def build_lights(job: dict[str, Any], built: BuiltScene) -> None:
-    w = job["world"]
-    materials.world("world.rgb", w["sky_color"], w["sky_strength"])
-    materials.world("world.thermal", (1.0, 1.0, 1.0), w["thermal_sky_radiance"])
-    if w["sun_strength"] > 0:
+def build_lights(job: WorkerJob, built: BuiltScene) -> None:
+    w = job.world
+    materials.world("world.rgb", w.sky_color, w.sky_strength)
+    materials.world("world.thermal", (1.0, 1.0, 1.0), w.thermal_sky_radiance)
+    if w.sun_strength > 0:
         data = bpy.data.lights.new("sun", "SUN")
-        data.energy = w["sun_strength"]
+        data.energy = w.sun_strength
         data.angle = math.radians(1.0)
         sun = bpy.data.objects.new("sun", data)
         bpy.context.scene.collection.objects.link(sun)
-        elevation, azimuth = math.radians(w["sun_elevation_deg"]), math.radians(w["sun_azimuth_deg"])
+        elevation, azimuth = math.radians(w.sun_elevation_deg), math.radians(w.sun_azimuth_deg)
         sun.rotation_euler = (math.pi / 2 - elevation, 0.0, azimuth + math.pi / 2)
         built.sun = sun.name
 
@@ -119,59 +120,59 @@ def build_camera() -> bpy.types.Object:
     return cam
 
 
-def build_smoke(job: dict[str, Any], built: BuiltScene) -> None:
+def build_smoke(job: WorkerJob, built: BuiltScene) -> None:
     """The gas domain and its inflows; bake settings follow docs/scene-spec.md."""
-    sim, scene = job["sim"], bpy.context.scene
-    bpy.ops.mesh.primitive_cube_add(size=1.0, location=sim["center"])
+    sim, scene = job.sim, bpy.context.scene
+    bpy.ops.mesh.primitive_cube_add(size=1.0, location=sim.center)
     dom = bpy.context.object
     dom.name = "smoke_domain"
-    dom.scale = sim["size"]
+    dom.scale = sim.size
     bpy.ops.object.transform_apply(scale=True)
     mod = dom.modifiers.new("Fluid", "FLUID")
     mod.fluid_type = "DOMAIN"
     ds = mod.domain_settings
     ds.domain_type = "GAS"
-    ds.resolution_max = sim["resolution"]
+    ds.resolution_max = sim.resolution
     ds.use_adaptive_domain = False
-    ds.vorticity = sim["vorticity"]
-    ds.alpha = sim["buoyancy_density"]
-    ds.beta = sim["buoyancy_heat"]
+    ds.vorticity = sim.vorticity
+    ds.alpha = sim.buoyancy_density
+    ds.beta = sim.buoyancy_heat
     ds.cache_type = "ALL"
-    ds.cache_directory = job["cache_dir"]
+    ds.cache_directory = job.cache_dir
     ds.cache_frame_start = 1
-    ds.cache_frame_end = sim["frame_end"]
-    if sim["dissolve_frames"] > 0:
+    ds.cache_frame_end = sim.frame_end
+    if sim.dissolve_frames > 0:
         ds.use_dissolve_smoke = True
-        ds.dissolve_speed = sim["dissolve_frames"]
-    if sim["noise_upres"] > 0:
+        ds.dissolve_speed = sim.dissolve_frames
+    if sim.noise_upres > 0:
         ds.use_noise = True
-        ds.noise_scale = sim["noise_upres"]
+        ds.noise_scale = sim.noise_upres
     ds.flame_max_temp = 1.75
-    scene.frame_start, scene.frame_end = 1, sim["frame_end"]
-    scene.render.fps = sim["fps"]
-    for i, src in enumerate(job["sources"]):
-        bpy.ops.mesh.primitive_ico_sphere_add(radius=src["radius"], subdivisions=2, location=src["position"])
+    scene.frame_start, scene.frame_end = 1, sim.frame_end
+    scene.render.fps = sim.fps
+    for i, src in enumerate(job.sources):
+        bpy.ops.mesh.primitive_ico_sphere_add(radius=src.radius, subdivisions=2, location=src.position)
         flow_obj = bpy.context.object
         flow_obj.name = f"smoke_source_{i}"
         fmod = flow_obj.modifiers.new("Fluid", "FLUID")
         fmod.fluid_type = "FLOW"
         fs = fmod.flow_settings
-        fs.flow_type = {"smoke": "SMOKE", "fire": "FIRE", "both": "BOTH"}[src["kind"]]
+        fs.flow_type = {"smoke": "SMOKE", "fire": "FIRE", "both": "BOTH"}[src.kind]
         fs.flow_behavior = "INFLOW"
         fs.flow_source = "MESH"
         fs.volume_density = 1.0
         fs.surface_distance = 0.5
-        fs.density = src["rate"]
-        fs.temperature = src["heat"]
-        if src["kind"] != "smoke":
+        fs.density = src.rate
+        fs.temperature = src.heat
+        if src.kind != "smoke":
             fs.fuel_amount = 1.0
-        if any(abs(v) > 0 for v in src["velocity"]):
+        if any(abs(v) > 0 for v in src.velocity):
             fs.use_initial_velocity = True
-            fs.velocity_coord = src["velocity"]
+            fs.velocity_coord = src.velocity
         flow_obj.hide_render = True
-    wind = np.asarray(sim["wind"], dtype=float)
+    wind = np.asarray(sim.wind, dtype=float)
     if np.linalg.norm(wind) > 0:
-        bpy.ops.object.effector_add(type="WIND", location=sim["center"])
+        bpy.ops.object.effector_add(type="WIND", location=sim.center)
         field_obj = bpy.context.object
         field_obj.name = "wind"
         field_obj.field.strength = float(np.linalg.norm(wind))
@@ -218,7 +219,7 @@ def add_interpolation_twin(built: BuiltScene) -> None:
     built.domain_next = twin.name
 
 
-def build(job: dict[str, Any]) -> BuiltScene:
+def build(job: WorkerJob) -> BuiltScene:
     reset()
     scene = bpy.context.scene
     scene.unit_settings.system = "METRIC"
@@ -227,9 +228,9 @@ def build(job: dict[str, Any]) -> BuiltScene:
     objects = build_surfaces(job, built)
     build_lights(job, built)
     build_camera()
-    if job["sources"]:
+    if job.sources:
         add_obstacles(objects, built)
         build_smoke(job, built)
-        materials.rgb_smoke(job["smoke_rgb"])
-        materials.thermal_smoke(job["smoke_thermal"])
+        materials.rgb_smoke(job.smoke_rgb)
+        materials.thermal_smoke(job.smoke_thermal)
     return built

@@ -15,18 +15,20 @@ import traceback
 from pathlib import Path
 from typing import Any
 
+from blender.job import JobError, WorkerJob
+
 
 def emit(kind: str, **payload: Any) -> None:
     sys.stdout.write(f"@@{kind} {json.dumps(payload)}\n")
     sys.stdout.flush()
 
 
-def _prepare(job: dict[str, Any]):
+def _prepare(job: WorkerJob):
     import bpy
 
     from blender import scene as scene_mod
 
-    blend = Path(job["blend_path"])
+    blend = Path(job.blend_path)
     built_path = blend.with_suffix(".built.json")
     timings: dict[str, float] = {}
     if blend.exists() and built_path.exists():
@@ -38,7 +40,7 @@ def _prepare(job: dict[str, Any]):
     built = scene_mod.build(job)
     timings["build"] = time.perf_counter() - t0
     if built.domain:
-        emit("stage", name="bake", status="start", frames=job["sim"]["frame_end"])
+        emit("stage", name="bake", status="start", frames=job.sim.frame_end)
         t0 = time.perf_counter()
         scene_mod.bake(built.domain)
         timings["bake"] = time.perf_counter() - t0
@@ -53,42 +55,42 @@ def _prepare(job: dict[str, Any]):
     return built, timings
 
 
-def _previous_summary(job: dict[str, Any]) -> dict[str, Any]:
+def _previous_summary(job: WorkerJob) -> dict[str, Any]:
     """What an interrupted earlier run measured, so a resumed dataset still reports it."""
-    path = Path(job["summary_path"])
+    path = Path(job.summary_path)
     return json.loads(path.read_text()) if path.exists() else {"timings": {}, "passes": {}}
 
 
-def _render_all(job: dict[str, Any], built, timings: dict[str, float]) -> dict[str, Any]:
+def _render_all(job: WorkerJob, built, timings: dict[str, float]) -> dict[str, Any]:
     from blender import render
 
-    render.configure_engine(job["seed"], job["threads"])
+    render.configure_engine(job.seed, job.threads)
     previous = _previous_summary(job)
     per_pass: dict[str, dict[str, float]] = {}
-    for modality, passes in job["passes"].items():
-        camera = job["cameras"][modality]
+    for modality, passes in job.passes.items():
+        camera = job.cameras[modality]
         render.select_modality(modality, built)
         for name in passes:
             setup = render.pass_setup(modality, name, camera)
-            cam = camera["depth"] if name == "depth" else camera["render"]
+            cam = camera.depth if name == "depth" else camera.render
             render.apply_pass(setup, built, cam)
-            folder = Path(job["raw_dir"]) / modality / name
+            folder = Path(job.raw_dir) / modality / name
             folder.mkdir(parents=True, exist_ok=True)
             ext = "png" if setup.file_format == "PNG" else "exr"
             key = f"{modality}.{name}"
-            frames = camera["frames"]
+            frames = camera.frames
             before = previous["passes"].get(key, {})
             done, seconds = before.get("rendered", 0), before.get("seconds", 0.0)
             for frame in frames:
-                path = folder / f"{frame['stem']}.{ext}"
+                path = folder / f"{frame.stem}.{ext}"
                 fresh = not path.exists()
                 if fresh:
                     t0 = time.perf_counter()
-                    render.show_smoke_state(built, setup.smoke_visible, frame["next_weight"])
-                    render.render_to(str(path), frame["c2w"], frame["blender_frame"])
+                    render.show_smoke_state(built, setup.smoke_visible, frame.next_weight)
+                    render.render_to(str(path), frame.c2w, frame.blender_frame)
                     seconds += time.perf_counter() - t0
                     done += 1
-                emit("progress", item=key, frame=frame["stem"], total=len(frames), rendered=fresh)
+                emit("progress", item=key, frame=frame.stem, total=len(frames), rendered=fresh)
             per_pass[key] = {"rendered": done, "seconds": seconds,
                              "seconds_per_frame": seconds / done if done else None}
             _save_summary(job, {**previous, "timings": {**previous["timings"], **timings},
@@ -96,8 +98,8 @@ def _render_all(job: dict[str, Any], built, timings: dict[str, float]) -> dict[s
     return {"timings": {**previous["timings"], **timings}, "passes": per_pass}
 
 
-def _save_summary(job: dict[str, Any], summary: dict[str, Any]) -> None:
-    path = Path(job["summary_path"])
+def _save_summary(job: WorkerJob, summary: dict[str, Any]) -> None:
+    path = Path(job.summary_path)
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps(summary, indent=2))
     os.replace(tmp, path)
@@ -107,7 +109,11 @@ def main(argv: list[str]) -> None:
     if len(argv) != 2:
         sys.stderr.write("usage: python -m blender.worker JOB.json\n")
         os._exit(2)
-    job = json.loads(Path(argv[1]).read_text())
+    try:
+        job = WorkerJob.read(Path(argv[1]))
+    except JobError as exc:
+        emit("error", message=f"JobError: {exc}")
+        os._exit(2)
     try:
         import bpy  # noqa: F401  (loads the manta module the repair patches)
 
@@ -117,10 +123,10 @@ def main(argv: list[str]) -> None:
         emit("stage", name="manta_repair", relinked=relinked)
         built, timings = _prepare(job)
         summary = _render_all(job, built, timings)
-        summary["grids"] = sorted(job["grids"])
+        summary["grids"] = sorted(job.grids)
         summary["bpy"] = bpy.app.version_string
         _save_summary(job, summary)
-        emit("done", summary=job["summary_path"])
+        emit("done", summary=job.summary_path)
         code = 0
     except Exception as exc:  # the parent turns this into one clear line plus the log path
         traceback.print_exc()

@@ -72,6 +72,10 @@ def _asset(name: str, f: Fields, root: Path) -> Asset:
     if kind == "recipe":
         asset = Asset(**common, recipe=f.string("recipe"))
     else:
+        raw_sha = f.raw("sha256", None)
+        if isinstance(raw_sha, (int, float)) and not isinstance(raw_sha, bool):
+            raise f.error("sha256", f"YAML read this digest as a number ({raw_sha!r}); write it in quotes, "
+                                    "e.g. sha256: \"0123...\"")
         sha = f.string("sha256")
         if len(sha) != 64 or any(c not in "0123456789abcdef" for c in sha):
             raise f.error("sha256", "must be 64 lowercase hex digits")
@@ -131,7 +135,7 @@ def load_mesh(asset: Asset) -> MeshArrays:
     actual = sha256_of(asset.path)
     if actual != asset.sha256:
         raise AssetError(f"{asset.path}: sha256 mismatch for asset {asset.name!r}: manifest says "
-                         f"{asset.sha256[:12]}..., file is {actual[:12]}...")
+                         f"{asset.sha256}, file is {actual}")
     try:
         mesh = trimesh.load(asset.path, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for unreadable files

@@ -1,5 +1,5 @@
-"""Turns a validated spec into the worker's job: all physics numbers are computed here,
-so the Blender side only wires nodes and renders."""
+"""Turns a validated spec into the worker's job (`blender.job.WorkerJob`): all physics numbers
+are computed here, so the Blender side only wires nodes and renders."""
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
@@ -8,7 +8,9 @@ from typing import Any
 
 import numpy as np
 
-from generator.assets import Manifest, load_mesh
+from blender.job import (AssetJob, CameraJob, FireJob, FrameJob, ImageSize, MaterialJob, ObjectJob, RgbSmokeJob,
+                        SimJob, SourceJob, TextureJob, ThermalSmokeJob, WorkerJob, WorldJob)
+from generator.assets import Manifest, MeshArrays, load_mesh
 from generator.optics.blackbody import glow_table
 from generator.optics.mie import ORGANIC_SMOKE, SOOT, SmokeOptics, smoke_optics
 from generator.optics.planck import band_radiance
@@ -108,89 +110,103 @@ def source_heat(temperature_k: float, ambient_k: float) -> float:
     return float(np.clip((temperature_k - ambient_k) / 50.0, -10.0, 10.0))
 
 
-def _fire(spec: SceneSpec) -> dict[str, Any] | None:
+def _fire(spec: SceneSpec) -> FireJob | None:
     if not spec.has_fire:
         return None
     ambient = spec.lights.ambient_temperature_k
     flame = max(s.temperature_k for s in spec.sources if s.kind in ("fire", "both"))
     factors = np.linspace(0.0, 1.0, THERMAL_CURVE_POINTS)
     radiance = band_radiance(ambient + factors * (flame - ambient))
-    return {"ambient_k": ambient, "flame_k": flame, "visible_strength": FIRE_VISIBLE_STRENGTH,
-            "glow_table": glow_table(ambient, flame, FIRE_VISIBLE_STRENGTH, GLOW_TABLE_POINTS),
-            "radiance_curve": [[float(f), float(r)] for f, r in zip(factors, radiance)]}
+    glow = glow_table(ambient, flame, FIRE_VISIBLE_STRENGTH, GLOW_TABLE_POINTS)
+    return FireJob(ambient_k=ambient, flame_k=flame, visible_strength=FIRE_VISIBLE_STRENGTH,
+                   glow_table=tuple((f, r, g, b) for f, r, g, b in glow),
+                   radiance_curve=tuple((float(f), float(r)) for f, r in zip(factors, radiance)))
 
 
-def _camera(k: Intrinsics, supersample: int, cam: CameraSpec, frames: list[FrameSample]) -> dict[str, Any]:
-    return {
-        "render": {"width": k.width * supersample, "height": k.height * supersample, "fl_x": k.fl_x * supersample},
-        "depth": {"width": k.width, "height": k.height, "fl_x": k.fl_x},
-        "samples": cam.samples,
-        "denoise": cam.denoise,
-        "volume_step_rate": cam.volume_step_rate,
-        "frames": [{"stem": f.stem, "blender_frame": f.base_frame, "next_weight": f.next_weight,
-                    "c2w": f.c2w.tolist()} for f in frames],
-    }
+def _camera(k: Intrinsics, supersample: int, cam: CameraSpec, frames: list[FrameSample]) -> CameraJob:
+    return CameraJob(
+        render=ImageSize(k.width * supersample, k.height * supersample, k.fl_x * supersample),
+        depth=ImageSize(k.width, k.height, k.fl_x),
+        samples=cam.samples, denoise=cam.denoise, volume_step_rate=cam.volume_step_rate,
+        frames=tuple(FrameJob(stem=f.stem, blender_frame=f.base_frame, next_weight=f.next_weight,
+                              c2w=tuple(tuple(float(v) for v in row) for row in f.c2w)) for f in frames),
+    )
 
 
-def _objects(spec: SceneSpec, manifest: Manifest, source: str, mesh_dir: Path) -> list[dict[str, Any]]:
+def load_scene_meshes(spec: SceneSpec, manifest: Manifest, source: str) -> dict[str, MeshArrays]:
+    """Resolve every object's asset and load (checksum, check) each mesh file it uses. Done
+    before anything is written, so a bad asset leaves nothing behind."""
+    meshes: dict[str, MeshArrays] = {}
+    for i, obj in enumerate(spec.objects):
+        asset = manifest.get(obj.asset, source, f"objects[{i}].asset")
+        if asset.kind == "file" and asset.name not in meshes:
+            meshes[asset.name] = load_mesh(asset)
+    return meshes
+
+
+def _objects(spec: SceneSpec, manifest: Manifest, source: str, meshes: dict[str, MeshArrays],
+             mesh_dir: Path) -> tuple[ObjectJob, ...]:
     out = []
     for i, obj in enumerate(spec.objects):
         asset = manifest.get(obj.asset, source, f"objects[{i}].asset")
-        entry: dict[str, Any] = {"kind": asset.kind, "params": asset.params}
-        if asset.kind == "recipe":
-            entry["recipe"] = asset.recipe
-        else:
-            mesh = load_mesh(asset)
+        mesh_npz = None
+        if asset.kind == "file":
+            mesh = meshes[asset.name]
             npz = mesh_dir / f"{asset.name}.npz"
             if not npz.exists():
                 mesh_dir.mkdir(parents=True, exist_ok=True)
                 tmp = npz.with_suffix(".tmp.npz")
                 np.savez(tmp, vertices=mesh.vertices, faces=mesh.faces)
                 tmp.replace(npz)
-            entry["mesh_npz"] = str(npz)
-        out.append({"name": obj.name, "asset": entry, "material": obj.material, "location": obj.location,
-                    "rotation_deg": obj.rotation_deg, "scale": obj.scale, "params": obj.params})
-    return out
+            mesh_npz = str(npz)
+        assert obj.material is not None, "resolve_asset_materials runs before the job is made"
+        out.append(ObjectJob(name=obj.name, asset=AssetJob(asset.kind, dict(asset.params), asset.recipe, mesh_npz),
+                             material=obj.material, location=obj.location, rotation_deg=obj.rotation_deg,
+                             scale=obj.scale, params=dict(obj.params)))
+    return tuple(out)
 
 
-def make_job(spec: SceneSpec, plan: Plan, manifest: Manifest, source: str, work: Path, threads: int) -> dict[str, Any]:
+def make_job(spec: SceneSpec, plan: Plan, manifest: Manifest, source: str, work: Path, threads: int,
+             meshes: dict[str, MeshArrays] | None = None) -> WorkerJob:
+    """The worker's job; `meshes` are the already loaded mesh files (loaded here when not given)."""
+    meshes = load_scene_meshes(spec, manifest, source) if meshes is None else meshes
     sky_k = spec.lights.sky_temperature_k
     coeffs = smoke_coefficients(spec, plan.optics)
     fire = _fire(spec)
-    materials = {}
-    for name, mat in spec.materials.items():
-        materials[name] = {"name": name, "base_color": mat.base_color, "roughness": mat.roughness,
-                           "metallic": mat.metallic, "texture": vars(mat.texture),
-                           "thermal_curve": surface_radiance_curve(mat, sky_k)}
-    lights = spec.lights
-    return {
-        "seed": spec.seed,
-        "threads": threads,
-        "blend_path": str(work / "scene.blend"),
-        "cache_dir": str(work / "cache"),
-        "raw_dir": str(work / "raw"),
-        "summary_path": str(work / "worker_summary.json"),
-        "grids": ["density", "flame"] if fire else (["density"] if spec.has_smoke else []),
-        "materials": materials,
-        "objects": _objects(spec, manifest, source, work / "meshes"),
-        "world": {"sky_color": lights.sky_color, "sky_strength": lights.sky_strength,
-                  "sun_strength": lights.sun_strength, "sun_elevation_deg": lights.sun_elevation_deg,
-                  "sun_azimuth_deg": lights.sun_azimuth_deg,
-                  "thermal_sky_radiance": float(band_radiance(sky_k))},
-        "sim": {"fps": spec.sim.fps, "resolution": spec.sim.resolution, "center": spec.sim.center,
-                "size": spec.sim.size, "vorticity": spec.sim.vorticity,
-                "buoyancy_density": spec.sim.buoyancy_density, "buoyancy_heat": spec.sim.buoyancy_heat,
-                "wind": spec.sim.wind, "dissolve_frames": int(round(spec.sim.dissolve_s * spec.sim.fps)),
-                "noise_upres": spec.sim.noise_upres, "frame_end": plan.last_frame},
-        "sources": [{"kind": s.kind, "position": s.position, "radius": s.radius, "rate": s.rate,
-                     "heat": source_heat(s.temperature_k, spec.lights.ambient_temperature_k), "velocity": s.velocity} for s in spec.sources],
-        "smoke_rgb": {**{k: coeffs[k] for k in ("scatter_density", "scatter_color", "absorb_density",
-                                                 "absorb_color", "anisotropy")}, "fire": fire},
-        "smoke_thermal": {"absorption_per_density": coeffs["lwir_absorption"], "fire": fire},
-        "cameras": {
+    materials = {
+        name: MaterialJob(name=name, base_color=mat.base_color, roughness=mat.roughness, metallic=mat.metallic,
+                          texture=TextureJob(**vars(mat.texture)),
+                          thermal_curve=tuple((f, r) for f, r in surface_radiance_curve(mat, sky_k)))
+        for name, mat in spec.materials.items()}
+    lights, sim = spec.lights, spec.sim
+    return WorkerJob(
+        seed=spec.seed,
+        threads=threads,
+        blend_path=str(work / "scene.blend"),
+        cache_dir=str(work / "cache"),
+        raw_dir=str(work / "raw"),
+        summary_path=str(work / "worker_summary.json"),
+        grids=("density", "flame") if fire else (("density",) if spec.has_smoke else ()),
+        materials=materials,
+        objects=_objects(spec, manifest, source, meshes, work / "meshes"),
+        world=WorldJob(sky_color=lights.sky_color, sky_strength=lights.sky_strength,
+                       sun_strength=lights.sun_strength, sun_elevation_deg=lights.sun_elevation_deg,
+                       sun_azimuth_deg=lights.sun_azimuth_deg, thermal_sky_radiance=float(band_radiance(sky_k))),
+        sim=SimJob(fps=sim.fps, resolution=sim.resolution, center=sim.center, size=sim.size,
+                   vorticity=sim.vorticity, buoyancy_density=sim.buoyancy_density, buoyancy_heat=sim.buoyancy_heat,
+                   wind=sim.wind, dissolve_frames=int(round(sim.dissolve_s * sim.fps)), noise_upres=sim.noise_upres,
+                   frame_end=plan.last_frame),
+        sources=tuple(SourceJob(kind=s.kind, position=s.position, radius=s.radius, rate=s.rate,
+                                heat=source_heat(s.temperature_k, lights.ambient_temperature_k), velocity=s.velocity)
+                      for s in spec.sources),
+        smoke_rgb=RgbSmokeJob(scatter_density=coeffs["scatter_density"], scatter_color=tuple(coeffs["scatter_color"]),
+                              absorb_density=coeffs["absorb_density"], absorb_color=tuple(coeffs["absorb_color"]),
+                              anisotropy=coeffs["anisotropy"], fire=fire),
+        smoke_thermal=ThermalSmokeJob(absorption_per_density=coeffs["lwir_absorption"], fire=fire),
+        cameras={
             "rgb": _camera(plan.intrinsics["rgb"], 1, spec.rig.rgb, plan.frames["rgb"]),
-            "thermal": _camera(plan.intrinsics["thermal"], spec.rig.thermal.supersample,
-                               spec.rig.thermal, plan.frames["thermal"]),
+            "thermal": _camera(plan.intrinsics["thermal"], spec.rig.thermal.supersample, spec.rig.thermal,
+                               plan.frames["thermal"]),
         },
-        "passes": {m: list(p) for m, p in plan.render_passes.items() if p},
-    }
+        passes={m: tuple(p) for m, p in plan.render_passes.items() if p},
+    )

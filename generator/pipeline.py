@@ -25,7 +25,8 @@ from generator.assets import Manifest, load_manifest
 from contracts.atomic import write_json
 from contracts.dataset_format import FORMAT, FORMAT_VERSION, PASS_FILES, file_path, transforms_name, validate_dataset
 from generator.errors import GeneratorError
-from generator.job import without_absent_passes, Plan, make_job, make_plan, resolve_asset_materials, smoke_coefficients
+from generator.job import (Plan, load_scene_meshes, make_job, make_plan, resolve_asset_materials,
+                           smoke_coefficients, without_absent_passes)
 from generator.optics.sensor import ThermalSensor, ThermalSensorConfig
 from generator.rig import FrameSample, Intrinsics
 from generator.spec import SceneSpec
@@ -149,14 +150,15 @@ def generate(spec: SceneSpec, out: Path, manifest: Manifest | None = None, sourc
     spec = without_absent_passes(spec)
     spec = resolve_asset_materials(spec, manifest, source)
     plan = make_plan(spec)
+    meshes = load_scene_meshes(spec, manifest, source)
     work = _staging(out, spec)
     threads = threads or max(1, os.cpu_count() or 1)
-    job = make_job(spec, plan, manifest, source, work, threads)
+    job = make_job(spec, plan, manifest, source, work, threads, meshes)
     log.info("scene %s: %d RGB + %d thermal frames, passes %s, sim %d^3 over %d frames",
              spec.name, len(plan.frames["rgb"]), len(plan.frames["thermal"]),
              ",".join(f"{m}.{p}" for m, ps in spec.passes.items() for p in ps), spec.sim.resolution,
              plan.last_frame)
-    summary = run_worker(job, work, show_progress) if job["passes"] else {"timings": {}, "passes": {}}
+    summary = run_worker(job, work, show_progress) if job.passes else {"timings": {}, "passes": {}}
     log.info("worker finished in %.1f s", summary.get("wall_s", 0.0))
     sensor = sensor_for(spec) if spec.passes.get("thermal") else None
     post_s = _postprocess(spec, plan, work, sensor, show_progress)

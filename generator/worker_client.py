@@ -8,51 +8,36 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 from tqdm import tqdm
 
+from blender.job import WorkerJob
 from generator.errors import WorkerError
 
 log = logging.getLogger("generate-scene")
 
 
-def run_worker(job: dict[str, Any], work: Path, show_progress: bool = True) -> dict[str, Any]:
+def run_worker(job: WorkerJob, work: Path, show_progress: bool = True) -> dict[str, Any]:
     job_path = work / "job.json"
-    job_path.write_text(json.dumps(job, indent=1))
+    job.write(job_path)
     log_path = work / "logs" / "worker.log"
     log_path.parent.mkdir(parents=True, exist_ok=True)
     repo_root = Path(__file__).resolve().parents[1]
     cmd = [sys.executable, "-m", "blender.worker", str(job_path)]
     bars: dict[str, tqdm] = {}
     counts = {True: 0, False: 0}
-    error: str | None = None
     started = time.perf_counter()
     with log_path.open("a") as log_file:
         log_file.write(f"\n=== worker started: {' '.join(cmd)}\n")
         log_file.flush()
         proc = subprocess.Popen(cmd, cwd=repo_root, stdout=subprocess.PIPE, stderr=log_file, text=True, bufsize=1)
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            log_file.write(line)
-            if not line.startswith("@@"):
-                continue
-            kind, _, payload = line[2:].partition(" ")
-            data = json.loads(payload)
-            if kind == "progress":
-                bar = bars.get(data["item"])
-                if bar is None:
-                    bar = bars[data["item"]] = tqdm(total=data["total"], desc=f"render {data['item']}",
-                                                     unit="frame", disable=not show_progress, leave=False)
-                bar.update(1)
-                counts[data["rendered"]] += 1
-                if bar.n >= bar.total:
-                    bar.close()
-            elif kind == "stage" and data.get("status") in ("done", "reused"):
-                seconds = data.get("seconds")
-                log.info("%s %s%s", data["name"], data["status"], f" in {seconds:.1f} s" if seconds else "")
-            elif kind == "error":
-                error = data["message"]
+        try:
+            error = _follow(proc, log_file, bars, counts, show_progress)
+        except BaseException:  # Ctrl-C or SIGTERM: stop the worker too; finished images stay for a resume
+            proc.terminate()
+            proc.wait()
+            raise
         code = proc.wait()
     for bar in bars.values():
         bar.close()
@@ -60,6 +45,34 @@ def run_worker(job: dict[str, Any], work: Path, show_progress: bool = True) -> d
         reason = error or f"exited with code {code}"
         raise WorkerError(f"Blender worker failed: {reason}. Full log: {log_path}")
     log.info("rendered %d images, reused %d from an earlier run", counts[True], counts[False])
-    summary = json.loads(Path(job["summary_path"]).read_text())
+    summary = json.loads(Path(job.summary_path).read_text())
     summary["wall_s"] = time.perf_counter() - started
     return summary
+
+
+def _follow(proc: subprocess.Popen, log_file: TextIO, bars: dict[str, tqdm], counts: dict[bool, int],
+            show_progress: bool) -> str | None:
+    """Copy the worker's stdout to its log and act on its `@@` lines; returns its error message."""
+    assert proc.stdout is not None
+    error: str | None = None
+    for line in proc.stdout:
+        log_file.write(line)
+        if not line.startswith("@@"):
+            continue
+        kind, _, payload = line[2:].partition(" ")
+        data = json.loads(payload)
+        if kind == "progress":
+            bar = bars.get(data["item"])
+            if bar is None:
+                bar = bars[data["item"]] = tqdm(total=data["total"], desc=f"render {data['item']}",
+                                                 unit="frame", disable=not show_progress, leave=False)
+            bar.update(1)
+            counts[data["rendered"]] += 1
+            if bar.n >= bar.total:
+                bar.close()
+        elif kind == "stage" and data.get("status") in ("done", "reused"):
+            seconds = data.get("seconds")
+            log.info("%s %s%s", data["name"], data["status"], f" in {seconds:.1f} s" if seconds else "")
+        elif kind == "error":
+            error = data["message"]
+    return error

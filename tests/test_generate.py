@@ -256,8 +256,8 @@ def test_no_fire_means_no_flame_grid_and_no_emission_nodes(tmp_path: Path) -> No
         "    spec, src = resolve_spec(name)\n"
         "    job = make_job(spec, make_plan(spec), load_manifest(), src, Path(sys.argv[0]).parent, 1)\n"
         "    kinds = {m.name: sorted({n.bl_idname for n in m.node_tree.nodes}) for m in\n"
-        "             (materials.thermal_smoke(job['smoke_thermal']), materials.rgb_smoke(job['smoke_rgb']))}\n"
-        "    out[name] = {'grids': job['grids'], 'nodes': kinds}\n"
+        "             (materials.thermal_smoke(job.smoke_thermal), materials.rgb_smoke(job.smoke_rgb))}\n"
+        "    out[name] = {'grids': list(job.grids), 'nodes': kinds}\n"
         "print(json.dumps(out))\n"
     )
     fire = demo_spec(tmp_path, "fire.yaml", sources__0__type="fire", sources__0__temperature_k=1100.0)

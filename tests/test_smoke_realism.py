@@ -65,14 +65,14 @@ def test_fire_job_carries_the_blackbody_glow_table() -> None:
     spec = load_preset("demo")
     fire = replace(spec, sources=(replace(spec.sources[0], kind="fire", temperature_k=1300.0),))
     job = make_job(fire, make_plan(fire), _manifest(), "test", Path("/nonexistent"), 1)
-    table = np.array(job["smoke_rgb"]["fire"]["glow_table"])
+    table = np.array(job.smoke_rgb.fire.glow_table)
     assert table.shape == (GLOW_TABLE_POINTS, 4)
     ambient = fire.lights.ambient_temperature_k
     expected = glow_table(ambient, 1300.0, FIRE_VISIBLE_STRENGTH, GLOW_TABLE_POINTS)
     assert np.allclose(table, expected)
     assert np.allclose(table[-1, 1:], FIRE_VISIBLE_STRENGTH * chromaticity_rgb(1300.0))
     assert table[0, 1:].max() < 1e-12  # gas at ambient temperature does not glow
-    assert make_job(spec, make_plan(spec), _manifest(), "test", Path("/nonexistent"), 1)["smoke_rgb"]["fire"] is None
+    assert make_job(spec, make_plan(spec), _manifest(), "test", Path("/nonexistent"), 1).smoke_rgb.fire is None
 
 
 def _manifest():

@@ -34,16 +34,16 @@ def main() -> None:
     scene_mod.bake(built.domain)
     scene_mod.add_interpolation_twin(built)
     render.configure_engine(seed=0, threads=1)
-    camera = job["cameras"]["rgb"]
-    frame = camera["frames"][0]
+    camera = replace(job.cameras["rgb"], samples=64)
+    frame = camera.frames[0]
     render.select_modality("rgb", built)
-    setup = render.pass_setup("rgb", "smoke_alpha", {**camera, "samples": 64})
-    render.apply_pass(setup, built, camera["render"])
+    setup = render.pass_setup("rgb", "smoke_alpha", camera)
+    render.apply_pass(setup, built, camera.render)
     images = {}
     for label, offset, weight in STATES:
         path = str(work / f"{label}.exr")
         render.show_smoke_state(built, True, weight)
-        render.render_to(path, frame["c2w"], frame["blender_frame"] + offset)
+        render.render_to(path, frame.c2w, frame.blender_frame + offset)
         images[label] = read_alpha(Path(path)).tolist()
     with open(out, "w") as fh:
         json.dump(images, fh)

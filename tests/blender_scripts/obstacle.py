@@ -13,6 +13,7 @@ import bpy
 import numpy as np
 
 from blender import scene as scene_mod
+from blender.job import WorkerJob
 from blender.manta_repair import repair_manta_hierarchy
 from generator.api import resolve_spec
 from generator.assets import load_manifest
@@ -23,7 +24,7 @@ from generator.spec import ObjectSpec
 SLAB_LOW, SLAB_HIGH = np.array([-0.6, -0.6, 1.05]), np.array([0.6, 0.6, 1.45])
 
 
-def density_at_last_frame(job: dict, obstacles: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def density_at_last_frame(job: WorkerJob, obstacles: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Density (z, y, x) and the world bounds of the domain."""
     scene_mod.reset()
     original = scene_mod.add_obstacles
@@ -33,7 +34,7 @@ def density_at_last_frame(job: dict, obstacles: bool) -> tuple[np.ndarray, np.nd
     scene_mod.add_obstacles = original
     scene_mod.bake(built.domain)
     scene = bpy.context.scene
-    scene.frame_set(job["sim"]["frame_end"])
+    scene.frame_set(job.sim.frame_end)
     dom = bpy.data.objects[built.domain]
     settings = dom.evaluated_get(bpy.context.evaluated_depsgraph_get()).modifiers["Fluid"].domain_settings
     nx, ny, nz = settings.domain_resolution

@@ -10,14 +10,15 @@ import bpy  # noqa: F401
 import numpy as np
 
 from blender import materials, render
+from blender.job import CameraJob, ImageSize, MaterialJob, TextureJob
 from blender.recipes import RECIPES
 from blender.scene import BuiltScene, build_camera, reset
 from contracts.imageio import read_png
 
-BRICK = {"name": "brick", "base_color": (0.6, 0.22, 0.15), "roughness": 0.8, "metallic": 0.0,
-         "texture": {"kind": "brick", "scale": 1.0, "color2": (0.45, 0.18, 0.12),
-                     "mortar_color": (0.95, 0.95, 0.95), "detail": 0.0},
-         "thermal_curve": [[0.0, 50.0]]}
+BRICK = MaterialJob(name="brick", base_color=(0.6, 0.22, 0.15), roughness=0.8, metallic=0.0,
+                    texture=TextureJob(kind="brick", scale=1.0, color2=(0.45, 0.18, 0.12), detail=0.0,
+                                       mortar_color=(0.95, 0.95, 0.95)),
+                    thermal_curve=((0.0, 50.0),))
 #: Cameras 4 m from the face: on -Y looking along +Y at the face y = -1, and above looking down.
 VIEWS = {
     "front": [[1, 0, 0, 0], [0, 0, -1, -5.0], [0, 1, 0, 1.0], [0, 0, 0, 1]],
@@ -35,8 +36,8 @@ def main() -> None:
     built = BuiltScene(surfaces={"box": ("brick.rgb", "brick.rgb")})
     render.configure_engine(seed=0, threads=1)
     bpy.context.scene.world = bpy.data.worlds["world.rgb"]
-    settings = {"samples": 16, "denoise": "none", "volume_step_rate": 1.0}
-    camera = {"width": 48, "height": 48, "fl_x": 0.6 * 48 * 4 / 2}  # the 2 m face fills the middle 60%
+    camera = ImageSize(48, 48, 0.6 * 48 * 4 / 2)  # the 2 m face fills the middle 60%
+    settings = CameraJob(render=camera, depth=camera, samples=16, denoise="none", volume_step_rate=1.0, frames=())
     images = {}
     for view, c2w in VIEWS.items():
         render.apply_pass(render.pass_setup("rgb", "clean", settings), built, camera)

@@ -12,6 +12,7 @@ import bpy  # noqa: F401
 import numpy as np
 
 from blender import materials, render
+from blender.job import CameraJob, ImageSize, MaterialJob, RgbSmokeJob, TextureJob, ThermalSmokeJob
 from blender.scene import BuiltScene, build_camera, reset
 from generator.postprocess import read_alpha, read_radiance
 
@@ -22,8 +23,9 @@ def main() -> None:
     results = []
     for i, (k, d) in enumerate(cases):
         reset()
-        spec = {"name": "plate", "base_color": (0.5, 0.5, 0.5), "roughness": 0.5, "metallic": 0.0,
-                "texture": {"kind": "none"}, "thermal_curve": [[0.0, l_surf]]}
+        spec = MaterialJob(name="plate", base_color=(0.5, 0.5, 0.5), roughness=0.5, metallic=0.0,
+                           texture=TextureJob("none", 1.0, (0.0, 0.0, 0.0), 0.0, (0.0, 0.0, 0.0)),
+                           thermal_curve=((0.0, l_surf),))
         rgb, thermal = materials.rgb_surface(spec), materials.thermal_surface(spec)
         bpy.ops.mesh.primitive_plane_add(size=8.0)
         plate = bpy.context.object
@@ -33,9 +35,9 @@ def main() -> None:
         slab = bpy.context.object
         slab.name = "slab"
         slab.scale = (8.0, 8.0, d)
-        smoke = materials.thermal_smoke({"absorption_per_density": k, "fire": None})
-        materials.rgb_smoke({"scatter_density": 0.0, "scatter_color": [1, 1, 1], "absorb_density": 0.0,
-                             "absorb_color": [1, 1, 1], "anisotropy": 0.0, "fire": None})
+        smoke = materials.thermal_smoke(ThermalSmokeJob(absorption_per_density=k, fire=None))
+        materials.rgb_smoke(RgbSmokeJob(scatter_density=0.0, scatter_color=(1.0, 1.0, 1.0), absorb_density=0.0,
+                                        absorb_color=(1.0, 1.0, 1.0), anisotropy=0.0, fire=None))
         tree = smoke.node_tree
         mul = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeMath")
         one = tree.nodes.new("ShaderNodeValue")
@@ -47,10 +49,10 @@ def main() -> None:
         built = BuiltScene(surfaces={"plate": (rgb.name, thermal.name)}, domain="slab")
         render.configure_engine(seed=0, threads=2)
         render.select_modality("thermal", built)
-        camera = {"width": 16, "height": 16, "fl_x": 160.0}  # ~6° FOV: every ray crosses the slab nearly normally
+        camera = ImageSize(16, 16, 160.0)  # ~6° FOV: every ray crosses the slab nearly normally
         c2w = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 5.0], [0, 0, 0, 1]]
         paths = {}
-        settings = {"samples": 4, "denoise": "none", "volume_step_rate": 1.0}
+        settings = CameraJob(render=camera, depth=camera, samples=4, denoise="none", volume_step_rate=1.0, frames=())
         for name in ("smoky", "smoke_alpha"):
             setup = render.pass_setup("thermal", name, settings)
             render.apply_pass(setup, built, camera)
