@@ -1,7 +1,7 @@
 """Converged smoke at the lowest cost: error inside the smoke mask against render time, for
 Cycles samples, OpenImageDenoise guides and the volume step rate, on the demo preset.
 
-    python benchmarks/generate_denoise.py [--frames N] [--reference-spp 512]
+    python benchmarks/generate_denoise.py [--frames N] [--reference-spp 512] [--keep DIR]
 
 Every option renders the demo's smoky RGB and smoky thermal images (plus the smoke alpha that
 defines the mask); the reference is the same spec and seed at `--reference-spp` samples for
@@ -37,10 +37,10 @@ PASSES = "rgb.smoky,rgb.smoke_alpha,thermal.smoky,thermal.smoke_alpha"
 #: (label, rgb samples, thermal samples, denoise, volume step rate)
 OPTIONS = [
     *[(f"{s} spp", s, max(1, s // 2), "none", 1.0) for s in (4, 16, 64)],
-    *[(f"{s} spp + OIDN", s, max(1, s // 2), "color", 1.0) for s in (4, 16)],
-    *[(f"{s} spp + OIDN albedo", s, max(1, s // 2), "albedo", 1.0) for s in (4, 16)],
-    *[(f"{s} spp + OIDN albedo+normal", s, max(1, s // 2), "albedo_normal", 1.0) for s in (2, 4, 8, 16, 32)],
-    *[(f"16 spp + OIDN a+n, step x{r:g}", 16, 8, "albedo_normal", r) for r in (0.5, 2.0, 4.0)],
+    *[(f"{s} spp + OIDN", s, max(1, s // 2), "color", 1.0) for s in (4, 16, 32)],
+    *[(f"{s} spp + OIDN albedo", s, max(1, s // 2), "albedo", 1.0) for s in (16, 32)],
+    *[(f"{s} spp + OIDN albedo+normal", s, max(1, s // 2), "albedo_normal", 1.0) for s in (4, 8, 16, 32, 64)],
+    *[(f"32 spp + OIDN a+n, step x{r:g}", 32, 16, "albedo_normal", r) for r in (0.5, 2.0, 4.0)],
 ]
 
 
@@ -80,6 +80,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=6, help="RGB frames of the demo to render (default: all 6)")
     parser.add_argument("--reference-spp", type=int, default=512, help="samples of the reference render")
+    parser.add_argument("--keep", type=Path, help="keep the renders here and reuse a finished reference from it")
     args = parser.parse_args()
     base, _ = resolve_spec("demo")
     sensor = sensor_for(base).config
@@ -87,9 +88,14 @@ def main() -> None:
     per_kelvin = float(band_radiance_derivative(300.0))
     rows = []
     with tempfile.TemporaryDirectory() as tmp_name:
-        tmp = Path(tmp_name)
+        tmp = args.keep or Path(tmp_name)
         ref_spec = configured(base, args.frames, args.reference_spp, args.reference_spp, "none", 1.0)
-        ref_dir, _, ref_wall = run(ref_spec, tmp / "reference")
+        ref_dir, ref_wall = tmp / "reference", 0.0
+        previous = ref_dir / "dataset.json"
+        if previous.exists() and json.loads(previous.read_text())["spec_sha256"] == ref_spec.sha256():
+            print(f"reusing the reference in {ref_dir}")
+        else:
+            ref_dir, _, ref_wall = run(ref_spec, ref_dir)
         ref = load_images(ref_dir)
         rgb_masks = [a > base.smoke.mask_threshold for a in ref["rgb_alpha"]]
         thermal_masks = [a > base.smoke.mask_threshold for a in ref["thermal_alpha"]]
