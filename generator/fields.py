@@ -1,12 +1,16 @@
 """Typed readers for YAML mappings that fail with the file and the dotted field name."""
 from __future__ import annotations
 
+import dataclasses
 import math
-from typing import Any, Sequence
+import typing
+from typing import Any, Callable, Sequence
 
 from generator.errors import SpecError
 
 _MISSING = object()
+#: The default of a spec field that the YAML must give.
+REQUIRED = _MISSING
 
 
 class Fields:
@@ -121,3 +125,56 @@ def _check_range(fields: Fields, key: str, value: float, minimum: float | None, 
         raise fields.error(key, f"must be {bound} {minimum:g}, got {value:g}")
     if maximum is not None and value > maximum:
         raise fields.error(key, f"must be at most {maximum:g}, got {value:g}")
+
+
+def spec_field(default: Any, *, minimum: float | None = None, maximum: float | None = None,
+               exclusive_minimum: bool = False, choices: Sequence[str] | None = None, key: str | None = None) -> Any:
+    """A spec dataclass field whose metadata says how `read_fields` reads and checks it: the
+    default (REQUIRED for none), the range or choices, and the YAML key when it differs."""
+    metadata = {"spec": True, "minimum": minimum, "maximum": maximum, "exclusive_minimum": exclusive_minimum,
+                "choices": tuple(choices) if choices is not None else None, "key": key}
+    if default is REQUIRED:
+        return dataclasses.field(metadata=metadata)
+    if isinstance(default, dict):
+        return dataclasses.field(default_factory=dict, metadata=metadata)
+    return dataclasses.field(default=default, metadata=metadata)
+
+
+def read_fields(cls: type, f: Fields, defaults: Any = None, skip: Sequence[str] = (),
+                nested: Callable[..., Any] | None = None) -> dict[str, Any]:
+    """Read every metadata-carrying field of dataclass `cls` from `f`, typed by its annotation:
+    int, float, str, bool, a tuple of floats, a mapping, or (through `nested`) another spec
+    dataclass. Defaults come from `defaults` (an instance) when given, else from the field."""
+    hints = typing.get_type_hints(cls)
+    out: dict[str, Any] = {}
+    for fld in dataclasses.fields(cls):
+        if fld.name in skip or not fld.metadata.get("spec"):
+            continue
+        meta, kind = fld.metadata, hints[fld.name]
+        key = meta["key"] or fld.name
+        if defaults is not None:
+            default = getattr(defaults, fld.name)
+        elif fld.default is not dataclasses.MISSING:
+            default = fld.default
+        else:
+            default = _MISSING
+        bounds = (meta["minimum"], meta["maximum"])
+        if dataclasses.is_dataclass(kind):
+            if nested is None:
+                raise TypeError(f"{cls.__name__}.{fld.name}: a nested section needs a reader")
+            out[fld.name] = nested(kind, f.sub(key), default if default is not _MISSING else None)
+        elif kind is bool:
+            out[fld.name] = f.boolean(key, default)
+        elif kind is int:
+            out[fld.name] = f.integer(key, default, *bounds)
+        elif kind is float:
+            out[fld.name] = f.number(key, default, *bounds, exclusive_minimum=meta["exclusive_minimum"])
+        elif kind is str:
+            out[fld.name] = f.string(key, default, meta["choices"])
+        elif typing.get_origin(kind) is tuple:
+            out[fld.name] = f.vector(key, len(typing.get_args(kind)), default, *bounds)
+        elif typing.get_origin(kind) is dict:
+            out[fld.name] = f.mapping(key)
+        else:
+            raise TypeError(f"{cls.__name__}.{fld.name}: no reader for {kind!r}")
+    return out

@@ -6,12 +6,14 @@ import hashlib
 import json
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import yaml
 
 from generator.errors import SpecError
-from generator.fields import Fields
+from generator.fields import REQUIRED, Fields, read_fields, spec_field
+
+T = TypeVar("T")
 
 TEXTURE_KINDS = ("none", "noise", "checker", "brick", "wave", "voronoi", "magic")
 SOURCE_KINDS = ("smoke", "fire", "both")
@@ -26,23 +28,23 @@ PASSES = ("smoky", "clean", "depth", "smoke_alpha")
 class TextureSpec:
     """A procedural texture mixing `base_color` and `color2`; also modulates temperature."""
 
-    kind: str = "none"
-    scale: float = 5.0
-    color2: tuple[float, float, float] = (0.2, 0.2, 0.2)
-    detail: float = 4.0
-    mortar_color: tuple[float, float, float] = (0.75, 0.73, 0.7)
+    kind: str = spec_field("none", choices=TEXTURE_KINDS)
+    scale: float = spec_field(5.0, minimum=0.0, exclusive_minimum=True)
+    color2: tuple[float, float, float] = spec_field((0.2, 0.2, 0.2), minimum=0.0, maximum=1.0)
+    detail: float = spec_field(4.0, minimum=0.0, maximum=16.0)
+    mortar_color: tuple[float, float, float] = spec_field((0.75, 0.73, 0.7), minimum=0.0, maximum=1.0)
 
 
 @dataclass(frozen=True)
 class MaterialSpec:
     name: str
-    base_color: tuple[float, float, float]
-    roughness: float = 0.6
-    metallic: float = 0.0
-    texture: TextureSpec = TextureSpec()
-    temperature_k: float = 293.15
-    temperature_variation_k: float = 0.0
-    emissivity: float = 0.95
+    base_color: tuple[float, float, float] = spec_field((0.5, 0.5, 0.5), minimum=0.0, maximum=1.0)
+    roughness: float = spec_field(0.6, minimum=0.0, maximum=1.0)
+    metallic: float = spec_field(0.0, minimum=0.0, maximum=1.0)
+    texture: TextureSpec = spec_field(TextureSpec())
+    temperature_k: float = spec_field(293.15, minimum=0.0, maximum=5000.0, exclusive_minimum=True)
+    temperature_variation_k: float = spec_field(0.0, minimum=0.0, maximum=500.0)
+    emissivity: float = spec_field(0.95, minimum=0.0, maximum=1.0)
 
 
 @dataclass(frozen=True)
@@ -53,38 +55,38 @@ class ObjectSpec:
     name: str
     asset: str
     material: str | None = None
-    location: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    rotation_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    params: dict[str, Any] = field(default_factory=dict)
+    location: tuple[float, float, float] = spec_field((0.0, 0.0, 0.0))
+    rotation_deg: tuple[float, float, float] = spec_field((0.0, 0.0, 0.0))
+    scale: tuple[float, float, float] = spec_field((1.0, 1.0, 1.0), minimum=1e-6)
+    params: dict[str, Any] = spec_field({})
 
 
 @dataclass(frozen=True)
 class SourceSpec:
     """A Mantaflow inflow: `rate` is the flow's density amount, fire adds fuel and heat."""
 
-    kind: str
-    position: tuple[float, float, float]
-    radius: float = 0.2
-    rate: float = 1.0
-    temperature_k: float = 320.0
-    velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    position: tuple[float, float, float] = spec_field(REQUIRED)
+    kind: str = spec_field("smoke", choices=SOURCE_KINDS, key="type")
+    radius: float = spec_field(0.2, minimum=0.0, exclusive_minimum=True)
+    rate: float = spec_field(1.0, minimum=0.0, maximum=10.0, exclusive_minimum=True)
+    temperature_k: float = spec_field(320.0, minimum=0.0, maximum=5000.0, exclusive_minimum=True)
+    velocity: tuple[float, float, float] = spec_field((0.0, 0.0, 0.0))
 
 
 @dataclass(frozen=True)
 class SimSpec:
-    fps: int = 12
-    resolution: int = 24
-    center: tuple[float, float, float] = (0.0, 0.0, 1.0)
-    size: tuple[float, float, float] = (2.0, 2.0, 2.0)
-    vorticity: float = 0.2
-    buoyancy_density: float = 0.0
-    buoyancy_heat: float = 1.0
-    wind: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    dissolve_s: float = 0.0
-    noise_upres: int = 0
-    warmup_s: float = 1.0
-    static: bool = False
+    fps: int = spec_field(12, minimum=1, maximum=240)
+    resolution: int = spec_field(24, minimum=8, maximum=1024)
+    center: tuple[float, float, float] = spec_field((0.0, 0.0, 1.0))
+    size: tuple[float, float, float] = spec_field((2.0, 2.0, 2.0), minimum=1e-3)
+    vorticity: float = spec_field(0.2, minimum=0.0, maximum=10.0)
+    buoyancy_density: float = spec_field(0.0, minimum=-10.0, maximum=10.0)
+    buoyancy_heat: float = spec_field(1.0, minimum=-10.0, maximum=10.0)
+    wind: tuple[float, float, float] = spec_field((0.0, 0.0, 0.0))
+    dissolve_s: float = spec_field(0.0, minimum=0.0)
+    noise_upres: int = spec_field(0, minimum=0, maximum=4)
+    warmup_s: float = spec_field(1.0, minimum=0.0, maximum=60.0)
+    static: bool = spec_field(False)
 
 
 @dataclass(frozen=True)
@@ -92,58 +94,62 @@ class SmokeSpec:
     """`density` is the paper's per-scene smoke density (0.2-1.0); `extinction_per_m` maps it
     to a visible extinction coefficient per unit Mantaflow grid density."""
 
-    density: float = 0.7
-    extinction_per_m: float = 8.0
-    particles: str = "organic_smoke"
-    mask_threshold: float = 0.02
+    density: float = spec_field(0.7, minimum=0.0, maximum=100.0)
+    extinction_per_m: float = spec_field(8.0, minimum=0.0, maximum=1e4)
+    particles: str = spec_field("organic_smoke", choices=PARTICLE_KINDS)
+    mask_threshold: float = spec_field(0.02, minimum=0.0, maximum=1.0, exclusive_minimum=True)
 
 
 @dataclass(frozen=True)
 class LightSpec:
-    sun_strength: float = 3.0
-    sun_elevation_deg: float = 50.0
-    sun_azimuth_deg: float = 30.0
-    sky_color: tuple[float, float, float] = (0.55, 0.65, 0.85)
-    sky_strength: float = 0.8
-    sky_temperature_k: float = 250.0
-    ambient_temperature_k: float = 293.15
+    sun_strength: float = spec_field(3.0, minimum=0.0)
+    sun_elevation_deg: float = spec_field(50.0, minimum=-90.0, maximum=90.0)
+    sun_azimuth_deg: float = spec_field(30.0)
+    sky_color: tuple[float, float, float] = spec_field((0.55, 0.65, 0.85), minimum=0.0, maximum=1.0)
+    sky_strength: float = spec_field(0.8, minimum=0.0)
+    sky_temperature_k: float = spec_field(250.0, minimum=0.0, maximum=5000.0, exclusive_minimum=True)
+    ambient_temperature_k: float = spec_field(293.15, minimum=0.0, maximum=5000.0, exclusive_minimum=True)
 
 
 @dataclass(frozen=True)
 class TrajectorySpec:
-    kind: str = "orbit"
-    center: tuple[float, float, float] = (0.0, 0.0, 0.5)
-    radius: float = 4.0
-    height: float = 1.5
-    start_deg: float = 0.0
-    sweep_deg: float = 90.0
-    start: tuple[float, float, float] = (-4.0, -4.0, 6.0)
-    end: tuple[float, float, float] = (4.0, -4.0, 6.0)
-    look_from: tuple[float, float, float] = (-1.0, 1.0, 0.0)
-    look_to: tuple[float, float, float] = (1.0, 1.0, 0.0)
+    kind: str = spec_field("orbit", choices=TRAJECTORY_KINDS)
+    center: tuple[float, float, float] = spec_field((0.0, 0.0, 0.5))
+    radius: float = spec_field(4.0, minimum=0.0, exclusive_minimum=True)
+    height: float = spec_field(1.5)
+    start_deg: float = spec_field(0.0)
+    sweep_deg: float = spec_field(90.0, minimum=-720.0, maximum=720.0)
+    start: tuple[float, float, float] = spec_field((-4.0, -4.0, 6.0))
+    end: tuple[float, float, float] = spec_field((4.0, -4.0, 6.0))
+    look_from: tuple[float, float, float] = spec_field((-1.0, 1.0, 0.0))
+    look_to: tuple[float, float, float] = spec_field((1.0, 1.0, 0.0))
 
 
 @dataclass(frozen=True)
 class CameraSpec:
     """`denoise` runs OpenImageDenoise on the smoky image only (the image a real camera gives);
     ground-truth passes are never denoised. `volume_step_rate` scales Cycles' volume ray-march
-    step (larger is faster and coarser)."""
+    step (larger is faster and coarser). Defaults differ per camera: RGB_CAMERA, THERMAL_CAMERA."""
 
-    width: int
-    height: int
-    fov_deg: float
-    fps: float
-    samples: int
-    time_offset_s: float = 0.0
-    denoise: str = "albedo_normal"
-    volume_step_rate: float = 1.0
+    width: int = spec_field(REQUIRED, minimum=1, maximum=16384)
+    height: int = spec_field(REQUIRED, minimum=1, maximum=16384)
+    fov_deg: float = spec_field(REQUIRED, minimum=1.0, maximum=170.0)
+    fps: float = spec_field(REQUIRED, minimum=0.0, maximum=1000.0, exclusive_minimum=True)
+    samples: int = spec_field(REQUIRED, minimum=1, maximum=65536)
+    time_offset_s: float = spec_field(0.0, minimum=0.0, maximum=10.0)
+    denoise: str = spec_field("albedo_normal", choices=DENOISERS)
+    volume_step_rate: float = spec_field(1.0, minimum=0.01, maximum=100.0)
 
 
 @dataclass(frozen=True)
 class ThermalCameraSpec(CameraSpec):
-    baseline_m: tuple[float, float, float] = (0.06, 0.0, 0.0)
-    supersample: int = 2
-    sensor: dict[str, Any] = field(default_factory=dict)
+    baseline_m: tuple[float, float, float] = spec_field((0.06, 0.0, 0.0))
+    supersample: int = spec_field(2, minimum=1, maximum=8)
+    sensor: dict[str, Any] = spec_field({})
+
+
+RGB_CAMERA = CameraSpec(width=64, height=48, fov_deg=55.0, fps=12.0, samples=16)
+THERMAL_CAMERA = ThermalCameraSpec(width=32, height=24, fov_deg=45.0, fps=9.0, samples=8, time_offset_s=0.03)
 
 
 @dataclass(frozen=True)
@@ -155,18 +161,21 @@ class RigSpec:
 
 @dataclass(frozen=True)
 class SceneSpec:
-    name: str
-    seed: int
-    frames: int
-    test_every: int
-    sim: SimSpec
-    smoke: SmokeSpec
-    sources: tuple[SourceSpec, ...]
-    objects: tuple[ObjectSpec, ...]
-    materials: dict[str, MaterialSpec]
-    lights: LightSpec
-    rig: RigSpec
-    passes: dict[str, tuple[str, ...]]
+    """The whole scene. Fields with metadata are read generically (`read_fields`); `sources`,
+    `objects`, `materials`, `rig` and `passes` have their own readers in `parse_spec`."""
+
+    name: str = spec_field(REQUIRED)
+    seed: int = spec_field(0, minimum=0, maximum=2**31 - 1)
+    frames: int = spec_field(8, minimum=1, maximum=100000)
+    test_every: int = spec_field(4, minimum=2, maximum=1000)
+    sim: SimSpec = spec_field(SimSpec())
+    smoke: SmokeSpec = spec_field(SmokeSpec())
+    sources: tuple[SourceSpec, ...] = ()
+    objects: tuple[ObjectSpec, ...] = ()
+    materials: dict[str, MaterialSpec] = field(default_factory=dict)
+    lights: LightSpec = spec_field(LightSpec())
+    rig: RigSpec = field(default_factory=lambda: RigSpec(TrajectorySpec(), RGB_CAMERA, THERMAL_CAMERA))
+    passes: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
     @property
     def has_smoke(self) -> bool:
@@ -200,32 +209,20 @@ def _to_yaml_ready(value: Any) -> Any:
     return value
 
 
-def parse_texture(f: Fields) -> TextureSpec:
-    d = TextureSpec()
-    spec = TextureSpec(
-        kind=f.string("kind", d.kind, TEXTURE_KINDS),
-        scale=f.number("scale", d.scale, minimum=0.0, exclusive_minimum=True),
-        color2=f.vector("color2", 3, d.color2, 0.0, 1.0),
-        detail=f.number("detail", d.detail, minimum=0.0, maximum=16.0),
-        mortar_color=f.vector("mortar_color", 3, d.mortar_color, 0.0, 1.0),
-    )
+def parse_section(cls: type[T], f: Fields, defaults: T | None = None, **given: Any) -> T:
+    """A spec dataclass read from `f` by its fields' metadata (docs/scene-spec.md); fields
+    passed in `given` are set by the caller; unknown keys are errors."""
+    spec = cls(**read_fields(cls, f, defaults, skip=tuple(given), nested=parse_section), **given)
     f.finish()
     return spec
 
 
+def parse_texture(f: Fields) -> TextureSpec:
+    return parse_section(TextureSpec, f)
+
+
 def _material(name: str, f: Fields) -> MaterialSpec:
-    d = MaterialSpec(name=name, base_color=(0.5, 0.5, 0.5))
-    spec = MaterialSpec(
-        name=name,
-        base_color=f.vector("base_color", 3, d.base_color, 0.0, 1.0),
-        roughness=f.number("roughness", d.roughness, 0.0, 1.0),
-        metallic=f.number("metallic", d.metallic, 0.0, 1.0),
-        texture=parse_texture(f.sub("texture")),
-        temperature_k=f.number("temperature_k", d.temperature_k, minimum=0.0, maximum=5000.0,
-                               exclusive_minimum=True),
-        temperature_variation_k=f.number("temperature_variation_k", d.temperature_variation_k, 0.0, 500.0),
-        emissivity=f.number("emissivity", d.emissivity, 0.0, 1.0),
-    )
+    spec = MaterialSpec(name=name, **read_fields(MaterialSpec, f, skip=("name",), nested=parse_section))
     if spec.temperature_k - spec.temperature_variation_k / 2 <= 0:
         raise f.error("temperature_variation_k", "would take the temperature to 0 K or below")
     f.finish()
@@ -242,126 +239,13 @@ def _object(i: int, f: Fields, materials: dict[str, MaterialSpec]) -> ObjectSpec
     scale_raw = f.data.get("scale", 1.0)
     if isinstance(scale_raw, (int, float)) and not isinstance(scale_raw, bool):
         f.data = {**f.data, "scale": [scale_raw] * 3}
-    spec = ObjectSpec(
-        name=f.string("name", f"{asset}_{i}"),
-        asset=asset,
-        material=material,
-        location=f.vector("location", 3, (0.0, 0.0, 0.0)),
-        rotation_deg=f.vector("rotation_deg", 3, (0.0, 0.0, 0.0)),
-        scale=f.vector("scale", 3, (1.0, 1.0, 1.0), minimum=1e-6),
-        params=f.mapping("params"),
-    )
-    f.finish()
-    return spec
-
-
-def _source(f: Fields) -> SourceSpec:
-    d = SourceSpec(kind="smoke", position=(0.0, 0.0, 0.0))
-    spec = SourceSpec(
-        kind=f.string("type", d.kind, SOURCE_KINDS),
-        position=f.vector("position", 3),
-        radius=f.number("radius", d.radius, minimum=0.0, exclusive_minimum=True),
-        rate=f.number("rate", d.rate, minimum=0.0, maximum=10.0, exclusive_minimum=True),
-        temperature_k=f.number("temperature_k", d.temperature_k, minimum=0.0, maximum=5000.0,
-                               exclusive_minimum=True),
-        velocity=f.vector("velocity", 3, d.velocity),
-    )
-    f.finish()
-    return spec
-
-
-def _sim(f: Fields) -> SimSpec:
-    d = SimSpec()
-    spec = SimSpec(
-        fps=f.integer("fps", d.fps, 1, 240),
-        resolution=f.integer("resolution", d.resolution, 8, 1024),
-        center=f.vector("center", 3, d.center),
-        size=f.vector("size", 3, d.size, minimum=1e-3),
-        vorticity=f.number("vorticity", d.vorticity, 0.0, 10.0),
-        buoyancy_density=f.number("buoyancy_density", d.buoyancy_density, -10.0, 10.0),
-        buoyancy_heat=f.number("buoyancy_heat", d.buoyancy_heat, -10.0, 10.0),
-        wind=f.vector("wind", 3, d.wind),
-        dissolve_s=f.number("dissolve_s", d.dissolve_s, 0.0),
-        noise_upres=f.integer("noise_upres", d.noise_upres, 0, 4),
-        warmup_s=f.number("warmup_s", d.warmup_s, 0.0, 60.0),
-        static=f.boolean("static", d.static),
-    )
-    f.finish()
-    return spec
-
-
-def _smoke(f: Fields) -> SmokeSpec:
-    d = SmokeSpec()
-    spec = SmokeSpec(
-        density=f.number("density", d.density, 0.0, 100.0),
-        extinction_per_m=f.number("extinction_per_m", d.extinction_per_m, 0.0, 1e4),
-        particles=f.string("particles", d.particles, PARTICLE_KINDS),
-        mask_threshold=f.number("mask_threshold", d.mask_threshold, 0.0, 1.0, exclusive_minimum=True),
-    )
-    f.finish()
-    return spec
-
-
-def _lights(f: Fields) -> LightSpec:
-    d = LightSpec()
-    spec = LightSpec(
-        sun_strength=f.number("sun_strength", d.sun_strength, 0.0),
-        sun_elevation_deg=f.number("sun_elevation_deg", d.sun_elevation_deg, -90.0, 90.0),
-        sun_azimuth_deg=f.number("sun_azimuth_deg", d.sun_azimuth_deg),
-        sky_color=f.vector("sky_color", 3, d.sky_color, 0.0, 1.0),
-        sky_strength=f.number("sky_strength", d.sky_strength, 0.0),
-        sky_temperature_k=f.number("sky_temperature_k", d.sky_temperature_k, 0.0, 5000.0, exclusive_minimum=True),
-        ambient_temperature_k=f.number("ambient_temperature_k", d.ambient_temperature_k, 0.0, 5000.0,
-                                       exclusive_minimum=True),
-    )
-    f.finish()
-    return spec
-
-
-def _trajectory(f: Fields) -> TrajectorySpec:
-    d = TrajectorySpec()
-    spec = TrajectorySpec(
-        kind=f.string("kind", d.kind, TRAJECTORY_KINDS),
-        center=f.vector("center", 3, d.center),
-        radius=f.number("radius", d.radius, minimum=0.0, exclusive_minimum=True),
-        height=f.number("height", d.height),
-        start_deg=f.number("start_deg", d.start_deg),
-        sweep_deg=f.number("sweep_deg", d.sweep_deg, -720.0, 720.0),
-        start=f.vector("start", 3, d.start),
-        end=f.vector("end", 3, d.end),
-        look_from=f.vector("look_from", 3, d.look_from),
-        look_to=f.vector("look_to", 3, d.look_to),
-    )
-    f.finish()
-    return spec
-
-
-def _camera_fields(f: Fields, defaults: CameraSpec) -> dict[str, Any]:
-    return dict(
-        width=f.integer("width", defaults.width, 1, 16384),
-        height=f.integer("height", defaults.height, 1, 16384),
-        fov_deg=f.number("fov_deg", defaults.fov_deg, 1.0, 170.0),
-        fps=f.number("fps", defaults.fps, minimum=0.0, maximum=1000.0, exclusive_minimum=True),
-        samples=f.integer("samples", defaults.samples, 1, 65536),
-        time_offset_s=f.number("time_offset_s", defaults.time_offset_s, 0.0, 10.0),
-        denoise=f.string("denoise", defaults.denoise, DENOISERS),
-        volume_step_rate=f.number("volume_step_rate", defaults.volume_step_rate, 0.01, 100.0),
-    )
+    return parse_section(ObjectSpec, f, name=f.string("name", f"{asset}_{i}"), asset=asset, material=material)
 
 
 def _rig(f: Fields) -> RigSpec:
-    rgb_f = f.sub("rgb")
-    rgb = CameraSpec(**_camera_fields(rgb_f, CameraSpec(64, 48, 55.0, 12.0, 16)))
-    rgb_f.finish()
-    th_f = f.sub("thermal")
-    thermal = ThermalCameraSpec(
-        **_camera_fields(th_f, CameraSpec(32, 24, 45.0, 9.0, 8, 0.03)),
-        baseline_m=th_f.vector("baseline_m", 3, (0.06, 0.0, 0.0)),
-        supersample=th_f.integer("supersample", 2, 1, 8),
-        sensor=th_f.mapping("sensor"),
-    )
-    th_f.finish()
-    spec = RigSpec(trajectory=_trajectory(f.sub("trajectory")), rgb=rgb, thermal=thermal)
+    spec = RigSpec(trajectory=parse_section(TrajectorySpec, f.sub("trajectory")),
+                   rgb=parse_section(CameraSpec, f.sub("rgb"), RGB_CAMERA),
+                   thermal=parse_section(ThermalCameraSpec, f.sub("thermal"), THERMAL_CAMERA))
     f.finish()
     return spec
 
@@ -396,22 +280,9 @@ def parse_spec(data: Any, source: str | Path) -> SceneSpec:
     if duplicate:
         raise f.error("objects", f"object name {duplicate!r} is used twice")
     passes_raw = f.raw("passes", ["rgb", "thermal"])
-    spec = SceneSpec(
-        name=f.string("name"),
-        seed=f.integer("seed", 0, 0, 2**31 - 1),
-        frames=f.integer("frames", 8, 1, 100000),
-        test_every=f.integer("test_every", 4, 2, 1000),
-        sim=_sim(f.sub("sim")),
-        smoke=_smoke(f.sub("smoke")),
-        sources=tuple(_source(sf) for sf in f.sub_list("sources")),
-        objects=objects,
-        materials=materials,
-        lights=_lights(f.sub("lights")),
-        rig=_rig(f.sub("rig")),
-        passes=parse_passes(passes_raw, str(source)),
-    )
-    f.finish()
-    return spec
+    return parse_section(SceneSpec, f, sources=tuple(parse_section(SourceSpec, sf) for sf in f.sub_list("sources")),
+                         objects=objects, materials=materials, rig=_rig(f.sub("rig")),
+                         passes=parse_passes(passes_raw, str(source)))
 
 
 def load_spec_file(path: Path) -> SceneSpec:

@@ -71,3 +71,29 @@ def test_overrides_apply_and_reject_bad_values() -> None:
 def test_parse_passes_orders_and_dedupes() -> None:
     assert parse_passes("thermal.depth,rgb,thermal.depth", "x") == {
         "rgb": ("smoky", "clean", "depth", "smoke_alpha"), "thermal": ("depth",)}
+
+
+def test_parser_is_driven_by_field_metadata() -> None:
+    """Defaults and ranges live once, on the dataclass fields; the parser restates none of them."""
+    import dataclasses
+
+    from generator import spec as spec_mod
+
+    specially_read = {("MaterialSpec", "name"), ("ObjectSpec", "name"), ("ObjectSpec", "asset"),
+                      ("ObjectSpec", "material"), ("SceneSpec", "sources"), ("SceneSpec", "objects"),
+                      ("SceneSpec", "materials"), ("SceneSpec", "rig"), ("SceneSpec", "passes"),
+                      ("RigSpec", "trajectory"), ("RigSpec", "rgb"), ("RigSpec", "thermal")}
+    classes = [spec_mod.TextureSpec, spec_mod.MaterialSpec, spec_mod.ObjectSpec, spec_mod.SourceSpec,
+               spec_mod.SimSpec, spec_mod.SmokeSpec, spec_mod.LightSpec, spec_mod.TrajectorySpec,
+               spec_mod.CameraSpec, spec_mod.ThermalCameraSpec, spec_mod.RigSpec, spec_mod.SceneSpec]
+    for cls in classes:
+        for fld in dataclasses.fields(cls):
+            assert fld.metadata.get("spec") or (cls.__name__, fld.name) in specially_read, f"{cls.__name__}.{fld.name}"
+    minimal = parse_spec({"name": "bare", "sources": [{"position": [0, 0, 0]}]}, "bare.yaml")
+    assert minimal.sim == spec_mod.SimSpec() and minimal.smoke == spec_mod.SmokeSpec()
+    assert minimal.lights == spec_mod.LightSpec() and minimal.sources[0] == spec_mod.SourceSpec(position=(0, 0, 0))
+    assert minimal.rig.rgb == spec_mod.RGB_CAMERA and minimal.rig.thermal == spec_mod.THERMAL_CAMERA
+    # A range in the metadata is what the parser enforces.
+    limit = next(f for f in dataclasses.fields(spec_mod.SimSpec) if f.name == "resolution").metadata["maximum"]
+    with pytest.raises(SpecError, match=rf"bad.yaml: sim.resolution: must be at most {limit}, got {limit + 1}"):
+        parse_spec({"name": "x", "sim": {"resolution": limit + 1}}, "bad.yaml")
