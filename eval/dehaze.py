@@ -19,6 +19,8 @@ import numpy as np
 from PIL import Image
 from scipy import ndimage
 
+from contracts.atomic import write_json
+
 
 @runtime_checkable
 class Dehazer(Protocol):
@@ -171,6 +173,6 @@ def dehaze_dataset(src: Path, dst: Path, dehazer: Dehazer) -> Path:
     meta = json.loads(meta_path.read_text())
     settings = asdict(dehazer) if hasattr(dehazer, "__dataclass_fields__") else {}
     meta["dehazed_by"] = {"name": dehazer.name, "settings": settings, "source": str(src.resolve())}
-    (tmp / "dataset.json").write_text(json.dumps(meta, indent=2))
+    write_json(tmp / "dataset.json", meta)
     tmp.rename(dst)
     return dst

@@ -4,6 +4,8 @@ pool or a Dask cluster, then write the tables, figures and report.
 Each dataset generation, dehazing pass and training run is one task. The callables
 that do the work are parameters (defaults: the generator and trainer APIs), so the
 same scheduling, caching and failure bookkeeping runs for real work and in tests.
+Results are read back from the run folders (contracts.results_format), never from the
+trainer's return value, so cached and fresh runs go through the same reader.
 """
 
 from __future__ import annotations
@@ -25,18 +27,23 @@ from pathlib import Path
 from typing import Any, Callable, Iterator
 
 import numpy as np
-from PIL import Image
 from tqdm import tqdm
 
 from contracts.atomic import write_json
-from contracts.metrics import load_lpips
+from contracts.provenance import provenance
+from contracts.results_format import ResultsFormatError, read_metrics
+from contracts.source import code_digest
 from eval.dehaze import dehaze_dataset, get_dehazer
-from eval.runs import ABLATIONS, METHODS, VARIANTS, RunResult, RunSpec, config_hash, source_digest
+from eval.runs import ABLATIONS, METHODS, VARIANTS, RunResult, RunSpec, config_hash
 
 log = logging.getLogger("regenerate-tables")
 
-TrainFn = Callable[..., dict[str, Any]]
+TrainFn = Callable[..., Any]
 GenerateFn = Callable[..., Path]
+TRAINER_ENTRY = "smokeseer.api"
+GENERATOR_ENTRIES = ("generator.api", "blender.worker")
+DEHAZE_ENTRY = "eval.dehaze"
+DEFAULT_OUT = Path("runs/tables")
 
 
 def default_train(dataset: Path, out: Path, mode: str, profile: str = "quick", seed: int = 0,
@@ -77,6 +84,7 @@ class HarnessConfig:
     dehazer: str = "dcp"
     workers: int = field(default_factory=default_workers)
     scheduler: str | None = None
+    lpips_net: str = "alex"
     lpips_weights: str | None = None
     lpips_heads: str | None = None
 
@@ -109,6 +117,18 @@ class HarnessConfig:
         if self.ablations and "full" not in keys:
             keys.append("full")
         return keys
+
+    def run_overrides(self) -> dict[str, Any]:
+        """Trainer overrides of every run: the user's, plus the LPIPS settings (the trainer is the
+        one LPIPS scorer, at its own resolution, so they belong to the run's cache key)."""
+        ov = dict(self.train_overrides)
+        if self.lpips_net != "alex":
+            ov["lpips_net"] = self.lpips_net
+        if self.lpips_weights:
+            ov["lpips_weights"] = str(self.lpips_weights)
+        if self.lpips_heads:
+            ov["lpips_heads"] = str(self.lpips_heads)
+        return ov
 
 
 @dataclass
@@ -216,13 +236,18 @@ def _train_run(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int) -> 
         if Path(run_dir).exists():
             shutil.rmtree(run_dir)
         Path(run_dir).parent.mkdir(parents=True, exist_ok=True)
-        out = train_fn(Path(spec.dataset), Path(run_dir), spec.mode, profile=spec.profile, seed=spec.seed,
-                       overrides=dict(spec.overrides))
+        train_fn(Path(spec.dataset), Path(run_dir), spec.mode, profile=spec.profile, seed=spec.seed,
+                 overrides=dict(spec.overrides))
         res.wall_time_s = time.perf_counter() - t0
-        if out.get("status", "ok") != "ok":
+        try:
+            out = read_metrics(Path(run_dir))
+        except ResultsFormatError as exc:
+            res.error = f"run folder unreadable: {exc}"
+            return res
+        if out["status"] != "ok":
             res.error = str(out.get("error") or "trainer reported status failed without an error")
             return res
-        metrics = out.get("metrics") or {}
+        metrics = out["metrics"]
         psnr = metrics.get("psnr")
         if not isinstance(psnr, (int, float)) or not np.isfinite(psnr):
             res.error = f"trainer returned no finite metrics.psnr (got {psnr!r})"
@@ -303,91 +328,143 @@ def _read_json(path: Path) -> dict[str, Any] | None:
         return None
 
 
-def prepare_datasets(cfg: HarnessConfig, ex: _Executor, generate_fn: GenerateFn) -> dict[str, DatasetOutcome]:
+@dataclass
+class DatasetJob:
+    """A dataset to produce (or reuse): its outcome record and how to make it."""
+
+    outcome: DatasetOutcome
+    make: Callable[[Path], Any] | None
+    source: DatasetOutcome | None = None
+
+
+def _job(o: DatasetOutcome, make: Callable[[Path], Any] | None, source: DatasetOutcome | None = None) -> DatasetJob:
+    if make is not None:
+        seconds = finished_dataset(Path(o.path), o.hash)
+        if seconds is not None:
+            o.cached, o.wall_time_s, make = True, seconds, None
+    return DatasetJob(o, make, source)
+
+
+def plan_datasets(cfg: HarnessConfig, generate_fn: GenerateFn) -> list[DatasetJob]:
     """Provided datasets are used as they are; the rest are generated once per config hash."""
-    outcomes: dict[str, DatasetOutcome] = {}
     jobs = []
+    code = code_digest(*GENERATOR_ENTRIES)
     for scene in cfg.scenes:
         if scene in cfg.datasets:
             p = Path(cfg.datasets[scene]).resolve()
-            outcomes[scene] = DatasetOutcome(scene, "provided", str(p),
-                                             config_hash((p / "dataset.json").read_text()), cached=True)
+            jobs.append(DatasetJob(DatasetOutcome(scene, "provided", str(p), config_hash((p / "dataset.json").read_text()),
+                                                  cached=True), None))
             continue
-        h = config_hash({"scene": scene, "overrides": cfg.gen_overrides, "seed": cfg.dataset_seed,
-                         "code": source_digest("generator", "blender")})
+        h = config_hash({"scene": scene, "overrides": cfg.gen_overrides, "seed": cfg.dataset_seed, "code": code})
         path = (Path(cfg.out) / "datasets" / f"{scene}-{h[:12]}").resolve()
-        o = DatasetOutcome(scene, "generated", str(path), h)
-        outcomes[scene] = o
-        seconds = finished_dataset(path, h)
-        if seconds is not None:
-            o.cached, o.wall_time_s = True, seconds
+        make = partial(generate_fn, scene, seed=cfg.dataset_seed, **cfg.gen_overrides)
+        jobs.append(_job(DatasetOutcome(scene, "generated", str(path), h), make))
+    return jobs
+
+
+def plan_dehazed(cfg: HarnessConfig, sources: list[DatasetJob]) -> list[DatasetJob]:
+    """One dehazed copy per scene for the ImgDehaze baseline, cached like a dataset."""
+    if not any(VARIANTS[v].dehazer for v in cfg.variants()):
+        return []
+    settings = asdict(get_dehazer(cfg.dehazer)) if cfg.dehazer == "dcp" else {"name": cfg.dehazer}
+    code = code_digest(DEHAZE_ENTRY)
+    jobs = []
+    for src in (j.outcome for j in sources):
+        h = config_hash({"source": src.hash, "dehazer": cfg.dehazer, "settings": settings, "code": code})
+        path = (Path(cfg.out) / "datasets" / f"{src.scene}-{src.hash[:12]}-dehazed-{cfg.dehazer}-{h[:8]}").resolve()
+        jobs.append(_job(DatasetOutcome(src.scene, f"dehazed:{cfg.dehazer}", str(path), h),
+                         partial(dehaze_into, src.path, cfg.dehazer), src))
+    return jobs
+
+
+def produce_datasets(ex: _Executor, jobs: list[DatasetJob], desc: str) -> None:
+    """Run every job that is not cached; a job whose source failed fails without running."""
+    pending = []
+    for job in jobs:
+        o = job.outcome
+        if job.source is not None and job.source.status != "ok":
+            o.status, o.error = "failed", "source dataset unavailable"
             continue
+        if job.make is None:
+            continue
+        Path(o.path).parent.mkdir(parents=True, exist_ok=True)
 
         def ok(v: tuple[str, str, float], o: DatasetOutcome = o) -> None:
             o.status, o.error, o.wall_time_s = v
-            log.info("dataset %-12s %s %.1f s%s", o.scene, o.status, o.wall_time_s,
+            log.info("%s %-12s %s %.1f s%s", desc, o.scene, o.status, o.wall_time_s,
                      "" if o.status == "ok" else "\n" + o.error)
 
         def fail(exc: BaseException, o: DatasetOutcome = o) -> None:
             o.status, o.error = "failed", f"worker crashed: {type(exc).__name__}: {exc}"
-            log.info("dataset %-12s failed: %s", o.scene, o.error)
+            log.info("%s %-12s failed: %s", desc, o.scene, o.error)
 
-        path.parent.mkdir(parents=True, exist_ok=True)
-        make = partial(generate_fn, scene, seed=cfg.dataset_seed, **cfg.gen_overrides)
-        jobs.append((dataset_task, (o, make), ok, fail))
-    if jobs:
-        with tqdm(total=len(jobs), desc="datasets", unit="scene", file=sys.stderr) as bar:
-            _drain(ex, jobs, bar)
-    return outcomes
-
-
-def prepare_dehazed(cfg: HarnessConfig, ex: _Executor, sources: dict[str, DatasetOutcome]) -> dict[str, DatasetOutcome]:
-    """One dehazed copy per scene for the ImgDehaze baseline, cached like a dataset."""
-    outcomes: dict[str, DatasetOutcome] = {}
-    if not any(VARIANTS[v].dehazer for v in cfg.variants()):
-        return outcomes
-    jobs = []
-    settings = asdict(get_dehazer(cfg.dehazer)) if cfg.dehazer == "dcp" else {"name": cfg.dehazer}
-    for scene, src in sources.items():
-        h = config_hash({"source": src.hash, "dehazer": cfg.dehazer, "settings": settings,
-                         "code": source_digest("eval.dehaze")})
-        path = (Path(cfg.out) / "datasets" / f"{scene}-{src.hash[:12]}-dehazed-{cfg.dehazer}-{h[:8]}").resolve()
-        o = DatasetOutcome(scene, f"dehazed:{cfg.dehazer}", str(path), h)
-        outcomes[scene] = o
-        if src.status != "ok":
-            o.status, o.error = "failed", "source dataset unavailable"
-            continue
-        seconds = finished_dataset(path, h)
-        if seconds is not None:
-            o.cached, o.wall_time_s = True, seconds
-            continue
-
-        def ok(v: tuple[str, str, float], o: DatasetOutcome = o) -> None:
-            o.status, o.error, o.wall_time_s = v
-
-        def fail(exc: BaseException, o: DatasetOutcome = o) -> None:
-            o.status, o.error = "failed", f"worker crashed: {type(exc).__name__}: {exc}"
-
-        path.parent.mkdir(parents=True, exist_ok=True)
-        jobs.append((dataset_task, (o, partial(dehaze_into, src.path, cfg.dehazer)), ok, fail))
-    if jobs:
-        with tqdm(total=len(jobs), desc="dehaze", unit="scene", file=sys.stderr) as bar:
-            _drain(ex, jobs, bar)
-    return outcomes
+        pending.append((dataset_task, (o, job.make), ok, fail))
+    if pending:
+        with tqdm(total=len(pending), desc=desc, unit="scene", file=sys.stderr) as bar:
+            _drain(ex, pending, bar)
 
 
 def plan_runs(cfg: HarnessConfig, datasets: dict[str, DatasetOutcome],
               dehazed: dict[str, DatasetOutcome]) -> list[RunSpec]:
+    """Every run; its key holds the digest of the trainer's code (the modules it imports)."""
     specs = []
-    code = source_digest("smokeseer")
+    code = code_digest(TRAINER_ENTRY)
     for scene in cfg.scenes:
         for key in cfg.variants():
             v = VARIANTS[key]
             ds = dehazed[scene] if v.dehazer else datasets[scene]
             for seed in cfg.seeds:
-                specs.append(RunSpec(scene, key, v.mode, seed, cfg.profile, dict(cfg.train_overrides),
+                specs.append(RunSpec(scene, key, v.mode, seed, cfg.profile, cfg.run_overrides(),
                                      ds.path, ds.hash, code))
     return specs
+
+
+SECONDS_PER_RUN = {"quick": 240.0, "paper": 2700.0}
+"""Rough wall time of one run when the output folder has no finished run to learn from: the
+quick profile's demo run on 2 CPU cores (README), and the paper's 10 + 30 minutes on an RTX 4090."""
+
+
+@dataclass
+class Plan:
+    """What an invocation will do, printed before it starts."""
+
+    datasets: list[DatasetJob]
+    dehazed: list[DatasetJob]
+    runs: list[RunSpec]
+    cached_runs: int
+    seconds_per_run: float
+    per_run_source: str
+
+    def estimated_seconds(self, workers: int) -> float:
+        todo = len(self.runs) - self.cached_runs
+        return todo * self.seconds_per_run / max(workers, 1)
+
+    def describe(self, cfg: HarnessConfig) -> str:
+        todo_ds = sum(j.make is not None for j in self.datasets)
+        todo_dh = sum(j.make is not None for j in self.dehazed)
+        todo = len(self.runs) - self.cached_runs
+        est = self.estimated_seconds(cfg.workers)
+        return (f"plan: {len(cfg.scenes)} scene(s) x {len(cfg.variants())} variant(s) x {len(cfg.seeds)} seed(s) "
+                f"= {len(self.runs)} runs ({self.cached_runs} cached, {todo} to train); "
+                f"{todo_ds} dataset(s) to generate, {todo_dh} to dehaze; profile {cfg.profile}, "
+                f"{cfg.workers} worker(s); estimated {est / 3600:.1f} h of training "
+                f"({self.seconds_per_run:.0f} s per run, {self.per_run_source}); output {Path(cfg.out).resolve()}")
+
+
+def make_plan(cfg: HarnessConfig, generate_fn: GenerateFn) -> Plan:
+    datasets = plan_datasets(cfg, generate_fn)
+    dehazed = plan_dehazed(cfg, datasets)
+    specs = plan_runs(cfg, {j.outcome.scene: j.outcome for j in datasets},
+                      {j.outcome.scene: j.outcome for j in dehazed})
+    cached = [r for r in (finished_run(s, s.run_dir(Path(cfg.out)).resolve()) for s in specs) if r is not None]
+    past = [json.loads(p.read_text()).get("wall_time_s", 0.0)
+            for p in (Path(cfg.out) / "runs").rglob("harness.json")] if (Path(cfg.out) / "runs").is_dir() else []
+    past = [t for t in past if isinstance(t, (int, float)) and t > 0]
+    if past:
+        per_run, source = float(np.mean(past)), f"mean of {len(past)} earlier run(s) in this folder"
+    else:
+        per_run, source = SECONDS_PER_RUN[cfg.profile], f"typical {cfg.profile}-profile run"
+    return Plan(datasets, dehazed, specs, len(cached), per_run, source)
 
 
 def _line(r: RunResult) -> str:
@@ -441,54 +518,40 @@ def execute_runs(cfg: HarnessConfig, ex: _Executor, specs: list[RunSpec], train_
     return sorted(results, key=lambda r: order[(r.scene, r.variant, r.seed)])
 
 
-def add_lpips(results: list[RunResult], scorer: Callable[[Any, Any], float] | None, status: str) -> None:
-    """Fill LPIPS the trainer left empty, from the saved surface renders against rgb/clean."""
-    for r in results:
-        if r.status != "ok" or r.metrics.get("lpips") is not None:
-            continue
-        if scorer is None:
-            r.metrics["lpips_status"] = r.metrics.get("lpips_status") or status
-            continue
-        frames = json.loads((Path(r.dataset) / "transforms_rgb.json").read_text())["frames"]
-        vals = []
-        for f in frames:
-            if f.get("split") != "test":
-                continue
-            pred = Path(r.run_dir) / "renders" / "surface" / f"{f['file_stem']}.png"
-            gt = Path(r.dataset) / "rgb" / "clean" / f"{f['file_stem']}.png"
-            if pred.is_file() and gt.is_file():
-                vals.append(scorer(np.asarray(Image.open(pred).convert("RGB"), np.float64) / 255.0,
-                                   np.asarray(Image.open(gt).convert("RGB"), np.float64) / 255.0))
-        if vals:
-            r.metrics["lpips"] = float(np.mean(vals))
-            r.metrics["lpips_status"] = f"{status} (harness, {len(vals)} test views)"
-
-
 def regenerate(cfg: HarnessConfig, train_fn: TrainFn = default_train,
-               generate_fn: GenerateFn = default_generate) -> tuple[list[RunResult], dict[str, Path]]:
-    """The whole pipeline: datasets, dehazing, runs, LPIPS, tables, figures, report."""
+               generate_fn: GenerateFn = default_generate, dry_run: bool = False
+               ) -> tuple[list[RunResult], dict[str, Path]]:
+    """The whole pipeline: plan (printed first), datasets, dehazing, runs, tables, figures,
+    report. With ``dry_run`` only the plan is printed."""
     from eval.figures import write_psnr_vs_time, write_qualitative_grid
     from eval.report import write_report
     from eval.tables import write_tables
 
     cfg.validate()
+    plan = make_plan(cfg, generate_fn)
+    log.info("%s", plan.describe(cfg))
+    if dry_run:
+        return [], {}
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
+    datasets = {j.outcome.scene: j.outcome for j in plan.datasets}
+    dehazed = {j.outcome.scene: j.outcome for j in plan.dehazed}
     with open_executor(cfg.workers, cfg.scheduler) as ex:
         log.info("executing on %s", ex.description)
-        datasets = prepare_datasets(cfg, ex, generate_fn)
-        dehazed = prepare_dehazed(cfg, ex, datasets)
-        results = execute_runs(cfg, ex, plan_runs(cfg, datasets, dehazed), train_fn, datasets, dehazed)
+        produce_datasets(ex, plan.datasets, "datasets")
+        produce_datasets(ex, plan.dehazed, "dehaze")
+        results = execute_runs(cfg, ex, plan.runs, train_fn, datasets, dehazed)
         backend = ex.description
-    scorer, lpips_status = load_lpips(cfg.lpips_weights, heads_path=cfg.lpips_heads)
-    if scorer is None:
+    statuses = sorted({str(r.metrics.get("lpips_status", "")) for r in results if r.status == "ok"} - {""})
+    lpips_status = "; ".join(statuses) or "no finished run"
+    if any(s.startswith("skipped") for s in statuses):
         log.info("LPIPS %s. How to enable it: docs/metrics.md, 'Enabling LPIPS offline'.", lpips_status)
-    add_lpips(results, scorer, lpips_status)
-    (out / "results.json").write_text(json.dumps({
+    write_json(out / "results.json", {
         "runs": [r.to_json() for r in results],
         "datasets": [asdict(d) for d in [*datasets.values(), *dehazed.values()]],
-    }, indent=2))
+        "provenance": provenance("eval.harness", max(1, (os.cpu_count() or 1) // cfg.workers)),
+    })
     paths = write_tables(results, out)
     paths["psnr_vs_time.csv"], paths["psnr_vs_time.png"] = write_psnr_vs_time(results, out)
     ok_sets = {s: Path(d.path) for s, d in datasets.items() if d.status == "ok"}

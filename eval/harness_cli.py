@@ -1,7 +1,8 @@
 """`regenerate-tables`: one command from presets to Table 1, Table 2, figures and report.
 
-Exit codes: 0 all runs ok; 1 tables written but some runs failed (see report.md);
-2 bad input (one error line on stderr).
+It prints its plan (runs, cached runs, datasets, estimated time) before starting; --dry-run
+stops there. Exit codes: 0 all runs ok; 1 tables written but some runs failed (see
+report.md); 2 bad input (one error line on stderr).
 """
 
 from __future__ import annotations
@@ -10,14 +11,12 @@ import argparse
 import logging
 import sys
 from pathlib import Path
-from typing import Any
 
-import yaml
-
-from eval.harness import HarnessConfig, default_workers, regenerate
+from eval.harness import DEFAULT_OUT, HarnessConfig, default_workers, regenerate
 from eval.runs import ABLATIONS, METHODS
 from generator.cli import parse_size
 from generator.profiles import get_profile
+from smokeseer.config import LPIPS_NETS, parse_set_items
 
 
 def _list(s: str) -> list[str]:
@@ -35,16 +34,6 @@ def parse_seeds(s: str) -> list[int]:
     if n < 1:
         raise ValueError(f"seeds: count must be >= 1, got {n}")
     return list(range(n))
-
-
-def _pairs(items: list[str], flag: str) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for item in items:
-        if "=" not in item:
-            raise ValueError(f"{flag}: expected KEY=VALUE, got {item!r}")
-        k, v = item.split("=", 1)
-        out[k.strip()] = yaml.safe_load(v)
-    return out
 
 
 def _known_presets() -> list[str] | None:
@@ -66,7 +55,8 @@ def parse_size_checked(text: str) -> tuple[int, int]:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="regenerate-tables", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--out", type=Path, default=Path("results/regenerate-tables"), help="output folder (cache lives here)")
+    p.add_argument("--out", type=Path, default=DEFAULT_OUT,
+                   help=f"output folder; the cache lives here (default {DEFAULT_OUT}, git-ignored)")
     p.add_argument("--scenes", type=_list, default=None,
                    help="comma list of generator presets (default: every preset except demo)")
     p.add_argument("--methods", type=_list, default=list(METHODS), help=f"comma list of {', '.join(METHODS)}")
@@ -74,7 +64,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also run Table 2's ablations")
     p.add_argument("--ablation-list", type=_list, default=list(ABLATIONS), help=f"subset of {', '.join(ABLATIONS)}")
     p.add_argument("--seeds", default="3", help="count N (seeds 0..N-1) or comma list (default 3)")
-    p.add_argument("--profile", choices=("quick", "paper"), default="quick")
+    p.add_argument("--profile", choices=("quick", "paper"), default="quick",
+                   help="training profile of every run (quick: minutes on a CPU; paper: the paper's schedule, GPU)")
     p.add_argument("--workers", type=int, default=default_workers(), help="parallel tasks (default: cores/2)")
     p.add_argument("--scheduler", default=None,
                    help='Dask scheduler address (tcp://host:8786), or "local" for a Dask LocalCluster; '
@@ -84,7 +75,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dehazer", default="dcp", help="dehazer for the ImgDehaze baseline")
     p.add_argument("--iterations", type=int, default=None,
                    help="tiny budget: stage2/stage3 iterations (also sets stage3.test_every to a quarter)")
-    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="trainer override, dotted key")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="trainer override, dotted key, value read as YAML (as train-and-evaluate --set)")
     p.add_argument("--gen-profile", choices=("bench", "paper", "native"), default=None,
                    help="generator size profile for the scenes (default: bench with --profile quick, paper "
                         "with --profile paper; native keeps each preset's own size); the flags below refine it")
@@ -94,14 +86,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--samples", type=int, default=None, help="generator override: Cycles samples")
     p.add_argument("--sim-resolution", type=int, default=None, help="generator override: Mantaflow voxels")
     p.add_argument("--gen-set", action="append", default=[], metavar="KEY=VALUE", help="other generator override")
+    p.add_argument("--lpips-net", choices=LPIPS_NETS, default="alex", help="LPIPS backbone the trainer scores with")
     p.add_argument("--lpips-weights", default=None, help="backbone .pth (torchvision layout) or its folder")
     p.add_argument("--lpips-heads", default=None, help="LPIPS v0.1 heads .pth, or an lpips wheel")
+    p.add_argument("--dry-run", action="store_true", help="print the plan (runs, estimated time) and stop")
     return p
 
 
 def config_from_args(args: argparse.Namespace) -> HarnessConfig:
     """Turn parsed flags into a validated HarnessConfig (ValueError names the bad flag)."""
-    datasets = {k: Path(str(v)) for k, v in _pairs(args.dataset, "--dataset").items()}
+    datasets = {k: Path(str(v)) for k, v in parse_set_items(args.dataset, "--dataset").items()}
     scenes = args.scenes
     presets = _known_presets()
     if scenes is None:
@@ -116,7 +110,7 @@ def config_from_args(args: argparse.Namespace) -> HarnessConfig:
     extra = set(datasets) - set(scenes)
     if extra:
         raise ValueError(f"dataset: scene(s) {', '.join(sorted(extra))} not in --scenes")
-    train = _pairs(args.set, "--set")
+    train = parse_set_items(args.set, "--set")
     if args.iterations is not None:
         if args.iterations < 1:
             raise ValueError(f"iterations: must be >= 1, got {args.iterations}")
@@ -125,7 +119,7 @@ def config_from_args(args: argparse.Namespace) -> HarnessConfig:
         train.setdefault("stage3.test_every", max(1, args.iterations // 4))
     gen_profile = args.gen_profile or ("bench" if args.profile == "quick" else "paper")
     gen = {} if gen_profile == "native" else get_profile(gen_profile).kwargs()
-    gen.update(_pairs(args.gen_set, "--gen-set"))
+    gen.update(parse_set_items(args.gen_set, "--gen-set"))
     for key in ("frames", "resolution", "thermal_resolution", "samples", "sim_resolution"):
         if getattr(args, key) is not None:
             gen[key] = getattr(args, key)
@@ -134,7 +128,7 @@ def config_from_args(args: argparse.Namespace) -> HarnessConfig:
         ablations=args.ablation_list if args.ablations else [], seeds=parse_seeds(args.seeds),
         profile=args.profile, train_overrides=train, gen_overrides=gen, datasets=datasets,
         dehazer=args.dehazer, workers=args.workers, scheduler=args.scheduler,
-        lpips_weights=args.lpips_weights, lpips_heads=args.lpips_heads,
+        lpips_net=args.lpips_net, lpips_weights=args.lpips_weights, lpips_heads=args.lpips_heads,
     )
     from eval.dehaze import available_dehazers
 
@@ -152,7 +146,9 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"regenerate-tables: error: {exc}", file=sys.stderr)
         return 2
-    results, paths = regenerate(cfg)
+    results, paths = regenerate(cfg, dry_run=args.dry_run)
+    if args.dry_run:
+        return 0
     failed = sum(r.status != "ok" for r in results)
     print(f"wrote {len(paths)} files to {Path(cfg.out).resolve()}; {len(results) - failed} runs ok, {failed} failed")
     for name in ("table1.md", "table2.md"):

@@ -9,8 +9,10 @@ from importlib import metadata
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from contracts.atomic import write_text
+from contracts.source import code_digest
 from eval.dehaze import DarkChannelPrior
-from eval.runs import VARIANTS, RunResult, source_digest
+from eval.runs import VARIANTS, RunResult
 
 if TYPE_CHECKING:
     from eval.harness import DatasetOutcome, HarnessConfig
@@ -36,12 +38,13 @@ def _settings(cfg: "HarnessConfig", backend: str) -> list[tuple[str, Any]]:
         ("dataset seed", cfg.dataset_seed),
         ("dehazer", f"{cfg.dehazer} {asdict(DarkChannelPrior()) if cfg.dehazer == 'dcp' else ''}"),
         ("execution", backend),
-        ("LPIPS weights", cfg.lpips_weights or "default search ($TORCH_HOME, ~/.cache/torch)"),
+        ("LPIPS", f"{cfg.lpips_net}, weights {cfg.lpips_weights or 'from the default search ($TORCH_HOME, ~/.cache/torch)'}"),
         ("output folder", str(Path(cfg.out).resolve())),
         ("versions", ", ".join(f"{p} {_version(p)}" for p in ("smokeseer-synth", "torch", "numpy", "bpy"))
          + f", python {platform.python_version()}"),
-        ("source digests (part of every cache key)",
-         ", ".join(f"{n} {source_digest(*n.split('+'))[:12]}" for n in ("generator+blender", "smokeseer", "eval.dehaze"))),
+        ("code digests (part of every cache key: each entry point and the project modules it imports)",
+         ", ".join(f"{n} {code_digest(*n.split('+'))[:12]}"
+                   for n in ("generator.api+blender.worker", "smokeseer.api", "eval.dehaze"))),
     ]
 
 
@@ -76,5 +79,5 @@ def write_report(cfg: "HarnessConfig", results: list[RunResult], datasets: list[
         if name in paths:
             lines += [Path(paths[name]).read_text(), ""]
     lines += ["## Files", ""] + [f"- `{k}`" for k in sorted(paths)]
-    out.write_text("\n".join(lines) + "\n")
+    write_text(out, "\n".join(lines) + "\n")
     return out

@@ -2,7 +2,8 @@
 the CLI's input errors, and (once generator and trainer are installed) the real path.
 
 The task callables here are small real functions, not stand-ins for the trainer: an
-"identity" method whose surface render is the smoky input, scored with eval.metrics.
+"identity" method whose surface render is the smoky input, scored with contracts.metrics and
+written as a run folder in the results format (the harness reads only run folders).
 """
 
 from __future__ import annotations
@@ -21,8 +22,10 @@ from PIL import Image
 
 from eval import harness, harness_cli
 from eval.harness import HarnessConfig, regenerate
-from eval.runs import RunSpec, source_digest
 from contracts.metrics import psnr, ssim_3dgs
+from contracts.provenance import provenance
+from contracts.results_format import RESULTS_FORMAT, RESULTS_FORMAT_VERSION
+from eval.runs import RunSpec
 from generator.profiles import get_profile
 
 
@@ -84,13 +87,15 @@ def identity_train(dataset: Path, out: Path, mode: str, profile: str = "quick", 
         w.writerow(["iteration", "stage", "wall_s", "loss", "test_psnr"])
         w.writerow([0, 3, 0.5, 1.0, ""])
         w.writerow([10, 3, 1.0, 0.5, f"{np.mean(ps) - 1:.4f}"])
-    metrics = {"format": "smokeseer-synth-results", "status": "ok", "method": mode, "seed": seed,
+    metrics = {"format": RESULTS_FORMAT, "format_version": RESULTS_FORMAT_VERSION, "scene": dataset.name,
+               "dataset": str(dataset), "method": mode, "profile": profile, "seed": seed, "status": "ok",
+               "provenance": provenance("eval.runs", 1), "versions": {}, "config_sha256": "identity",
                "metrics": {"psnr": float(np.mean(ps)) + seed, "ssim": float(np.mean(ss)), "lpips": None,
                            "lpips_status": "skipped: no weights", "psnr_input": float(np.mean(ps)),
                            "depth_absrel": 0.1, "depth_rmse": 0.2, "mask_iou": None},
                "wall_time_s": {"total": 1.5}}
     (out / "metrics.json").write_text(json.dumps(metrics))
-    return metrics
+    return {"status": "ignored: the harness reads the run folder"}
 
 
 def _cfg(tmp_path: Path, **kw: Any) -> HarnessConfig:
@@ -147,24 +152,11 @@ def test_changed_trainer_code_reruns(tmp_path: Path, monkeypatch: pytest.MonkeyP
     cfg = _cfg(tmp_path, methods=["full"], ablations=[], seeds=[0], workers=1)
     regenerate(cfg, train_fn=identity_train, generate_fn=tiny_generate)
     n = _calls(cfg.out)
-    real = harness.source_digest
-    monkeypatch.setattr(harness, "source_digest", lambda *names: real(*names) + ("x" if names == ("smokeseer",) else ""))
+    real = harness.code_digest
+    monkeypatch.setattr(harness, "code_digest",
+                        lambda *names: real(*names) + ("x" if names == (harness.TRAINER_ENTRY,) else ""))
     results, _ = regenerate(cfg, train_fn=identity_train, generate_fn=tiny_generate)
     assert _calls(cfg.out) - n == 2 and not any(r.cached for r in results)
-
-
-def test_source_digest_follows_file_contents(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    pkg = tmp_path / "digest_probe_pkg"
-    (pkg / "sub").mkdir(parents=True)
-    (pkg / "__init__.py").write_text("")
-    (pkg / "sub" / "data.yaml").write_text("a: 1\n")
-    monkeypatch.syspath_prepend(str(tmp_path))
-    before = source_digest("digest_probe_pkg")
-    assert source_digest("digest_probe_pkg") == before
-    (pkg / "sub" / "data.yaml").write_text("a: 2\n")
-    assert source_digest("digest_probe_pkg") != before
-    with pytest.raises(ValueError, match="no_such_package_xyz"):
-        source_digest("no_such_package_xyz")
 
 
 def test_dataset_failure_fails_its_runs(tmp_path: Path) -> None:
@@ -268,3 +260,46 @@ def test_overlapping_invocations_share_a_dataset(tmp_path: Path) -> None:
     assert [v[0] for v in outcomes] == ["ok", "ok"], outcomes
     assert (tmp_path / "datasets" / "generate_calls.log").read_text().splitlines() == ["alpha"]
     assert json.loads((tmp_path / "datasets" / "alpha-h.done.json").read_text())["hash"] == "h"
+
+
+def test_plan_is_printed_before_anything_runs(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    caplog.set_level("INFO", logger="regenerate-tables")
+    cfg = _cfg(tmp_path)
+    results, paths = regenerate(cfg, train_fn=identity_train, generate_fn=tiny_generate, dry_run=True)
+    assert results == [] and paths == {} and not cfg.out.exists()
+    line = next(r.getMessage() for r in caplog.records if r.getMessage().startswith("plan:"))
+    assert "2 scene(s) x 3 variant(s) x 2 seed(s) = 12 runs (0 cached, 12 to train)" in line
+    assert "2 dataset(s) to generate, 2 to dehaze" in line and "estimated" in line
+    caplog.clear()
+    regenerate(cfg, train_fn=identity_train, generate_fn=tiny_generate)
+    regenerate(cfg, train_fn=identity_train, generate_fn=tiny_generate, dry_run=True)
+    line = next(r.getMessage() for r in caplog.records if r.getMessage().startswith("plan:") and "cached" in r.getMessage()
+                and "8 cached" in r.getMessage())
+    assert "0 dataset(s) to generate" in line and "earlier run(s) in this folder" in line
+
+
+def test_results_json_names_the_commit_threads_and_machine(tmp_path: Path) -> None:
+    cfg = _cfg(tmp_path, scenes=["alpha"], methods=["full"], ablations=[], seeds=[0], workers=1)
+    regenerate(cfg, train_fn=identity_train, generate_fn=tiny_generate)
+    prov = json.loads((cfg.out / "results.json").read_text())["provenance"]
+    assert {"commit", "version", "source_digest", "threads", "machine"} <= set(prov)
+
+
+def test_lpips_settings_reach_the_trainer_and_its_cache_key(tmp_path: Path) -> None:
+    a = _cfg(tmp_path, scenes=["alpha"], methods=["full"], ablations=[], seeds=[0])
+    b = _cfg(tmp_path, scenes=["alpha"], methods=["full"], ablations=[], seeds=[0], lpips_net="vgg",
+             lpips_weights="/w/vgg16.pth")
+    assert b.run_overrides() == {"lpips_net": "vgg", "lpips_weights": "/w/vgg16.pth"} and a.run_overrides() == {}
+
+
+def test_trainer_and_harness_read_set_values_alike() -> None:
+    from smokeseer import cli as trainer_cli
+
+    items = ["loss.depth=1.5", "stage3.iterations=40", "smoke_ply_times=[0.0, 1.0]", "progress=false"]
+    trainer = trainer_cli.overrides_from_args(trainer_cli.build_parser().parse_args(
+        ["ds", "--out", "o"] + [x for i in items for x in ("--set", i)]))
+    harness_args = harness_cli.build_parser().parse_args(["--scenes", "chair"] + [x for i in items for x in ("--set", i)])
+    assert harness_cli.config_from_args(harness_args).train_overrides == {k: trainer[k] for k in
+                                                                         ("loss.depth", "stage3.iterations",
+                                                                          "smoke_ply_times", "progress")}
+    assert trainer["smoke_ply_times"] == [0.0, 1.0] and trainer["progress"] is False
