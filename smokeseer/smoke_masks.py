@@ -9,6 +9,9 @@ synthetic ground-truth masks, picks the candidate and threshold on the validatio
   patch minimum of the colour minimum, normalised by the brightest (atmospheric) colour. Grey
   and white smoke lifts the dark channel of whatever is behind it.
 - **whiteness**: brightness × (1 − saturation); smoke is bright and colourless.
+- **dark-channel deviation**: |haze − the frame's median haze|; smoke darker than the
+  background (sooty smoke against a bright sky) lowers the dark channel instead of raising it.
+- **colour deviation**: distance of the locally averaged colour from the frame's median colour.
 - **temporal variance**: the per-pixel standard deviation over the frames; only meaningful for
   a static camera, and measured so that this is shown rather than assumed.
 """
@@ -17,11 +20,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import minimum_filter
+from scipy.ndimage import minimum_filter, uniform_filter
 
-CANDIDATES = ("dark-channel", "whiteness", "temporal-variance")
-ESTIMATOR = "dark-channel"
-THRESHOLD = 0.35
+CANDIDATES = ("dark-channel", "dark-channel-deviation", "whiteness", "colour-deviation", "temporal-variance")
+ESTIMATOR = "colour-deviation"
+THRESHOLD = 0.1
 PATCH_FRACTION = 1 / 32
 SMOKE_PRESENT_FRACTION = 0.01
 """Mask coverage of the training pixels above which a scene is said to have smoke."""
@@ -58,6 +61,20 @@ def whiteness(images: np.ndarray) -> np.ndarray:
     return hi * (1.0 - saturation)
 
 
+def deviation_from_median(score: np.ndarray) -> np.ndarray:
+    """|score − its per-frame median|, rescaled to [0, 1] per frame."""
+    dev = np.abs(score - np.median(score, axis=(1, 2), keepdims=True))
+    return dev / np.maximum(dev.max(axis=(1, 2), keepdims=True), 1e-6)
+
+
+def colour_deviation(images: np.ndarray, patch_fraction: float = PATCH_FRACTION) -> np.ndarray:
+    n, h, w, _ = images.shape
+    size = max(1, int(round(patch_fraction * max(h, w))) | 1)
+    median = np.median(images.reshape(n, -1, 3), axis=1)[:, None, None, :]
+    dist = np.linalg.norm(images - median, axis=-1)
+    return deviation_from_median(np.stack([uniform_filter(d, size=size, mode="nearest") for d in dist]))
+
+
 def temporal_variance(images: np.ndarray) -> np.ndarray:
     grey = images.mean(axis=-1)
     std = grey.std(axis=0, keepdims=True)
@@ -68,6 +85,10 @@ def candidate_scores(images: np.ndarray, estimator: str) -> np.ndarray:
     """Per-pixel smoke score in [0, 1] (N×H×W) of one candidate."""
     if estimator == "dark-channel":
         return dark_channel_haze(images)
+    if estimator == "dark-channel-deviation":
+        return deviation_from_median(dark_channel_haze(images))
+    if estimator == "colour-deviation":
+        return colour_deviation(images)
     if estimator == "whiteness":
         return whiteness(images)
     if estimator == "temporal-variance":

@@ -271,3 +271,63 @@ def test_thermal_range_ignores_a_small_hot_object() -> None:
     np.testing.assert_allclose(normalise_with(stack[:, 3:, 3:], (lo, hi)), scene)
     flat, (flo, fhi) = _normalise_counts(np.full((2, 4, 4), 7.0))
     assert fhi > flo and np.all(np.isfinite(flat))
+
+
+def _transforms_capture(src: Path, cap: Path, with_stamps_in_json: bool) -> None:
+    """A capture posed by transforms_{rgb,thermal}.json, images copied from a splat dataset."""
+    for modality in ("rgb", "thermal"):
+        doc = json.loads((src / f"transforms_{modality}.json").read_text())
+        (cap / modality / "images").mkdir(parents=True)
+        for fr in doc["frames"]:
+            name = f"{fr['file_stem']}.png"
+            (cap / modality / "images" / name).write_bytes((src / modality / "smoky" / name).read_bytes())
+            fr["file_path"] = f"{modality}/images/{name}"
+            for key in ("split", "time", "file_stem") + (() if with_stamps_in_json else ("timestamp_s",)):
+                fr.pop(key, None)
+        (cap / f"transforms_{modality}.json").write_text(json.dumps(doc))
+
+
+def test_timestamps_csv_is_honoured_with_transforms_poses(splat_dataset: Path, tmp_path: Path) -> None:
+    cap = tmp_path / "cap"
+    _transforms_capture(splat_dataset, cap, with_stamps_in_json=False)
+    ref = load_scene(splat_dataset)
+    for modality, mod in (("rgb", ref.rgb), ("thermal", ref.thermal)):
+        rows = ["name,timestamp_s"] + [f"{f.file_stem}.png,{f.timestamp_s}" for f in mod.frames]
+        (cap / modality / "timestamps.csv").write_text("\n".join(rows) + "\n")
+    (cap / "capture.json").write_text(json.dumps({"duration_s": 1.0, "pose_frames": "shared"}))
+    scene = load_scene(cap)
+    for a, b in zip(scene.thermal.frames, ref.thermal.frames):
+        assert a.timestamp_s == pytest.approx(b.timestamp_s) and a.time == pytest.approx(b.time)
+    assert max(f.time for f in scene.rgb.frames) == pytest.approx(max(f.time for f in ref.rgb.frames))
+    assert any("no smoke masks" in n for n in scene.notes)
+    lines = (cap / "thermal" / "timestamps.csv").read_text().splitlines()
+    lines[3] = "0002.png,soon"
+    (cap / "thermal" / "timestamps.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(DatasetError, match=r"thermal/timestamps\.csv: line 4: timestamp 'soon' is not a number"):
+        load_scene(cap)
+    (cap / "thermal" / "timestamps.csv").write_text("name,timestamp_s\n0000.png,0.1\n")
+    with pytest.raises(DatasetError, match=r"timestamps\.csv: no row for frame '0001'"):
+        load_scene(cap)
+
+
+def test_capture_without_timestamps_says_so(splat_dataset: Path, tmp_path: Path) -> None:
+    cap = tmp_path / "cap"
+    _transforms_capture(splat_dataset, cap, with_stamps_in_json=False)
+    scene = load_scene(cap)
+    assert sum("frame index used as timestamp" in n for n in scene.notes) == 2
+
+
+def test_dark_16bit_frames_scale_by_bit_depth(splat_dataset: Path, tmp_path: Path) -> None:
+    """A dark 16-bit capture (max 200 counts of 65535) must not be read as 8-bit (257x too bright)."""
+    cap = tmp_path / "cap"
+    _transforms_capture(splat_dataset, cap, with_stamps_in_json=True)
+    brightest = 0
+    for p in (cap / "rgb" / "images").glob("*.png"):
+        grey = np.asarray(Image.open(p).convert("L"), dtype=np.float64)
+        counts = np.round(grey / grey.max() * 200.0).astype(np.uint16)
+        brightest = max(brightest, int(counts.max()))
+        Image.fromarray(counts).save(p)
+    scene = load_scene(cap)
+    assert brightest == 200
+    assert scene.rgb.images.max() == pytest.approx(200.0 / 65535.0, rel=1e-6)
+    assert (cap / "rgb" / "images" / "0000.png").read_bytes()[24] == 16

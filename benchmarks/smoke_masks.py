@@ -1,0 +1,87 @@
+"""Weight-free smoke-mask candidates against the synthetic ground-truth masks.
+
+    python benchmarks/smoke_masks.py DATASET [DATASET ...]
+
+Each candidate (smokeseer/smoke_masks.py) is scored by IoU per frame against the dataset's
+``rgb/smoke_mask``. The candidate and threshold are chosen by the mean IoU over the
+*validation* frames (the training views of every dataset given); the *test* views are only
+scored afterwards. Writes benchmarks/results/smoke_masks.csv (every candidate, threshold,
+scene and split), smoke_masks_choice.csv (the chosen one per scene) and smoke_masks.png
+(validation IoU against threshold).
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from smokeseer.data import load_scene  # noqa: E402
+from smokeseer.smoke_masks import CANDIDATES, candidate_scores, iou  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parent / "results"
+THRESHOLDS = np.round(np.arange(0.05, 0.96, 0.05), 3)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("datasets", nargs="+", type=Path, help="datasets with rgb/smoke_mask (generate-scene output)")
+    ap.add_argument("--out", type=Path, default=RESULTS, help="folder for the CSV and PNG")
+    args = ap.parse_args()
+    rows = []
+    for path in args.datasets:
+        scene = load_scene(path)
+        if scene.rgb.masks is None:
+            raise SystemExit(f"{path}: no ground-truth smoke masks (pass smoke_alpha)")
+        images = scene.rgb.images.astype(np.float64)
+        for cand in CANDIDATES:
+            scores = candidate_scores(images, cand)
+            for thr in THRESHOLDS:
+                for split, name in (("train", "validation"), ("test", "test")):
+                    idx = scene.rgb.indices(split)
+                    vals = [iou(scores[i] > thr, scene.rgb.masks[i]) for i in idx]
+                    rows.append({"candidate": cand, "threshold": float(thr), "scene": scene.name, "split": name,
+                                 "frames": len(idx), "iou": float(np.mean(vals)) if vals else float("nan")})
+        print(f"{scene.name}: scored {len(CANDIDATES)} candidates", flush=True)
+    args.out.mkdir(parents=True, exist_ok=True)
+    with (args.out / "smoke_masks.csv").open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+
+    def mean_iou(cand: str, thr: float, split: str) -> float:
+        return float(np.nanmean([r["iou"] for r in rows if r["candidate"] == cand and r["threshold"] == thr
+                                 and r["split"] == split]))
+
+    best = {c: max(THRESHOLDS, key=lambda t: mean_iou(c, float(t), "validation")) for c in CANDIDATES}
+    chosen = max(CANDIDATES, key=lambda c: mean_iou(c, float(best[c]), "validation"))
+    print("candidate, best validation threshold, validation IoU, test IoU (means over scenes)")
+    for c in CANDIDATES:
+        print(f"{c}, {best[c]}, {mean_iou(c, float(best[c]), 'validation'):.3f}, "
+              f"{mean_iou(c, float(best[c]), 'test'):.3f}")
+    print(f"chosen by validation: {chosen} at {best[chosen]}")
+    per_scene = [r for r in rows if r["candidate"] == chosen and r["threshold"] == best[chosen]]
+    with (args.out / "smoke_masks_choice.csv").open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(per_scene[0]))
+        w.writeheader()
+        w.writerows(per_scene)
+    for r in per_scene:
+        print(f"  {r['scene']:<12} {r['split']:<10} frames {r['frames']:>3}  IoU {r['iou']:.3f}")
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for c in CANDIDATES:
+        ax.plot(THRESHOLDS, [mean_iou(c, float(t), "validation") for t in THRESHOLDS], label=c)
+    ax.set_xlabel("threshold")
+    ax.set_ylabel("mean validation IoU")
+    ax.set_title(f"smoke masks without weights ({len(args.datasets)} scenes)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(args.out / "smoke_masks.png", dpi=120)
+
+
+if __name__ == "__main__":
+    main()
