@@ -62,9 +62,9 @@ def whiteness(images: np.ndarray) -> np.ndarray:
 
 
 def deviation_from_median(score: np.ndarray) -> np.ndarray:
-    """|score − its per-frame median|, rescaled to [0, 1] per frame."""
-    dev = np.abs(score - np.median(score, axis=(1, 2), keepdims=True))
-    return dev / np.maximum(dev.max(axis=(1, 2), keepdims=True), 1e-6)
+    """|score − its per-frame median|, in the score's own units (so one threshold means the same
+    thing in every frame and every scene)."""
+    return np.clip(np.abs(score - np.median(score, axis=(1, 2), keepdims=True)), 0.0, 1.0)
 
 
 def colour_deviation(images: np.ndarray, patch_fraction: float = PATCH_FRACTION) -> np.ndarray:

@@ -102,3 +102,30 @@ def test_demo_capture_with_a_known_sim3(demo_dataset: Path) -> None:
         assert np.linalg.norm(np.asarray(reg["translation"]) - want_shift) < tolerance
         for f, v in zip(scene.thermal.frames, truth):
             assert np.linalg.norm(camera_center(f.viewmat) - camera_center(v)) < tolerance
+
+
+def test_masks_from_an_external_segmenter_and_estimated(ds: Path, tmp_path: Path) -> None:
+    from PIL import Image
+
+    truth = load_scene(ds)
+    folder = tmp_path / "sam"
+    folder.mkdir()
+    for f, m in zip(truth.rgb.frames, truth.rgb.masks):
+        Image.fromarray(np.where(m > 0.5, 255, 0).astype(np.uint8)).save(folder / f"{f.file_stem}.png")
+    scene = load_scene(ds)
+    scene.rgb.masks = None
+    report = run_stage1(make_config(overrides={"mask_dir": str(folder)}), scene)
+    np.testing.assert_array_equal(scene.rgb.masks, (truth.rgb.masks > 0.5).astype(np.float32))
+    assert report.masks == f"files: {folder}" and any("external segmenter" in n for n in report.notes)
+    (folder / f"{truth.rgb.frames[3].file_stem}.png").unlink()
+    with pytest.raises(Exception, match="missing mask"):
+        run_stage1(make_config(overrides={"mask_dir": str(folder)}), load_scene(ds))
+
+    scene = load_scene(ds)
+    scene.smoke_present = False  # what dataset.json said must not decide it
+    report = run_stage1(make_config(overrides={"stage1": "estimate"}), scene)
+    assert report.masks.startswith("estimated")
+    assert scene.rgb.masks.shape == truth.rgb.masks.shape and set(np.unique(scene.rgb.masks)) <= {0.0, 1.0}
+    assert not np.array_equal(scene.rgb.masks, truth.rgb.masks)
+    assert scene.smoke_present == (scene.rgb.masks[scene.rgb.indices("train")].mean() >= 0.01)
+    assert any("estimated from the RGB frames" in n for n in report.notes)
