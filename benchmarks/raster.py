@@ -1,15 +1,17 @@
-"""Rasterizer benchmark: forward + backward time and peak memory of the torch backend against the
-dense all-pairs reference, over Gaussian count and resolution.
+"""Rasterizer benchmark: forward + backward of the compiled CPU backend against the torch backend.
 
-Each measurement runs in a fresh subprocess so its peak resident memory (ru_maxrss minus the
-resident size just before rendering) belongs to that configuration alone. The dense reference
-runs pixel chunks, each back-propagated into the once-projected Gaussians (memory ~ chunk x N). Its cost per pixel
-does not depend on the scene (every pixel evaluates all N Gaussians), so by default the
-projection is timed on its own, the compositing on an evenly spread subset of chunks, and the
-latter is scaled to the full image; --full-dense times every chunk.
+For each (N Gaussians, image side) the two backends run alternately in one process, each best of
+``--repeats`` after a warm-up, with the load average recorded, so a busy shared machine slows
+both alike. Peak memory is measured separately, one fresh subprocess per (backend, size), as
+ru_maxrss minus the resident size just before rendering.
 
-    python benchmarks/raster.py            # default sweep, a few minutes on 2 cores
-    python benchmarks/raster.py --quick    # small sweep, well under a minute
+The "arithmetic floor" estimates this machine's limit per blended pair: the time torch's
+vectorised kernels take for the unavoidable per-pair arithmetic (two exps, one per pass, plus the
+~30 multiply-adds of the alpha, blend and gradient terms) on arrays of that many pairs, divided
+by the pair count. A kernel below it would need to skip work, not to do it faster.
+
+    python benchmarks/raster.py             # 20k/128^2, 100k/256^2, 300k/512^2 + memory sweep
+    python benchmarks/raster.py --quick     # small sizes, well under a minute
 Writes benchmarks/results/raster.csv and raster.png.
 """
 
@@ -24,7 +26,7 @@ import resource
 import subprocess
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -33,30 +35,32 @@ if str(ROOT) not in sys.path:
 
 import torch  # noqa: E402
 
-DENSE_CHUNK = 256  # pixels per dense chunk
+BACKENDS = ("cpu", "torch")
+FLOOR_MULADDS = 30  # per-pair multiply-adds besides the exps (alpha, blend, gradient terms)
 
 
 @dataclass
-class Config:
-    kind: str  # "torch" or "dense"
+class Timing:
     n: int
     res: int
-    repeats: int = 5
-    dense_pixels: int = 0  # 0: all pixels; else at least this many, spread over the image
-    threads: int = 0
+    cpu_s: float  # forward + backward, best of repeats
+    torch_s: float
+    speedup: float
+    cpu_forward_s: float
+    blended_pairs: int
+    cpu_ns_per_pair: float
+    floor_ns_per_pair: float  # arithmetic floor (see module docstring)
+    threads: int
+    load_avg_1min: float
 
 
 @dataclass
-class Result:
-    kind: str
+class Memory:
+    backend: str
     n: int
     res: int
-    seconds: float  # forward + backward, best of repeats after a warm-up (dense: one run, scaled)
     peak_mb: float
     blended_pairs: int
-    pixels_timed: int
-    threads: int
-    load_avg_1min: float  # machine load while measuring (2-core machines shared with other jobs)
 
 
 def make_scene(n: int, res: int, seed: int = 0) -> tuple[list[torch.Tensor], torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -76,142 +80,153 @@ def make_scene(n: int, res: int, seed: int = 0) -> tuple[list[torch.Tensor], tor
     return params, viewmats, ks, weights
 
 
+def forward_backward(backend: str, params, viewmats, ks, weights, res: int) -> tuple[float, float, int]:
+    """(forward seconds, forward + backward seconds, blended pairs) of one training-like step."""
+    from smokeseer.raster import rasterize
+
+    for p in params:
+        p.grad = None
+    t0 = time.perf_counter()
+    out = rasterize(*params, viewmats, ks, res, res, backend=backend)
+    t1 = time.perf_counter()
+    (torch.cat([out.colors, out.alphas, out.depths], -1) * weights).sum().backward()
+    return t1 - t0, time.perf_counter() - t0, out.n_pairs
+
+
+def arithmetic_floor(pairs: int, repeats: int = 3) -> float:
+    """Seconds torch's vectorised kernels need for the per-pair arithmetic of ``pairs`` pairs."""
+    x = torch.rand(max(pairs, 1))
+    y = torch.empty_like(x)
+    best = math.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for _ in range(2):
+            torch.exp(x, out=y)
+        for _ in range(FLOOR_MULADDS // 2):
+            torch.addcmul(x, y, y, out=y)
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def time_pair(n: int, res: int, repeats: int) -> Timing:
+    """Both backends alternately in this process; best of ``repeats`` each after one warm-up."""
+    params, viewmats, ks, weights = make_scene(n, res)
+    best = {b: (math.inf, math.inf) for b in BACKENDS}
+    pairs = {}
+    for i in range(repeats + 1):
+        for backend in BACKENDS:
+            fwd, total, pairs[backend] = forward_backward(backend, params, viewmats, ks, weights, res)
+            if i > 0:
+                best[backend] = min(best[backend], (total, fwd))
+    if pairs["cpu"] != pairs["torch"]:
+        raise RuntimeError(f"backends blended different pair counts: {pairs}")
+    cpu_s, cpu_fwd = best["cpu"]
+    floor = arithmetic_floor(pairs["cpu"])
+    return Timing(n, res, cpu_s, best["torch"][0], best["torch"][0] / cpu_s, cpu_fwd, pairs["cpu"],
+                  cpu_s / max(pairs["cpu"], 1) * 1e9, floor / max(pairs["cpu"], 1) * 1e9,
+                  torch.get_num_threads(), os.getloadavg()[0])
+
+
 def _rss_mb() -> float:
     with open("/proc/self/statm") as f:
         return int(f.read().split()[1]) * resource.getpagesize() / 2**20
 
 
-def run_worker(cfg: Config) -> Result:
-    """Measure one configuration in this process."""
-    if cfg.threads:
-        torch.set_num_threads(cfg.threads)
-    from smokeseer.raster import rasterize
-    from tests.raster_reference import dense_loss_backward
+def memory_worker(backend: str, n: int, res: int) -> Memory:
+    """Peak resident memory of one forward + backward, measured in this (fresh) process."""
+    from smokeseer.raster.extension import load_kernel
 
-    params, viewmats, ks, weights = make_scene(cfg.n, cfg.res)
+    load_kernel()
+    params, viewmats, ks, weights = make_scene(n, res)
     base = _rss_mb()
-    pairs, pixels = 0, cfg.res * cfg.res
-    times = []
-    if cfg.kind == "torch":
-        for _ in range(cfg.repeats + 1):
-            for p in params:
-                p.grad = None
-            t0 = time.perf_counter()
-            out = rasterize(*params, viewmats, ks, cfg.res, cfg.res)
-            (torch.cat([out.colors, out.alphas, out.depths], -1) * weights).sum().backward()
-            times.append(time.perf_counter() - t0)
-            pairs = out.n_pairs
-            del out
-        seconds = min(times[1:])  # best of the repeats: the machine is shared, noise only adds time
-    else:
-        n_chunks = math.ceil(pixels / DENSE_CHUNK)
-        want = n_chunks if not cfg.dense_pixels else min(n_chunks, math.ceil(cfg.dense_pixels / DENSE_CHUNK))
-        picks = sorted({round(i * (n_chunks - 1) / max(want - 1, 1)) for i in range(want)})
-        elapsed = []
-        for subset in ([], picks):  # fixed cost (projection), then fixed cost + the timed chunks
-            t0 = time.perf_counter()
-            dense_loss_backward(*params, viewmats, ks, cfg.res, cfg.res, weights, pixel_chunk=DENSE_CHUNK, chunks=subset)
-            elapsed.append(time.perf_counter() - t0)
-        timed = sum(min(DENSE_CHUNK, pixels - i * DENSE_CHUNK) for i in picks)
-        seconds = elapsed[0] + (elapsed[1] - elapsed[0]) * pixels / timed
-        pixels = timed
+    _, _, pairs = forward_backward(backend, params, viewmats, ks, weights, res)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 - base
-    return Result(cfg.kind, cfg.n, cfg.res, seconds, peak, pairs, pixels, torch.get_num_threads(), os.getloadavg()[0])
+    return Memory(backend, n, res, peak, pairs)
 
 
-def measure(cfg: Config) -> Result:
-    """Run one configuration in a fresh interpreter and parse its result."""
-    proc = subprocess.run([sys.executable, __file__, "--worker", json.dumps(asdict(cfg))],
-                          capture_output=True, text=True, check=False)
+def measure_memory(backend: str, n: int, res: int, threads: int) -> Memory:
+    cmd = [sys.executable, __file__, "--memory-worker", json.dumps([backend, n, res]), "--threads", str(threads)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
     if proc.returncode != 0:
-        raise RuntimeError(f"worker failed for {cfg}:\n{proc.stderr}")
-    return Result(**json.loads(proc.stdout.strip().splitlines()[-1]))
+        raise RuntimeError(f"memory worker failed for {backend} {n} {res}:\n{proc.stderr}")
+    return Memory(**json.loads(proc.stdout.strip().splitlines()[-1]))
 
 
-def plan(quick: bool, full_dense: bool) -> list[Config]:
-    dense_px = 0 if full_dense else 2048
-    if quick:
-        counts, res_sweep, dense = [1000, 5000], [64, 128], {(1000, 64), (5000, 64), (5000, 128)}
-    else:
-        counts, res_sweep = [1000, 5000, 20000, 100000], [64, 128, 256]
-        dense = {(1000, 128), (5000, 128), (20000, 128), (20000, 64)}
-    fixed_n = counts[-1] if quick else 20000
-    grid = {(n, 128 if not quick else 64) for n in counts} | {(fixed_n, r) for r in res_sweep}
-    cfgs = [Config("torch", n, r) for n, r in sorted(grid)]
-    cfgs += [Config("dense", n, r, repeats=1, dense_pixels=dense_px) for n, r in sorted(dense)]
-    return cfgs
+def write_csv(path: Path, rows: list) -> None:
+    tmp = path.with_suffix(".csv.partial")
+    with open(tmp, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=[fl.name for fl in fields(rows[0])])
+        writer.writeheader()
+        writer.writerows(asdict(r) for r in rows)
+    tmp.replace(path)
 
 
-def write_outputs(results: list[Result], out_dir: Path) -> None:
+def write_plot(path: Path, timings: list[Timing], memory: list[Memory]) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    out_dir.mkdir(parents=True, exist_ok=True)
-    dense = {(r.n, r.res): r for r in results if r.kind == "dense"}
-    rows = []
-    for r in results:
-        d = dense.get((r.n, r.res)) if r.kind == "torch" else None
-        rows.append({**asdict(r), "speedup_vs_dense": f"{d.seconds / r.seconds:.1f}" if d else "",
-                     "dense_to_torch_memory": f"{d.peak_mb / max(r.peak_mb, 1e-3):.2f}" if d else ""})
-    with open(out_dir / "raster.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
-    res_main = max({r.res for r in results}, key=lambda v: sum(x.res == v for x in results))
-    n_main = max({r.n for r in results}, key=lambda v: sum(x.n == v for x in results))
-    for kind, style in (("torch", "o-"), ("dense", "s--")):
-        by_n = sorted((r.n, r.seconds) for r in results if r.kind == kind and r.res == res_main)
-        by_res = sorted((r.res, r.seconds) for r in results if r.kind == kind and r.n == n_main)
-        if by_n:
-            axes[0].loglog(*zip(*by_n), style, label=kind)
-        if by_res:
-            axes[1].loglog(*zip(*by_res), style, label=kind)
-    axes[0].set(xlabel="Gaussians", ylabel="forward + backward [s]", title=f"{res_main}x{res_main}")
-    axes[1].set(xlabel="image side [px]", ylabel="forward + backward [s]", title=f"N = {n_main}")
-    fast = [r for r in results if r.kind == "torch"]
-    axes[2].loglog([r.blended_pairs for r in fast], [r.peak_mb for r in fast], "o")
-    for r in fast:
-        axes[2].annotate(f"{r.n // 1000}k,{r.res}", (r.blended_pairs, r.peak_mb), fontsize=7)
-    axes[2].set(xlabel="blended (Gaussian, pixel) pairs", ylabel="peak memory [MB]", title="torch backend memory")
-    for ax in axes[:2]:
-        ax.legend()
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    pairs = [t.blended_pairs for t in timings]
+    axes[0].loglog(pairs, [t.torch_s for t in timings], "s--", label="torch backend")
+    axes[0].loglog(pairs, [t.cpu_s for t in timings], "o-", label="cpu backend (compiled)")
+    axes[0].loglog(pairs, [t.floor_ns_per_pair * t.blended_pairs * 1e-9 for t in timings], ":", label="arithmetic floor")
+    for t in timings:
+        axes[0].annotate(f"{t.n // 1000}k,{t.res}² ({t.speedup:.0f}x)", (t.blended_pairs, t.cpu_s), fontsize=7)
+    axes[0].set(xlabel="blended (Gaussian, pixel) pairs", ylabel="forward + backward [s]", title="time")
+    for backend, style in (("cpu", "o-"), ("torch", "s--")):
+        rows = sorted((m.blended_pairs, m.peak_mb) for m in memory if m.backend == backend)
+        if rows:
+            axes[1].loglog(*zip(*rows), style, label=f"{backend} backend")
+    axes[1].set(xlabel="blended (Gaussian, pixel) pairs", ylabel="peak memory [MB]", title="memory")
     for ax in axes:
+        ax.legend()
         ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
-    fig.savefig(out_dir / "raster.png", dpi=120)
+    tmp = path.with_suffix(".partial.png")
+    fig.savefig(tmp, dpi=120)
+    tmp.replace(path)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--quick", action="store_true", help="small sweep for a smoke check")
-    parser.add_argument("--full-dense", action="store_true", help="time the dense reference on every pixel")
-    parser.add_argument("--threads", type=int, default=0, help="torch threads (default: torch's own)")
+    parser.add_argument("--quick", action="store_true", help="small sizes for a smoke check")
+    parser.add_argument("--repeats", type=int, default=3, help="timed repeats per backend (best is kept)")
+    parser.add_argument("--threads", type=int, default=0, help="torch (and kernel) threads; default torch's own")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
-    parser.add_argument("--worker", help=argparse.SUPPRESS)
+    parser.add_argument("--memory-worker", help=argparse.SUPPRESS)
     args = parser.parse_args()
-    if args.worker:
-        print(json.dumps(asdict(run_worker(Config(**json.loads(args.worker))))))
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    if args.memory_worker:
+        print(json.dumps(asdict(memory_worker(*json.loads(args.memory_worker)))))
         return
-    results = []
-    for cfg in plan(args.quick, args.full_dense):
-        cfg.threads = args.threads
-        r = measure(cfg)
-        results.append(r)
-        print(f"{r.kind:6s} N={r.n:>6d} {r.res:>4d}^2  {r.seconds:8.3f} s  peak {r.peak_mb:8.1f} MB  "
-              f"pairs {r.blended_pairs:>9d}  threads {r.threads}  load {r.load_avg_1min:.1f}", flush=True)
-    dense = {(r.n, r.res): r for r in results if r.kind == "dense"}
-    for r in results:
-        if r.kind == "torch" and (r.n, r.res) in dense:
-            d = dense[(r.n, r.res)]
-            print(f"N={r.n:>6d} {r.res}^2: torch is {d.seconds / r.seconds:7.1f}x faster than dense; "
-                  f"memory {r.peak_mb:.1f} MB vs dense (chunked, {DENSE_CHUNK} px) {d.peak_mb:.1f} MB; "
-                  f"dense would hold {r.n * r.res * r.res / 1e6:.0f}M pairs unchunked")
-    write_outputs(results, args.out)
-    print(f"wrote {args.out / 'raster.csv'} and {args.out / 'raster.png'}")
+    sizes = [(2000, 64), (5000, 128)] if args.quick else [(20000, 128), (100000, 256), (300000, 512)]
+    mem_sizes = sizes if args.quick else [(5000, 128), (20000, 128), (20000, 256), (100000, 256), (300000, 512)]
+    from smokeseer.raster.extension import load_kernel
+
+    load_kernel()
+    timings = []
+    for n, res in sizes:
+        t = time_pair(n, res, args.repeats)
+        timings.append(t)
+        print(f"N={n:>6d} {res:>3d}^2  cpu {t.cpu_s * 1e3:8.1f} ms (forward {t.cpu_forward_s * 1e3:.1f})  "
+              f"torch {t.torch_s * 1e3:8.1f} ms  speed-up {t.speedup:5.1f}x  pairs {t.blended_pairs:>9d}  "
+              f"{t.cpu_ns_per_pair:5.1f} ns/pair (floor {t.floor_ns_per_pair:.1f})  threads {t.threads}  "
+              f"load {t.load_avg_1min:.1f}", flush=True)
+    memory = []
+    for n, res in mem_sizes:
+        for backend in BACKENDS:
+            m = measure_memory(backend, n, res, torch.get_num_threads())
+            memory.append(m)
+            print(f"memory {backend:5s} N={n:>6d} {res:>3d}^2  peak {m.peak_mb:8.1f} MB  pairs {m.blended_pairs:>9d}  "
+                  f"{m.peak_mb * 2**20 / max(m.blended_pairs, 1):6.0f} B/pair", flush=True)
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_csv(args.out / "raster.csv", timings)
+    write_csv(args.out / "raster_memory.csv", memory)
+    write_plot(args.out / "raster.png", timings, memory)
+    print(f"wrote {args.out / 'raster.csv'}, raster_memory.csv and raster.png")
 
 
 if __name__ == "__main__":

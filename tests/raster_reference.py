@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import pytest
 import torch
 from torch import Tensor
 
@@ -213,3 +214,24 @@ def dense_loss_backward(
         if pairs:
             torch.autograd.backward([t for t, _ in pairs], [g for _, g in pairs])
     return total
+
+
+CPU_BACKENDS = ("cpu", "torch")
+
+
+@pytest.fixture(scope="module", params=CPU_BACKENDS)
+def every_cpu_backend(request: pytest.FixtureRequest):
+    """Runs a test module once per CPU backend by pointing ``backend='auto'`` on CPU tensors at it.
+
+    Import it into a test module and mark the module ``pytest.mark.usefixtures("every_cpu_backend")``.
+    """
+    from smokeseer.raster import api
+
+    original = api._resolve_backend
+
+    def resolve(backend: str, device: torch.device) -> str:
+        return request.param if backend == "auto" and device.type == "cpu" else original(backend, device)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(api, "_resolve_backend", resolve)
+        yield request.param

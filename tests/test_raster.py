@@ -12,7 +12,9 @@ from scipy.special import sph_harm_y
 import smokeseer.raster.torch_backend as torch_backend
 from smokeseer.raster import eval_sh, rasterize
 from smokeseer.raster.api import view_colors
-from tests.raster_reference import dense_loss_backward, dense_rasterize
+from tests.raster_reference import dense_loss_backward, dense_rasterize, every_cpu_backend  # noqa: F401 (fixture)
+
+pytestmark = pytest.mark.usefixtures("every_cpu_backend")
 
 F64 = torch.float64
 

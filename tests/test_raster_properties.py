@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import math
 
+import pytest
 import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from smokeseer.raster import rasterize
-from tests.raster_reference import dense_rasterize
+from tests.raster_reference import dense_rasterize, every_cpu_backend  # noqa: F401 (fixture)
+
+pytestmark = pytest.mark.usefixtures("every_cpu_backend")
 
 W, H = 12, 10
 

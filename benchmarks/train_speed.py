@@ -1,0 +1,175 @@
+"""Training speed: where a Stage 2 and a Stage 3 iteration spend their time, per rasterizer backend.
+
+``profile``: trains a short run (few iterations per stage) once per backend under cProfile, with
+``backend="auto"`` on CPU tensors pointed at that backend inside this process, and reports
+seconds per iteration of each stage (from train_log.csv's wall_s; the first logged interval is
+dropped as warm-up) plus the top functions by own time and by cumulative time. Writes
+``train_speed.csv`` and ``train_speed_profile_<backend>.txt``.
+
+``curve``: test PSNR against wall time of finished runs (their train_log.csv), one line per run,
+written as ``train_speed_curve.csv`` + ``.png``.
+
+    python benchmarks/train_speed.py profile DATASET [--iterations 60] [--threads 1]
+    python benchmarks/train_speed.py curve torch=RUN_A cpu=RUN_B
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import csv
+import io
+import os
+import pstats
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+import torch  # noqa: E402
+
+RESULTS = ROOT / "benchmarks" / "results"
+
+
+@dataclass
+class StageSpeed:
+    backend: str
+    stage: int
+    iterations_timed: int
+    seconds_per_iteration: float
+    iterations_per_second: float
+    run_wall_s: float
+    run_cpu_s: float
+    threads: int
+    load_avg_1min: float
+
+
+def read_log(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def stage_speeds(rows: list[dict[str, str]], backend: str, wall: float, cpu: float) -> list[StageSpeed]:
+    """Seconds per iteration of each stage from the logged wall clock, first interval dropped."""
+    out = []
+    for stage in sorted({int(r["stage"]) for r in rows}):
+        pts = [(int(r["iteration"]), float(r["wall_s"])) for r in rows if int(r["stage"]) == stage]
+        if len(pts) < 3:
+            continue
+        (i0, t0), (i1, t1) = pts[1], pts[-1]
+        per = (t1 - t0) / (i1 - i0)
+        out.append(StageSpeed(backend, stage, i1 - i0, per, 1.0 / per, wall, cpu, torch.get_num_threads(),
+                              os.getloadavg()[0]))
+    return out
+
+
+def profile_backend(dataset: Path, backend: str, iterations: int, top: int) -> tuple[list[StageSpeed], str]:
+    from smokeseer.api import train_and_evaluate
+    from smokeseer.raster import api as raster_api
+
+    original = raster_api._resolve_backend
+
+    def resolve(name: str, device: torch.device) -> str:
+        return backend if name == "auto" and device.type == "cpu" else original(name, device)
+
+    overrides = {"stage2.iterations": iterations, "stage3.iterations": iterations, "log_every": 5,
+                 "stage3.test_every": 10 * iterations}
+    raster_api._resolve_backend = resolve
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            prof = cProfile.Profile()
+            wall0, cpu0 = time.perf_counter(), time.process_time()
+            prof.enable()
+            train_and_evaluate(dataset, Path(tmp) / "run", profile="quick", seed=0, overrides=overrides)
+            prof.disable()
+            wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
+            rows = read_log(Path(tmp) / "run" / "train_log.csv")
+    finally:
+        raster_api._resolve_backend = original
+    text = io.StringIO()
+    stats = pstats.Stats(prof, stream=text)
+    text.write(f"# backend={backend}, {iterations} iterations per stage, wall {wall:.1f} s, cpu {cpu:.1f} s, "
+               f"threads {torch.get_num_threads()}, load {os.getloadavg()[0]:.1f}\n")
+    stats.sort_stats("tottime").print_stats(top)
+    stats.sort_stats("cumulative").print_stats(top)
+    return stage_speeds(rows, backend, wall, cpu), text.getvalue()
+
+
+def write_csv(path: Path, rows: list) -> None:
+    tmp = path.with_suffix(".csv.partial")
+    with open(tmp, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=[fl.name for fl in fields(rows[0])])
+        writer.writeheader()
+        writer.writerows(asdict(r) for r in rows)
+    tmp.replace(path)
+
+
+def run_profile(args: argparse.Namespace) -> None:
+    speeds = []
+    for backend in args.backends:
+        rows, text = profile_backend(args.dataset, backend, args.iterations, args.top)
+        speeds += rows
+        (args.out / f"train_speed_profile_{backend}.txt").write_text(text)
+        for r in rows:
+            print(f"{backend:5s} stage {r.stage}: {r.seconds_per_iteration * 1e3:7.1f} ms/iteration "
+                  f"({r.iterations_per_second:.1f} it/s), run wall {r.run_wall_s:.1f} s cpu {r.run_cpu_s:.1f} s, "
+                  f"load {r.load_avg_1min:.1f}", flush=True)
+    write_csv(args.out / "train_speed.csv", speeds)
+    print(f"wrote {args.out / 'train_speed.csv'} and train_speed_profile_*.txt")
+
+
+def run_curve(args: argparse.Namespace) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    table = []
+    fig, ax = plt.subplots(figsize=(6.5, 4.2))
+    for spec in args.runs:
+        label, _, folder = spec.partition("=")
+        pts = [(float(r["wall_s"]), float(r["test_psnr"])) for r in read_log(Path(folder) / "train_log.csv")
+               if r.get("test_psnr")]
+        if not pts:
+            raise SystemExit(f"{folder}/train_log.csv: no test_psnr entries")
+        table += [{"run": label, "wall_s": t, "test_psnr": p} for t, p in pts]
+        ax.plot(*zip(*pts), "o-", label=label)
+    ax.set(xlabel="wall time [s]", ylabel="test PSNR [dB]", title="demo, --profile quick")
+    ax.grid(True, alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    args.out.mkdir(parents=True, exist_ok=True)
+    fig.savefig(args.out / "train_speed_curve.png", dpi=120)
+    with open(args.out / "train_speed_curve.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=["run", "wall_s", "test_psnr"])
+        writer.writeheader()
+        writer.writerows(table)
+    print(f"wrote {args.out / 'train_speed_curve.csv'} and .png")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+    prof = sub.add_parser("profile", help="cProfile a short run per backend")
+    prof.add_argument("dataset", type=Path)
+    prof.add_argument("--iterations", type=int, default=60, help="iterations per stage")
+    prof.add_argument("--backends", nargs="+", default=["torch", "cpu"])
+    prof.add_argument("--top", type=int, default=25)
+    prof.add_argument("--threads", type=int, default=0)
+    prof.add_argument("--out", type=Path, default=RESULTS)
+    curve = sub.add_parser("curve", help="test PSNR against wall time of finished runs")
+    curve.add_argument("runs", nargs="+", help="LABEL=RUN_DIR")
+    curve.add_argument("--out", type=Path, default=RESULTS)
+    args = parser.parse_args()
+    if getattr(args, "threads", 0):
+        torch.set_num_threads(args.threads)
+    run_profile(args) if args.command == "profile" else run_curve(args)
+
+
+if __name__ == "__main__":
+    main()
