@@ -178,3 +178,78 @@ def test_lpips_rejects_wrong_state_dict(tmp_path) -> None:
     torch.save({"features.0.weight": torch.zeros(8, 3, 11, 11), "features.0.bias": torch.zeros(8)}, bb)
     with pytest.raises(ValueError, match="weights_path"):
         load_lpips(bb, heads_path=hd)
+
+
+def _random_vgg_files(tmp_path, seed: int = 1) -> tuple[str, str]:
+    g = torch.Generator().manual_seed(seed)
+    sd, idx, cin = {}, 0, 3
+    for block in ((64, 64), (128, 128), (256, 256, 256), (512, 512, 512), (512, 512, 512)):
+        for cout in block:
+            sd[f"features.{idx}.weight"] = torch.randn(cout, cin, 3, 3, generator=g) * (2.0 / (cin * 9)) ** 0.5
+            sd[f"features.{idx}.bias"] = torch.zeros(cout)
+            cin, idx = cout, idx + 2
+        idx += 1
+    heads = {f"lin{k}.model.1.weight": torch.rand(1, c, 1, 1, generator=g)
+             for k, c in enumerate((64, 128, 256, 512, 512))}
+    bb, hd = tmp_path / "vgg16-397923af.pth", tmp_path / "vgg_heads.pth"
+    torch.save(sd, bb)
+    torch.save(heads, hd)
+    return str(bb), str(hd)
+
+
+def _reference_lpips_alex(bb: str, hd: str, pred: np.ndarray, target: np.ndarray) -> float:
+    """LPIPS from its definition with torch.nn layers (torchvision's AlexNet layout), as a second
+    implementation: unit-normalise each tapped ReLU's channels, square the difference, weight the
+    channels with the linear head, average over space, sum over the five taps."""
+    sd, heads = torch.load(bb, weights_only=True), torch.load(hd, weights_only=True)
+    layers = [torch.nn.Conv2d(3, 64, 11, 4, 2), torch.nn.ReLU(), torch.nn.MaxPool2d(3, 2),
+              torch.nn.Conv2d(64, 192, 5, 1, 2), torch.nn.ReLU(), torch.nn.MaxPool2d(3, 2),
+              torch.nn.Conv2d(192, 384, 3, 1, 1), torch.nn.ReLU(), torch.nn.Conv2d(384, 256, 3, 1, 1),
+              torch.nn.ReLU(), torch.nn.Conv2d(256, 256, 3, 1, 1), torch.nn.ReLU()]
+    net = torch.nn.Sequential(*layers).double()
+    net.load_state_dict({k.removeprefix("features."): v.double() for k, v in sd.items() if k.startswith("features.")})
+    shift = torch.tensor([-0.030, -0.088, -0.188], dtype=torch.float64).view(1, 3, 1, 1)
+    scale = torch.tensor([0.458, 0.448, 0.450], dtype=torch.float64).view(1, 3, 1, 1)
+    total = 0.0
+    with torch.no_grad():
+        x = torch.from_numpy(np.stack([pred, target]).transpose(0, 3, 1, 2).copy()).double()
+        x = (x * 2 - 1 - shift) / scale
+        k = 0
+        for i, layer in enumerate(net):
+            x = layer(x)
+            if i in (1, 4, 7, 9, 11):
+                f = x / (x.pow(2).sum(1, keepdim=True).sqrt() + 1e-10)
+                w = heads[f"lin{k}.model.1.weight"].double()
+                total += float(((f[0:1] - f[1:2]) ** 2 * w.view(1, -1, 1, 1)).sum(1).mean())
+                k += 1
+    return total
+
+
+def test_lpips_matches_a_layer_by_layer_reference(tmp_path) -> None:
+    bb, hd = _random_alex_files(tmp_path)
+    scorer, _ = load_lpips(bb, heads_path=hd)
+    p, t = _pair(3, (50, 70, 3))
+    assert scorer(p, t) == pytest.approx(_reference_lpips_alex(bb, hd, p, t), rel=1e-4)
+
+
+def test_lpips_vgg_and_odd_sizes_with_random_weights(tmp_path) -> None:
+    """VGG beside AlexNet, at sizes no stride divides; identical images score 0."""
+    bb, hd = _random_vgg_files(tmp_path)
+    scorer, status = load_lpips(bb, net="vgg", heads_path=hd)
+    assert scorer is not None and status.startswith("ok: vgg")
+    p, t = _pair(5, (37, 53, 3))
+    assert scorer(t, t) == pytest.approx(0.0, abs=1e-7)
+    assert np.isfinite(scorer(p, t)) and scorer(p, t) > 1e-4
+
+
+def test_lpips_mismatched_or_too_small_images_are_clear_errors(tmp_path) -> None:
+    """The harness once scored training-resolution renders against full-resolution ground truth
+    and crashed before any table; now sizes must match, and a too-small view says so."""
+    bb, hd = _random_alex_files(tmp_path)
+    scorer, _ = load_lpips(bb, heads_path=hd)
+    render, truth = _pair(2, (48, 64, 3))[0], _pair(2, (96, 128, 3))[1]
+    with pytest.raises(ValueError, match=r"target: shape \(96, 128, 3\) does not match pred shape \(48, 64, 3\)"):
+        scorer(render, truth)
+    tiny = _pair(4, (16, 16, 3))
+    with pytest.raises(ValueError, match="16x16 px is too small for LPIPS-alex"):
+        scorer(*tiny)

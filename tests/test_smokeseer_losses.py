@@ -111,3 +111,22 @@ def test_deform_network_defaults_and_zero_start() -> None:
     full = DeformNetwork(DeformConfig(depth=3, width=16, skip_layer=1, predict_rotation_scale=True), 1.0, torch.device("cpu"))
     _, d_rot, d_scale = full(means, 0.3, torch.zeros(3))
     assert d_rot.shape == (5, 4) and d_scale.shape == (5, 3)
+
+
+def test_deformation_sees_detached_canonical_positions() -> None:
+    """Deformable 3DGS feeds the MLP detached positions: the canonical means get gradient only
+    through the offset they receive (d loss / d means = 1 for loss = sum of deformed means)."""
+    from smokeseer.model import place_deformed
+    from smokeseer.gaussians import GaussianSet
+
+    torch.manual_seed(0)
+    net = DeformNetwork(DeformConfig(depth=3, width=16, skip_layer=1), 1.0, torch.device("cpu"))
+    torch.nn.init.normal_(net.head.weight, std=0.5)
+    n = 6
+    g = GaussianSet({"means": torch.randn(n, 3), "quats": torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+                     "log_scales": torch.zeros(n, 3)})
+    placed = place_deformed(g, net, 0.4, torch.zeros(3), active=True)
+    assert not torch.allclose(placed.means, g["means"])
+    placed.means.sum().backward()
+    assert torch.equal(g["means"].grad, torch.ones(n, 3))
+    assert net.head.weight.grad is not None and net.head.weight.grad.abs().sum() > 0

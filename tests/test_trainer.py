@@ -283,3 +283,16 @@ def test_device_check_catches_a_buffer_made_without_a_device(splat: Path, tmp_pa
                         classmethod(lambda cls, n, device: cls(torch.zeros(n), torch.zeros(n), torch.zeros(n))))
     with pytest.raises((RuntimeError, NotImplementedError)):
         _train_on_meta_default(splat, tmp_path / "run")
+
+
+def test_lpips_is_scored_by_the_trainer_when_weights_exist(splat: Path, tmp_path: Path) -> None:
+    """Random weights stand in for the ImageNet backbone (none ships offline): the trainer scores
+    LPIPS from its float renders at its own resolution."""
+    from tests.test_metrics import _random_alex_files
+
+    bb, hd = _random_alex_files(tmp_path)
+    run = tmp_path / "run"
+    assert main([str(splat), "--out", str(run), "--lpips-weights", bb, "--lpips-heads", hd] + TINY) == 0
+    doc = validate_run_dir(run)
+    assert doc["metrics"]["lpips_status"].startswith("ok: alex") and math.isfinite(doc["metrics"]["lpips"])
+    assert all("lpips" in e for e in doc["per_image"])

@@ -1,0 +1,72 @@
+"""Cache keys follow the code a task runs: the project modules its entry point imports,
+digested without docstrings and comments. Checked on a copy of this project's own source."""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from contracts.source import PROJECT_ROOT, code_digest, code_fingerprint, module_closure
+
+TRAINER = "smokeseer.api"
+
+
+@pytest.fixture()
+def tree(tmp_path: Path) -> Path:
+    for pkg in ("contracts", "smokeseer", "eval"):
+        shutil.copytree(PROJECT_ROOT / pkg, tmp_path / pkg, ignore=shutil.ignore_patterns("__pycache__", "build"))
+    return tmp_path
+
+
+def _edit(path: Path, old: str, new: str) -> None:
+    text = path.read_text()
+    assert text.count(old) >= 1, f"{path}: {old!r} not found"
+    path.write_text(text.replace(old, new, 1))
+
+
+def test_closure_follows_imports_into_other_packages(tree: Path) -> None:
+    names = {m.name for m in module_closure(TRAINER, root=tree)}
+    assert {"smokeseer.stage3", "smokeseer.raster", "contracts.metrics", "contracts.dataset_format"} <= names
+    assert not any(n.startswith("eval") for n in names)
+
+
+def test_docstring_and_comment_edits_keep_the_key(tree: Path) -> None:
+    before = code_digest(TRAINER, root=tree)
+    stage3 = tree / "smokeseer" / "stage3.py"
+    _edit(stage3, '"""Stage 3: surface and smoke, jointly.', '"""Stage 3: surface and smoke, trained jointly.')
+    _edit(stage3, "from __future__ import annotations\n", "from __future__ import annotations  # a comment\n\n")
+    assert code_digest(TRAINER, root=tree) == before
+
+
+def test_code_edit_in_an_imported_module_changes_the_key(tree: Path) -> None:
+    before = code_digest(TRAINER, root=tree)
+    _edit(tree / "contracts" / "metrics.py", "PSNR_CAP_DB = 100.0", "PSNR_CAP_DB = 99.0")
+    assert code_digest(TRAINER, root=tree) != before
+
+
+def test_edit_in_a_module_the_task_does_not_import_keeps_the_key(tree: Path) -> None:
+    before = code_digest(TRAINER, root=tree)
+    _edit(tree / "eval" / "tables.py", "import csv\n", "import csv\nUNUSED_BY_THE_TRAINER = 1\n")
+    assert code_digest(TRAINER, root=tree) == before
+    assert code_digest("eval.tables", root=tree) != code_digest("eval.tables")
+
+
+def test_kernel_sources_shipped_in_a_package_count(tree: Path) -> None:
+    before = code_digest(TRAINER, root=tree)
+    (tree / "smokeseer" / "raster" / "csrc").mkdir(exist_ok=True)
+    (tree / "smokeseer" / "raster" / "csrc" / "probe_kernel.cpp").write_text("int probe() { return 1; }\n")
+    assert code_digest(TRAINER, root=tree) != before
+
+
+def test_fingerprint_ignores_layout_but_not_values(tmp_path: Path) -> None:
+    a, b, c = tmp_path / "a.py", tmp_path / "b.py", tmp_path / "c.py"
+    a.write_text('def f(x):\n    """Doc."""\n    return x + 1\n')
+    b.write_text("def f(x):  # comment\n\n    return (x +\n            1)\n")
+    c.write_text("def f(x):\n    return x + 2\n")
+    assert code_fingerprint(a) == code_fingerprint(b) != code_fingerprint(c)
+
+
+def test_unknown_entry_point_is_an_error() -> None:
+    with pytest.raises(ValueError, match="no project module named 'smokeseer.nope'"):
+        code_digest("smokeseer.nope")
