@@ -171,17 +171,17 @@ def test_rig_registration_recovers_a_known_sim3_with_a_lever_arm(straight: bool)
     truth = _truth()
     th_own = np.stack([truth.transform_viewmat(v) for v in th_true])
     want = _inverse(truth)
-    for given in (lever, None):
-        res = register_rig(th_own, t_th, rgb, t_rgb, lever_arm=given)
+    for lever_given in (lever, None):
+        res = register_rig(th_own, t_th, rgb, t_rgb, lever_arm=lever_given)
         assert res.geometry == ("straight line" if straight else "general")
         assert _rot_err_deg(res.sim3.rotation, want.rotation) < 0.1
         assert res.sim3.scale == pytest.approx(want.scale, rel=1e-3)
-        if given is not None:
+        if lever_given is not None:
             assert np.linalg.norm(res.sim3.translation - want.translation) < 0.01
         mapped = np.stack([res.sim3.transform_viewmat(v) for v in th_own])
         centre_err = np.linalg.norm([(-m[:3, :3].T @ m[:3, 3]) - (-w[:3, :3].T @ w[:3, 3])
                                      for m, w in zip(mapped, th_true)], axis=1)
-        assert centre_err.max() < (0.01 if given is not None else 0.07)
+        assert centre_err.max() < (0.01 if lever_given is not None else 0.07)
         doc = res.to_dict()
         assert doc["scale"] == res.sim3.scale and len(doc["translation"]) == 3 and doc["inliers"] == res.pairs
     if not straight:
