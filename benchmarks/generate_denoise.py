@@ -70,7 +70,12 @@ def masked_rmse(images: list[np.ndarray], references: list[np.ndarray], masks: l
     return float(np.sqrt(flat.mean())) if flat.size else float("nan")
 
 
-def run(spec: SceneSpec, out: Path) -> tuple[Path, dict, float]:
+def run(spec: SceneSpec, out: Path, reuse: bool = False) -> tuple[Path, dict, float]:
+    """Generate `spec` at `out`; with `reuse`, a finished dataset of the same spec is kept (wall 0)."""
+    previous = out / "dataset.json"
+    if reuse and previous.exists() and json.loads(previous.read_text())["spec_sha256"] == spec.sha256():
+        print(f"reusing {out}")
+        return out, json.loads(previous.read_text()), 0.0
     t0 = time.perf_counter()
     generate(spec, out, show_progress=False, force=True)
     return out, json.loads((out / "dataset.json").read_text()), time.perf_counter() - t0
@@ -90,12 +95,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = args.keep or Path(tmp_name)
         ref_spec = configured(base, args.frames, args.reference_spp, args.reference_spp, "none", 1.0)
-        ref_dir, ref_wall = tmp / "reference", 0.0
-        previous = ref_dir / "dataset.json"
-        if previous.exists() and json.loads(previous.read_text())["spec_sha256"] == ref_spec.sha256():
-            print(f"reusing the reference in {ref_dir}")
-        else:
-            ref_dir, _, ref_wall = run(ref_spec, ref_dir)
+        ref_dir, _, ref_wall = run(ref_spec, tmp / "reference", reuse=True)
         ref = load_images(ref_dir)
         rgb_masks = [a > base.smoke.mask_threshold for a in ref["rgb_alpha"]]
         thermal_masks = [a > base.smoke.mask_threshold for a in ref["thermal_alpha"]]

@@ -136,7 +136,11 @@ class RgbSmokeJob:
 
 @dataclass(frozen=True)
 class ThermalSmokeJob:
+    """LWIR smoke: absorption per unit grid density, and Kirchhoff emission sigma_a * L_band(T):
+    T from the flame grid with fire, else the ambient temperature (`ambient_radiance`)."""
+
     absorption_per_density: float
+    ambient_radiance: float
     fire: FireJob | None
 
 

@@ -239,11 +239,12 @@ def rgb_smoke(spec: RgbSmokeJob) -> bpy.types.Material:
 
 
 def thermal_smoke(spec: ThermalSmokeJob) -> bpy.types.Material:
-    """LWIR: absorption with the Mie extinction; emission only where the scene has fire.
+    """LWIR: absorption with the Mie extinction and Kirchhoff emission sigma_a * L_band(T).
 
-    With fire, emission per unit length is sigma_a * L_band(T(flame)) (Kirchhoff), T from
-    the flame grid, L_band from the generator's tabulation. Without fire the isothermal
-    ambient emission (1-tau)*L_band(T_amb) is added exactly by the generator afterwards.
+    With fire, T comes from the flame grid through the generator's radiance tabulation;
+    without fire the smoke is at the ambient temperature. Emitting in the same render as
+    the transmitted surface radiance keeps the two consistent path by path, so their Monte
+    Carlo noise cancels where surface and smoke are at similar temperatures.
     """
     mat, tree = _tree("smoke.thermal")
     out = tree.nodes.new("ShaderNodeOutputMaterial")
@@ -251,20 +252,16 @@ def thermal_smoke(spec: ThermalSmokeJob) -> bpy.types.Material:
     absorb.inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
     sigma = _density(tree, spec.absorption_per_density)
     tree.links.new(sigma, absorb.inputs["Density"])
-    shader = absorb.outputs["Volume"]
     if spec.fire is not None:
-        fire = spec.fire
         flame = tree.nodes.new("ShaderNodeAttribute")
         flame.attribute_name = "flame"
-        radiance = _curve(tree, fire.radiance_curve, flame.outputs["Fac"])
-        strength = tree.nodes.new("ShaderNodeMath")
-        strength.operation = "MULTIPLY"
-        tree.links.new(sigma, strength.inputs[0])
-        tree.links.new(radiance, strength.inputs[1])
-        glow = tree.nodes.new("ShaderNodeEmission")
-        glow.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
-        tree.links.new(strength.outputs["Value"], glow.inputs["Strength"])
-        shader = _add(tree, shader, glow.outputs["Emission"])
+        strength = _multiply(tree, sigma, _curve(tree, spec.fire.radiance_curve, flame.outputs["Fac"]))
+    else:
+        strength = _multiply(tree, sigma, float(spec.ambient_radiance))
+    glow = tree.nodes.new("ShaderNodeEmission")
+    glow.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    tree.links.new(strength, glow.inputs["Strength"])
+    shader = _add(tree, absorb.outputs["Volume"], glow.outputs["Emission"])
     tree.links.new(shader, out.inputs["Volume"])
     return mat
 

@@ -53,10 +53,6 @@ def make_plan(spec: SceneSpec) -> Plan:
     k = {"rgb": intrinsics(spec.rig.rgb), "thermal": intrinsics(spec.rig.thermal)}
     optics = smoke_optics(POPULATIONS[spec.smoke.particles])
     render_passes = {m: tuple(p) for m, p in spec.passes.items()}
-    if (spec.has_smoke and not spec.has_fire and "smoky" in render_passes.get("thermal", ())
-            and "smoke_alpha" not in render_passes["thermal"]):
-        # The isothermal smoke emission (1-tau)*L(T_amb) is composited from the LWIR alpha.
-        render_passes["thermal"] = render_passes["thermal"] + ("smoke_alpha",)
     return Plan(line, frames, k, optics, render_passes)
 
 
@@ -123,11 +119,17 @@ def _fire(spec: SceneSpec) -> FireJob | None:
                    radiance_curve=tuple((float(f), float(r)) for f, r in zip(factors, radiance)))
 
 
-def _camera(k: Intrinsics, supersample: int, cam: CameraSpec, frames: list[FrameSample]) -> CameraJob:
+def effective_denoise(spec: SceneSpec, cam: CameraSpec) -> str:
+    """The denoiser converges smoke; without smoke the smoky image is the clean one, exactly."""
+    return cam.denoise if spec.has_smoke else "none"
+
+
+def _camera(spec: SceneSpec, k: Intrinsics, supersample: int, cam: CameraSpec, frames: list[FrameSample],
+            ) -> CameraJob:
     return CameraJob(
         render=ImageSize(k.width * supersample, k.height * supersample, k.fl_x * supersample),
         depth=ImageSize(k.width, k.height, k.fl_x),
-        samples=cam.samples, denoise=cam.denoise, volume_step_rate=cam.volume_step_rate,
+        samples=cam.samples, denoise=effective_denoise(spec, cam), volume_step_rate=cam.volume_step_rate,
         frames=tuple(FrameJob(stem=f.stem, blender_frame=f.base_frame, next_weight=f.next_weight,
                               c2w=tuple(tuple(float(v) for v in row) for row in f.c2w)) for f in frames),
     )
@@ -202,10 +204,11 @@ def make_job(spec: SceneSpec, plan: Plan, manifest: Manifest, source: str, work:
         smoke_rgb=RgbSmokeJob(scatter_density=coeffs["scatter_density"], scatter_color=tuple(coeffs["scatter_color"]),
                               absorb_density=coeffs["absorb_density"], absorb_color=tuple(coeffs["absorb_color"]),
                               anisotropy=coeffs["anisotropy"], fire=fire),
-        smoke_thermal=ThermalSmokeJob(absorption_per_density=coeffs["lwir_absorption"], fire=fire),
+        smoke_thermal=ThermalSmokeJob(absorption_per_density=coeffs["lwir_absorption"],
+                                      ambient_radiance=float(band_radiance(lights.ambient_temperature_k)), fire=fire),
         cameras={
-            "rgb": _camera(plan.intrinsics["rgb"], 1, spec.rig.rgb, plan.frames["rgb"]),
-            "thermal": _camera(plan.intrinsics["thermal"], spec.rig.thermal.supersample, spec.rig.thermal,
+            "rgb": _camera(spec, plan.intrinsics["rgb"], 1, spec.rig.rgb, plan.frames["rgb"]),
+            "thermal": _camera(spec, plan.intrinsics["thermal"], spec.rig.thermal.supersample, spec.rig.thermal,
                                plan.frames["thermal"]),
         },
         passes={m: tuple(p) for m, p in plan.render_passes.items() if p},

@@ -25,7 +25,7 @@ from generator.assets import Manifest, load_manifest
 from contracts.atomic import write_json
 from contracts.dataset_format import FORMAT, FORMAT_VERSION, PASS_FILES, file_path, transforms_name, validate_dataset
 from generator.errors import GeneratorError
-from generator.job import (Plan, load_scene_meshes, make_job, make_plan, resolve_asset_materials,
+from generator.job import (Plan, effective_denoise, load_scene_meshes, make_job, make_plan, resolve_asset_materials,
                            smoke_coefficients, without_absent_passes)
 from generator.optics.sensor import ThermalSensor, ThermalSensorConfig
 from generator.rig import FrameSample, Intrinsics
@@ -98,8 +98,6 @@ def _postprocess(spec: SceneSpec, plan: Plan, work: Path, sensor: ThermalSensor 
     out = work / "dataset"
     ctx = postprocess.PostContext(
         raw=work / "raw", out=out, requested=spec.passes, mask_threshold=spec.smoke.mask_threshold,
-        ambient_radiance=(postprocess.ambient_radiance(spec.lights.ambient_temperature_k)
-                          if spec.has_smoke and not spec.has_fire else None),
         sensor=sensor)
     t0 = time.perf_counter()
     for modality, passes in spec.passes.items():
@@ -130,6 +128,9 @@ def _metadata(spec: SceneSpec, plan: Plan, sensor: ThermalSensor | None, summary
                    "ambient_temperature_k": spec.lights.ambient_temperature_k,
                    "sky_temperature_k": spec.lights.sky_temperature_k,
                    "coefficients_per_unit_density": coeffs},
+        "render": {m: {"samples": cam.samples, "denoise": effective_denoise(spec, cam),
+                       "volume_step_rate": cam.volume_step_rate}
+                   for m, cam in (("rgb", spec.rig.rgb), ("thermal", spec.rig.thermal)) if spec.passes.get(m)},
         "stats": stats,
         "versions": {**versions(), "blender": summary.get("bpy", "")},
         "timings_s": timings,

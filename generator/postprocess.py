@@ -1,5 +1,5 @@
-"""Raw worker renders → dataset files: depth cleanup, smoke masks, the isothermal smoke
-emission, area-averaging to the thermal sensor, and the thermal camera model."""
+"""Raw worker renders → dataset files: depth cleanup, smoke masks, area-averaging to the
+thermal sensor, and the thermal camera model."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -9,7 +9,6 @@ import numpy as np
 
 from contracts.dataset_format import PASS_FILES, file_path
 from contracts.imageio import read_exr, read_exr_channel, read_png, write_exr, write_png
-from generator.optics.planck import band_radiance
 from generator.optics.sensor import ThermalSensor, area_average
 
 NO_HIT_DEPTH = 1e9
@@ -21,7 +20,6 @@ class PostContext:
     out: Path
     requested: dict[str, tuple[str, ...]]
     mask_threshold: float
-    ambient_radiance: float | None  # added as (1-tau)*L_amb when the render has no smoke emission
     sensor: ThermalSensor | None
 
     def to_sensor_grid(self, image: np.ndarray) -> np.ndarray:
@@ -49,11 +47,6 @@ def read_radiance(raw_file: Path) -> np.ndarray:
     channels = read_exr(raw_file)
     rgb = np.stack([channels[c] for c in ("R", "G", "B")], axis=-1)
     return np.clip(rgb.mean(axis=-1), 0.0, None).astype(np.float64)
-
-
-def add_smoke_emission(transmitted: np.ndarray, alpha: np.ndarray, smoke_radiance: float) -> np.ndarray:
-    """Kirchhoff for isothermal smoke: the render holds tau*L_behind, alpha is 1-tau."""
-    return transmitted + alpha * smoke_radiance
 
 
 def _write_alpha(ctx: PostContext, modality: str, stem: str, alpha: np.ndarray) -> None:
@@ -88,9 +81,6 @@ def finish_thermal_frame(ctx: PostContext, stem: str, frame_index: int) -> None:
         if not _wanted(ctx, "thermal", name):
             continue
         radiance_hi = read_radiance(raw / name / f"{stem}.exr")
-        if name == "smoky" and ctx.ambient_radiance is not None:
-            assert alpha_hi is not None, "the plan renders the LWIR alpha whenever smoke emission is composited"
-            radiance_hi = add_smoke_emission(radiance_hi, alpha_hi, ctx.ambient_radiance)
         radiance_file, counts_file = PASS_FILES[("thermal", name)]
         write_exr(file_path(ctx.out, radiance_file, stem),
                   {"L": ctx.to_sensor_grid(radiance_hi)})
@@ -101,10 +91,6 @@ def finish_thermal_frame(ctx: PostContext, stem: str, frame_index: int) -> None:
                   {"Z": _depth(raw / "depth" / f"{stem}.exr")})
     if _wanted(ctx, "thermal", "smoke_alpha") and alpha_hi is not None:
         _write_alpha(ctx, "thermal", stem, ctx.to_sensor_grid(alpha_hi))
-
-
-def ambient_radiance(ambient_k: float) -> float:
-    return float(band_radiance(ambient_k))
 
 
 def psnr_u8(a: np.ndarray, b: np.ndarray) -> float:

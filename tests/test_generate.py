@@ -242,8 +242,9 @@ def test_worker_crash_reports_its_log_and_leaves_no_dataset(tmp_path: Path) -> N
     assert not out.exists()
 
 
-def test_no_fire_means_no_flame_grid_and_no_emission_nodes(tmp_path: Path) -> None:
-    """The thermal smoke material of a smoke-only scene has no emission; a fire scene's has."""
+def test_no_fire_means_no_flame_grid_and_no_flame_nodes(tmp_path: Path) -> None:
+    """Smoke-only: no flame grid, no flame lookup, no RGB glow (the LWIR smoke emits at ambient
+    temperature). Fire: the flame grid drives RGB glow and LWIR emission."""
     script = (
         "import bpy, json, sys\n"
         "from blender import materials\n"
@@ -255,7 +256,8 @@ def test_no_fire_means_no_flame_grid_and_no_emission_nodes(tmp_path: Path) -> No
         "for name in sys.argv[1:]:\n"
         "    spec, src = resolve_spec(name)\n"
         "    job = make_job(spec, make_plan(spec), load_manifest(), src, Path(sys.argv[0]).parent, 1)\n"
-        "    kinds = {m.name: sorted({n.bl_idname for n in m.node_tree.nodes}) for m in\n"
+        "    kinds = {m.name: sorted({n.bl_idname for n in m.node_tree.nodes} | {'attr:' + n.attribute_name\n"
+        "                                for n in m.node_tree.nodes if n.bl_idname == 'ShaderNodeAttribute'}) for m in\n"
         "             (materials.thermal_smoke(job.smoke_thermal), materials.rgb_smoke(job.smoke_rgb))}\n"
         "    out[name] = {'grids': list(job.grids), 'nodes': kinds}\n"
         "print(json.dumps(out))\n"
@@ -266,30 +268,27 @@ def test_no_fire_means_no_flame_grid_and_no_emission_nodes(tmp_path: Path) -> No
     report = json.loads(result.stdout.strip().splitlines()[-1])
     smoke_only, with_fire = report["demo"], report[str(fire)]
     assert smoke_only["grids"] == ["density"]
-    for nodes in smoke_only["nodes"].values():
-        assert "ShaderNodeEmission" not in nodes and "ShaderNodeBlackbody" not in nodes
+    assert all("attr:flame" not in nodes for nodes in smoke_only["nodes"].values())
+    assert "ShaderNodeEmission" not in smoke_only["nodes"]["smoke.rgb"]
+    assert "ShaderNodeEmission" in smoke_only["nodes"]["smoke.thermal"]
     assert with_fire["grids"] == ["density", "flame"]
-    assert all("ShaderNodeEmission" in nodes for nodes in with_fire["nodes"].values())
+    assert all("ShaderNodeEmission" in nodes and "attr:flame" in nodes for nodes in with_fire["nodes"].values())
 
 
 def test_thermal_render_matches_the_analytic_slab(tmp_path: Path) -> None:
-    """Cycles + our materials + the Kirchhoff composite against L = tau*L_s + (1-tau)*L(T_smoke)."""
+    """Cycles + our materials (absorption and Kirchhoff emission) against L = tau*L_s + (1-tau)*L(T_smoke)."""
     l_surf, ambient_k = float(band_radiance(330.0)), 293.15
     cases = [(0.2, 0.5), (1.0, 1.0), (2.0, 1.5)]
     out = tmp_path / "slab.json"
     args = [str(v) for case in cases for v in case]
     result = subprocess.run([sys.executable, str(REPO / "tests" / "blender_scripts" / "thermal_slab.py"), str(out),
-                             str(l_surf), *args], cwd=REPO, capture_output=True, text=True, timeout=300,
-                            env={**os.environ, "PYTHONPATH": str(REPO)})
+                             str(l_surf), str(float(band_radiance(ambient_k))), *args], cwd=REPO,
+                            capture_output=True, text=True, timeout=300, env={**os.environ, "PYTHONPATH": str(REPO)})
     assert result.returncode == 0, result.stderr[-2000:]
-    from generator.postprocess import add_smoke_emission
-
     for row in json.loads(out.read_text()):
         tau = row["k"] * row["d"]
         expected = float(slab_radiance(l_surf, tau, ambient_k))
-        rendered = float(add_smoke_emission(np.array(row["transmitted"]), np.array(row["alpha"]),
-                                            float(band_radiance(ambient_k))))
-        assert rendered == pytest.approx(expected, rel=2e-3), row
+        assert row["radiance"] == pytest.approx(expected, rel=2e-3), row
         assert row["alpha"] == pytest.approx(1 - np.exp(-tau), abs=2e-3)
 
 

@@ -1,8 +1,10 @@
 """Renders a plate at known radiance behind a homogeneous LWIR slab, with the generator's
-own thermal materials and render passes. Run in a subprocess: python thermal_slab.py OUT.json L_SURF K D...
+own thermal materials and render passes. Run in a subprocess:
+python thermal_slab.py OUT.json L_SURF L_SMOKE K D...
 
-Writes, per absorption coefficient K (1/m) and slab thickness D, the mean raw transmitted
-radiance and the mean LWIR alpha over the image centre.
+Writes, per absorption coefficient K (1/m) and slab thickness D, the mean rendered radiance
+(the plate through the slab plus the slab's own Kirchhoff emission at L_SMOKE) and the mean
+LWIR alpha over the image centre.
 """
 import json
 import os
@@ -18,8 +20,8 @@ from generator.postprocess import read_alpha, read_radiance
 
 
 def main() -> None:
-    out, l_surf = sys.argv[1], float(sys.argv[2])
-    cases = [(float(k), float(d)) for k, d in zip(sys.argv[3::2], sys.argv[4::2])]
+    out, l_surf, l_smoke = sys.argv[1], float(sys.argv[2]), float(sys.argv[3])
+    cases = [(float(k), float(d)) for k, d in zip(sys.argv[4::2], sys.argv[5::2])]
     results = []
     for i, (k, d) in enumerate(cases):
         reset()
@@ -35,7 +37,7 @@ def main() -> None:
         slab = bpy.context.object
         slab.name = "slab"
         slab.scale = (8.0, 8.0, d)
-        smoke = materials.thermal_smoke(ThermalSmokeJob(absorption_per_density=k, fire=None))
+        smoke = materials.thermal_smoke(ThermalSmokeJob(absorption_per_density=k, ambient_radiance=l_smoke, fire=None))
         materials.rgb_smoke(RgbSmokeJob(scatter_density=0.0, scatter_color=(1.0, 1.0, 1.0), absorb_density=0.0,
                                         absorb_color=(1.0, 1.0, 1.0), anisotropy=0.0, fire=None))
         tree = smoke.node_tree
@@ -61,7 +63,7 @@ def main() -> None:
             render.render_to(paths[name], c2w, 1)
         centre = (slice(4, 12), slice(4, 12))
         results.append({"k": k, "d": d,
-                        "transmitted": float(read_radiance(paths["smoky"])[centre].mean()),
+                        "radiance": float(read_radiance(paths["smoky"])[centre].mean()),
                         "alpha": float(read_alpha(paths["smoke_alpha"])[centre].mean())})
     with open(out, "w") as fh:
         json.dump(results, fh)
