@@ -73,11 +73,9 @@ class GaussianSet:
         return q / q.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
     def state_dict(self) -> dict[str, Tensor]:
-        return {k: v.detach().clone() for k, v in self.params.items()}
-
-    @classmethod
-    def from_state_dict(cls, d: dict[str, Tensor]) -> "GaussianSet":
-        return cls(d)
+        """Detached views of the live tensors (no copy): checkpoints serialise them, snapshots
+        clone them, and a new set built from them copies on construction."""
+        return {k: v.detach() for k, v in self.params.items()}
 
 
 def make_optimizer(gset: GaussianSet, lrs: dict[str, float]) -> torch.optim.Adam:
