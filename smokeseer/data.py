@@ -95,8 +95,8 @@ def read_png(path: Path) -> np.ndarray:
     try:
         with Image.open(path) as im:
             if im.mode in ("I;16", "I;16B", "I;16L", "I"):
-                if im.mode == "I" and path.suffix.lower() == ".png" and png_bit_depth(path) > 16:
-                    raise DatasetError(f"{path}: {png_bit_depth(path)}-bit PNG is not supported")
+                if path.suffix.lower() == ".png" and png_bit_depth(path) != 16:
+                    raise DatasetError(f"{path}: {png_bit_depth(path)}-bit integer PNG; expected 8- or 16-bit")
                 return np.asarray(im).astype(np.uint16)
             if im.mode not in ("L", "RGB", "RGBA", "LA"):
                 im = im.convert("RGB")
