@@ -35,6 +35,7 @@ from contracts.results_format import ResultsFormatError, read_metrics
 from contracts.source import code_digest
 from eval.dehaze import dehaze_dataset, get_dehazer
 from eval.runs import ABLATIONS, METHODS, VARIANTS, RunResult, RunSpec, config_hash
+from smokeseer.config import LPIPS_NETS
 
 log = logging.getLogger("regenerate-tables")
 
@@ -107,6 +108,8 @@ class HarnessConfig:
             raise ValueError(f"profile: must be quick or paper, got {self.profile!r}")
         if self.workers < 1:
             raise ValueError(f"workers: must be >= 1, got {self.workers}")
+        if self.lpips_net not in LPIPS_NETS:
+            raise ValueError(f"lpips_net: must be one of {', '.join(LPIPS_NETS)}, got {self.lpips_net!r}")
         for scene, path in self.datasets.items():
             if not (Path(path) / "dataset.json").is_file():
                 raise ValueError(f"datasets: {scene}={path} has no dataset.json")
