@@ -13,6 +13,9 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
+#include <type_traits>
+#include <utility>
 #include <vector>
 
 namespace {
@@ -43,16 +46,29 @@ struct Bins {
 
 int num_threads() { return std::max(1, at::get_num_threads()); }
 
-template <typename scalar_t>
-inline void eval_alpha(scalar_t mx, scalar_t my, scalar_t qa, scalar_t qb, scalar_t qc, scalar_t opac,
-                       scalar_t px, scalar_t py, scalar_t& dx, scalar_t& dy, scalar_t& sigma,
-                       scalar_t& falloff, scalar_t& alpha) {
-  dx = mx - px;
-  dy = my - py;
-  sigma = scalar_t(0.5) * (qa * dx * dx + qc * dy * dy) + qb * dx * dy;
-  falloff = std::exp(-sigma);
-  alpha = std::min(opac * falloff, scalar_t(kAlphaMax));
+// exp(-sigma) for sigma >= 0. float: a branch-free polynomial (Cephes-style range reduction,
+// relative error ~2e-7, like expf) that vectorises; double: std::exp. Forward and backward call
+// the same code with the same rounding (no FMA contraction), so they agree on every skipped pair.
+inline float exp_neg(float sigma) {
+  const float x = std::max(-sigma, -87.0f);
+  const float k = std::nearbyint(x * 1.44269504088896341f);
+  const float r = (x - k * 0.693359375f) + k * 2.12194440e-4f;
+  float p = 1.9875691500e-4f;
+  p = p * r + 1.3981999507e-3f;
+  p = p * r + 8.3334519073e-3f;
+  p = p * r + 4.1665795894e-2f;
+  p = p * r + 1.6666665459e-1f;
+  p = p * r + 5.0000001201e-1f;
+  const float poly = (p * r) * r + r + 1.0f;
+  int32_t bits;
+  std::memcpy(&bits, &poly, sizeof(bits));
+  bits += int32_t(k) << 23;
+  float out;
+  std::memcpy(&out, &bits, sizeof(out));
+  return out;
 }
+
+inline double exp_neg(double sigma) { return std::exp(-sigma); }
 
 // Pixels where alpha can reach 1/255 lie inside the ellipse sigma <= log(255 * opacity). This
 // finds, conservatively (a margin in sigma and one pixel on each side), the rows of a rectangle
@@ -230,7 +246,62 @@ struct Splat {
         y1(std::min(r.y1, tb.y1)) {}
 };
 
-template <typename scalar_t>
+// Features per record: a compile-time count (so per-pixel loops vectorise) or, for NF == 0, any.
+template <int NF>
+inline int64_t feature_count(int64_t nf) {
+  return NF > 0 ? NF : nf;
+}
+
+// Per-tile pixel state of the forward pass, structure of arrays over the 16x16 pixels.
+// `trans` holds the transmittance; a pixel that stopped stores its final T negated.
+struct ForwardTile {
+  std::vector<double> trans, acc, weight;
+  std::vector<int32_t> stop;
+  explicit ForwardTile(int64_t nf) : trans(kTilePixels), acc(kTilePixels * nf), weight(kTile), stop(kTilePixels) {}
+  void reset() {
+    std::fill(trans.begin(), trans.end(), 1.0);
+    std::fill(acc.begin(), acc.end(), 0.0);
+    std::fill(stop.begin(), stop.end(), 0);
+  }
+};
+
+// Blend entry `e` (record `sp`) into one row of the tile: returns (pairs blended, pixels stopped).
+template <typename scalar_t, int NF>
+inline std::pair<int, int> blend_row(ForwardTile& st, const Splat<scalar_t>& sp, int64_t nf_rt, int row_base,
+                                     int y, int cx0, int cx1, int32_t e) {
+  const int64_t nf = feature_count<NF>(nf_rt);
+  const scalar_t dy = sp.my - (scalar_t(y) + scalar_t(0.5));
+  const scalar_t row_term = scalar_t(0.5) * sp.qc * dy * dy;
+  double* trans = st.trans.data() + row_base;
+  double* weight = st.weight.data();
+  int32_t* stop = st.stop.data() + row_base;
+  int blended = 0, stopped = 0;
+#pragma omp simd reduction(+ : blended, stopped)
+  for (int x = cx0; x <= cx1; ++x) {
+    const scalar_t dx = sp.mx - (scalar_t(x) + scalar_t(0.5));
+    const scalar_t sigma = scalar_t(0.5) * sp.qa * dx * dx + row_term + sp.qb * dx * dy;
+    const scalar_t alpha = std::min(sp.opac * exp_neg(sigma), scalar_t(kAlphaMax));
+    const double t = trans[x];
+    const bool valid = t > 0.0 && sigma >= scalar_t(0) && alpha >= scalar_t(kAlphaMin);
+    const double t_next = t * (1.0 - double(alpha));
+    const bool ends = valid && t_next < kTransmittanceMin;
+    const bool blend = valid && !ends;
+    weight[x - cx0] = blend ? double(alpha) * t : 0.0;
+    trans[x] = blend ? t_next : (ends ? -t : t);
+    stop[x] = blend ? e + 1 : stop[x];
+    blended += blend ? 1 : 0;
+    stopped += ends ? 1 : 0;
+  }
+  for (int64_t k = 0; k < nf; ++k) {
+    double* acc = st.acc.data() + k * kTilePixels + row_base;
+    const double f = double(sp.feats[k]);
+#pragma omp simd
+    for (int x = cx0; x <= cx1; ++x) acc[x] += weight[x - cx0] * f;
+  }
+  return {blended, stopped};
+}
+
+template <typename scalar_t, int NF>
 std::vector<torch::Tensor> forward_impl(const torch::Tensor& means2d, const torch::Tensor& conics,
                                         const torch::Tensor& opacities, const torch::Tensor& feats,
                                         const torch::Tensor& radii, const torch::Tensor& order,
@@ -259,18 +330,13 @@ std::vector<torch::Tensor> forward_impl(const torch::Tensor& means2d, const torc
 
 #pragma omp parallel num_threads(num_threads())
   {
-    std::vector<double> trans(kTilePixels), acc(kTilePixels * nf);
-    std::vector<int32_t> stop(kTilePixels);
-    std::vector<uint8_t> done(kTilePixels);
+    ForwardTile st(nf);
 #pragma omp for schedule(dynamic, 1)
     for (int64_t ct = 0; ct < cams * tiles; ++ct) {
       const int64_t c = ct / tiles;
       const TileBox tb = tile_box(ct % tiles, tiles_x, width, height);
       int active = (tb.x1 - tb.x0 + 1) * (tb.y1 - tb.y0 + 1);
-      std::fill(trans.begin(), trans.end(), 1.0);
-      std::fill(acc.begin(), acc.end(), 0.0);
-      std::fill(stop.begin(), stop.end(), 0);
-      std::fill(done.begin(), done.end(), 0);
+      st.reset();
       int64_t pairs = 0;
       const int64_t begin = toff[ct], count = toff[ct + 1] - begin;
       for (int64_t e = 0; e < count && active > 0; ++e) {
@@ -283,27 +349,11 @@ std::vector<torch::Tensor> forward_impl(const torch::Tensor& means2d, const torc
         for (int y = ry0; y <= ry1; ++y) {
           int cx0 = sp.x0, cx1 = sp.x1;
           if (!span.columns(y, cx0, cx1)) continue;
-          const scalar_t py = scalar_t(y) + scalar_t(0.5);
-          for (int x = cx0; x <= cx1; ++x) {
-            const int p = (y - tb.y0) * kTile + (x - tb.x0);
-            if (done[p]) continue;
-            scalar_t dx, dy, sigma, falloff, a;
-            eval_alpha<scalar_t>(sp.mx, sp.my, sp.qa, sp.qb, sp.qc, sp.opac, scalar_t(x) + scalar_t(0.5), py, dx,
-                                 dy, sigma, falloff, a);
-            if (sigma < scalar_t(0) || a < scalar_t(kAlphaMin)) continue;
-            const double t_next = trans[p] * (1.0 - double(a));
-            if (t_next < kTransmittanceMin) {
-              done[p] = 1;
-              --active;
-              continue;
-            }
-            const double w = double(a) * trans[p];
-            double* ap = &acc[p * nf];
-            for (int64_t k = 0; k < nf; ++k) ap[k] += w * double(sp.feats[k]);
-            trans[p] = t_next;
-            stop[p] = int32_t(e + 1);
-            ++pairs;
-          }
+          const int row_base = (y - tb.y0) * kTile - tb.x0;
+          const auto [blended, stopped] =
+              blend_row<scalar_t, NF>(st, sp, nf, row_base, y, cx0, cx1, int32_t(e));
+          pairs += blended;
+          active -= stopped;
         }
       }
       pc_p[ct] = pairs;
@@ -311,10 +361,11 @@ std::vector<torch::Tensor> forward_impl(const torch::Tensor& means2d, const torc
         for (int x = tb.x0; x <= tb.x1; ++x) {
           const int p = (y - tb.y0) * kTile + (x - tb.x0);
           const int64_t pix = (c * height + y) * width + x;
-          for (int64_t k = 0; k < nf; ++k) out_p[pix * nf + k] = scalar_t(acc[p * nf + k]);
-          alpha_p[pix] = scalar_t(1.0 - trans[p]);
-          tf_p[pix] = trans[p];
-          last_p[pix] = stop[p];
+          const double t = std::abs(st.trans[p]);
+          for (int64_t k = 0; k < nf; ++k) out_p[pix * nf + k] = scalar_t(st.acc[k * kTilePixels + p]);
+          alpha_p[pix] = scalar_t(1.0 - t);
+          tf_p[pix] = t;
+          last_p[pix] = st.stop[p];
         }
       }
     }
@@ -323,7 +374,80 @@ std::vector<torch::Tensor> forward_impl(const torch::Tensor& means2d, const torc
           b.record_offsets, b.entry_of};
 }
 
-template <typename scalar_t>
+// Per-tile pixel state of the backward pass (structure of arrays over the 16x16 pixels).
+struct BackwardTile {
+  std::vector<double> trans, t_end, g_alpha_out, behind, g_out, weight;
+  std::vector<int32_t> stop;
+  explicit BackwardTile(int64_t nf)
+      : trans(kTilePixels), t_end(kTilePixels), g_alpha_out(kTilePixels), behind(kTilePixels * nf),
+        g_out(kTilePixels * nf), weight(kTile), stop(kTilePixels) {}
+};
+
+// Adds one entry's gradient sums over one row to `g` (means2d 2, conic 3, opacity 1, features),
+// stepping each pixel's transmittance and behind-colour back past this entry.
+template <typename scalar_t, int NF>
+inline void unblend_row(BackwardTile& st, const Splat<scalar_t>& sp, int64_t nf_rt, int row_base, int y, int cx0,
+                        int cx1, int32_t e, double* g) {
+  const int64_t nf = feature_count<NF>(nf_rt);
+  const scalar_t dy = sp.my - (scalar_t(y) + scalar_t(0.5));
+  const scalar_t row_term = scalar_t(0.5) * sp.qc * dy * dy;
+  const double qa = double(sp.qa), qb = double(sp.qb), qc = double(sp.qc), ddy = double(dy);
+  double* trans = st.trans.data() + row_base;
+  double* weight = st.weight.data();
+  const double* t_end = st.t_end.data() + row_base;
+  const double* g_alpha_out = st.g_alpha_out.data() + row_base;
+  const double* behind = st.behind.data() + row_base;
+  const double* g_out = st.g_out.data() + row_base;
+  const int32_t* stop = st.stop.data() + row_base;
+  const scalar_t* feats = sp.feats;
+  double g0 = 0, g1 = 0, g2 = 0, g3 = 0, g4 = 0, g5 = 0;
+#pragma omp simd reduction(+ : g0, g1, g2, g3, g4, g5)
+  for (int x = cx0; x <= cx1; ++x) {
+    const scalar_t dx = sp.mx - (scalar_t(x) + scalar_t(0.5));
+    const scalar_t sigma = scalar_t(0.5) * sp.qa * dx * dx + row_term + sp.qb * dx * dy;
+    const scalar_t falloff = exp_neg(sigma);
+    const scalar_t alpha = std::min(sp.opac * falloff, scalar_t(kAlphaMax));
+    const bool valid = e < stop[x] && sigma >= scalar_t(0) && alpha >= scalar_t(kAlphaMin);
+    const double ad = valid ? double(alpha) : 0.0;
+    const double inv_1ma = 1.0 / (1.0 - ad);
+    const double t_i = trans[x] * inv_1ma;
+    double g_a = g_alpha_out[x] * t_end[x] * inv_1ma;  // alpha output = 1 - T_final
+    for (int64_t k = 0; k < nf; ++k) {
+      g_a += g_out[k * kTilePixels + x] * (t_i * double(feats[k]) - behind[k * kTilePixels + x] * inv_1ma);
+    }
+    weight[x - cx0] = ad * t_i;
+    trans[x] = t_i;
+    const bool open = valid && sp.opac * falloff <= scalar_t(kAlphaMax);  // below the clamp
+    const double g_sigma = open ? -g_a * ad : 0.0;
+    const double ddx = double(dx);
+    g5 += open ? g_a * double(falloff) : 0.0;
+    g0 += g_sigma * (qa * ddx + qb * ddy);
+    g1 += g_sigma * (qb * ddx + qc * ddy);
+    g2 += g_sigma * 0.5 * ddx * ddx;
+    g3 += g_sigma * ddx * ddy;
+    g4 += g_sigma * 0.5 * ddy * ddy;
+  }
+  g[0] += g0;
+  g[1] += g1;
+  g[2] += g2;
+  g[3] += g3;
+  g[4] += g4;
+  g[5] += g5;
+  for (int64_t k = 0; k < nf; ++k) {
+    double* bk = st.behind.data() + k * kTilePixels + row_base;
+    const double* gk = g_out + k * kTilePixels;
+    const double fk = double(feats[k]);
+    double sum = 0.0;
+#pragma omp simd reduction(+ : sum)
+    for (int x = cx0; x <= cx1; ++x) {
+      sum += weight[x - cx0] * gk[x];
+      bk[x] += weight[x - cx0] * fk;
+    }
+    g[6 + k] += sum;
+  }
+}
+
+template <typename scalar_t, int NF>
 std::vector<torch::Tensor> backward_impl(int64_t cams, int64_t n, const torch::Tensor& t_final,
                                          const torch::Tensor& last, const torch::Tensor& records,
                                          const torch::Tensor& rects_t, const torch::Tensor& source,
@@ -335,8 +459,7 @@ std::vector<torch::Tensor> backward_impl(int64_t cams, int64_t n, const torch::T
   const int64_t tiles_x = (width + kTile - 1) / kTile, tiles_y = (height + kTile - 1) / kTile;
   const int64_t tiles = tiles_x * tiles_y;
   const int64_t total = entries.size(0), packed = records.size(0);
-  // Per-(record, tile) partials: means2d (2), conic (3), opacity (1), features (nf).
-  std::vector<double> partial(total * stride);
+  std::vector<double> partial(total * stride);  // per-(record, tile) gradient partials
 
   const scalar_t* rec = records.data_ptr<scalar_t>();
   const double* tf_p = t_final.data_ptr<double>();
@@ -349,26 +472,24 @@ std::vector<torch::Tensor> backward_impl(int64_t cams, int64_t n, const torch::T
 
 #pragma omp parallel num_threads(num_threads())
   {
-    std::vector<double> trans(kTilePixels), t_end(kTilePixels), g_alpha_out(kTilePixels);
-    std::vector<double> behind(kTilePixels * nf), g_out(kTilePixels * nf);
-    std::vector<int32_t> stop(kTilePixels);
-    std::vector<double> g(stride);
+    BackwardTile st(nf);
 #pragma omp for schedule(dynamic, 1)
     for (int64_t ct = 0; ct < cams * tiles; ++ct) {
       const int64_t c = ct / tiles;
       const TileBox tb = tile_box(ct % tiles, tiles_x, width, height);
       const int64_t begin = toff[ct], count = toff[ct + 1] - begin;
       int32_t max_stop = 0;
-      std::fill(behind.begin(), behind.end(), 0.0);
+      std::fill(st.behind.begin(), st.behind.end(), 0.0);
+      std::fill(st.stop.begin(), st.stop.end(), 0);
       for (int y = tb.y0; y <= tb.y1; ++y) {
         for (int x = tb.x0; x <= tb.x1; ++x) {
           const int p = (y - tb.y0) * kTile + (x - tb.x0);
           const int64_t pix = (c * height + y) * width + x;
-          trans[p] = t_end[p] = tf_p[pix];
-          stop[p] = last_p[pix];
-          g_alpha_out[p] = double(ga_p[pix]);
-          for (int64_t k = 0; k < nf; ++k) g_out[p * nf + k] = double(go_p[pix * nf + k]);
-          max_stop = std::max(max_stop, stop[p]);
+          st.trans[p] = st.t_end[p] = tf_p[pix];
+          st.stop[p] = last_p[pix];
+          st.g_alpha_out[p] = double(ga_p[pix]);
+          for (int64_t k = 0; k < nf; ++k) st.g_out[k * kTilePixels + p] = double(go_p[pix * nf + k]);
+          max_stop = std::max(max_stop, st.stop[p]);
         }
       }
       std::fill(partial.begin() + (begin + max_stop) * stride, partial.begin() + (begin + count) * stride, 0.0);
@@ -376,47 +497,17 @@ std::vector<torch::Tensor> backward_impl(int64_t cams, int64_t n, const torch::T
       for (int64_t e = max_stop - 1; e >= 0; --e) {
         const int64_t s = ent[begin + e];
         const Splat<scalar_t> sp(rec + s * stride, rects[s], tb);
-        std::fill(g.begin(), g.end(), 0.0);
+        double* g = partial.data() + (begin + e) * stride;
+        std::fill(g, g + stride, 0.0);
         const EllipseSpans span(sp.mx, sp.my, sp.qa, sp.qb, sp.qc, sp.opac);
-        int ry0 = sp.y0, ry1 = span.empty() ? sp.y0 - 1 : sp.y1;
+        if (span.empty()) continue;
+        int ry0 = sp.y0, ry1 = sp.y1;
         span.rows(ry0, ry1);
         for (int y = ry0; y <= ry1; ++y) {
           int cx0 = sp.x0, cx1 = sp.x1;
           if (!span.columns(y, cx0, cx1)) continue;
-          const scalar_t py = scalar_t(y) + scalar_t(0.5);
-          for (int x = cx0; x <= cx1; ++x) {
-            const int p = (y - tb.y0) * kTile + (x - tb.x0);
-            if (e >= stop[p]) continue;
-            scalar_t dx, dy, sigma, falloff, a;
-            eval_alpha<scalar_t>(sp.mx, sp.my, sp.qa, sp.qb, sp.qc, sp.opac, scalar_t(x) + scalar_t(0.5), py, dx,
-                                 dy, sigma, falloff, a);
-            if (sigma < scalar_t(0) || a < scalar_t(kAlphaMin)) continue;
-            const double ad = double(a), inv_1ma = 1.0 / (1.0 - ad);
-            const double t_i = trans[p] * inv_1ma;
-            const double w = ad * t_i;
-            double* bp = &behind[p * nf];
-            const double* gp = &g_out[p * nf];
-            double g_a = g_alpha_out[p] * t_end[p] * inv_1ma;  // alpha output = 1 - T_final
-            for (int64_t k = 0; k < nf; ++k) {
-              const double fk = double(sp.feats[k]);
-              g_a += gp[k] * (t_i * fk - bp[k] * inv_1ma);
-              g[6 + k] += w * gp[k];
-              bp[k] += w * fk;
-            }
-            trans[p] = t_i;
-            if (sp.opac * falloff <= scalar_t(kAlphaMax)) {  // below the clamp alpha = o * exp(-sigma)
-              g[5] += g_a * double(falloff);
-              const double g_sigma = -g_a * ad;
-              const double ddx = double(dx), ddy = double(dy);
-              g[0] += g_sigma * (double(sp.qa) * ddx + double(sp.qb) * ddy);
-              g[1] += g_sigma * (double(sp.qb) * ddx + double(sp.qc) * ddy);
-              g[2] += g_sigma * 0.5 * ddx * ddx;
-              g[3] += g_sigma * ddx * ddy;
-              g[4] += g_sigma * 0.5 * ddy * ddy;
-            }
-          }
+          unblend_row<scalar_t, NF>(st, sp, nf, (y - tb.y0) * kTile - tb.x0, y, cx0, cx1, int32_t(e), g);
         }
-        std::copy(g.begin(), g.end(), partial.begin() + (begin + e) * stride);
       }
     }
   }
@@ -453,6 +544,20 @@ std::vector<torch::Tensor> backward_impl(int64_t cams, int64_t n, const torch::T
   return {g_means2d, g_conics, g_opac, g_feats};
 }
 
+// Calls fn.template operator()<NF>() with NF the feature count when it is 1..6, else NF = 0.
+template <typename Fn>
+auto with_feature_count(int64_t nf, Fn&& fn) {
+  switch (nf) {
+    case 1: return fn(std::integral_constant<int, 1>{});
+    case 2: return fn(std::integral_constant<int, 2>{});
+    case 3: return fn(std::integral_constant<int, 3>{});
+    case 4: return fn(std::integral_constant<int, 4>{});
+    case 5: return fn(std::integral_constant<int, 5>{});
+    case 6: return fn(std::integral_constant<int, 6>{});
+    default: return fn(std::integral_constant<int, 0>{});
+  }
+}
+
 std::vector<torch::Tensor> forward(const torch::Tensor& means2d, const torch::Tensor& conics,
                                    const torch::Tensor& opacities, const torch::Tensor& feats,
                                    const torch::Tensor& radii, const torch::Tensor& order,
@@ -475,8 +580,10 @@ std::vector<torch::Tensor> forward(const torch::Tensor& means2d, const torch::Te
   TORCH_CHECK(width > 0 && height > 0 && width < (1 << 30) && height < (1 << 30), "tile rasterizer: bad image size");
   std::vector<torch::Tensor> result;
   AT_DISPATCH_FLOATING_TYPES(means2d.scalar_type(), "tile_raster_forward", [&] {
-    result = forward_impl<scalar_t>(means2d, conics, opacities, feats, radii, order.contiguous(),
-                                    visible.contiguous(), width, height);
+    result = with_feature_count(feats.size(2), [&](auto nf) {
+      return forward_impl<scalar_t, decltype(nf)::value>(means2d, conics, opacities, feats, radii,
+                                                         order.contiguous(), visible.contiguous(), width, height);
+    });
   });
   return result;
 }
@@ -490,9 +597,12 @@ std::vector<torch::Tensor> backward(int64_t cams, int64_t n, const torch::Tensor
   TORCH_CHECK(records.dim() == 2 && records.size(1) >= 6, "tile rasterizer: records must be [S, 6 + F]");
   std::vector<torch::Tensor> result;
   AT_DISPATCH_FLOATING_TYPES(records.scalar_type(), "tile_raster_backward", [&] {
-    result = backward_impl<scalar_t>(cams, n, t_final, last, records, rects, source, tile_offsets, entries,
-                                     record_offsets, entry_of, grad_out.to(records.scalar_type()).contiguous(),
-                                     grad_alpha.to(records.scalar_type()).contiguous(), width, height);
+    result = with_feature_count(records.size(1) - 6, [&](auto nf) {
+      return backward_impl<scalar_t, decltype(nf)::value>(
+          cams, n, t_final, last, records, rects, source, tile_offsets, entries, record_offsets, entry_of,
+          grad_out.to(records.scalar_type()).contiguous(), grad_alpha.to(records.scalar_type()).contiguous(), width,
+          height);
+    });
   });
   return result;
 }
