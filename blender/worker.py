@@ -1,9 +1,13 @@
-"""The Blender worker process: `python -m blender.worker JOB.json`.
+"""The Blender worker process: `python -m blender.worker JOB.json {bake|render}`.
 
-It builds the scene, bakes Mantaflow once (saving the baked .blend so a resumed run
-skips the bake), then renders every requested pass of every frame from that bake.
+`bake` builds the scene, bakes Mantaflow once, adds the interpolation twin and saves the
+baked .blend (skipped when it exists, so a resumed run reuses the bake). `render` opens that
+file and renders every requested pass of every frame. They are two processes because a
+Mantaflow solver left in memory by a bake can abort the process later ("can't clean grid
+cache, some grids are still in use", seen mid-render on a 32-voxel bench scene), while a
+process that loads the baked file reads the cache without one.
 It talks to the parent through `@@` lines on stdout and ends with os._exit, because
-a baked Mantaflow interpreter aborts at normal exit ("can't clean grid cache").
+a baked Mantaflow interpreter aborts at normal exit.
 """
 from __future__ import annotations
 
@@ -23,19 +27,34 @@ def emit(kind: str, **payload: Any) -> None:
     sys.stdout.flush()
 
 
-def _prepare(job: WorkerJob):
+STAGES = ("bake", "render")
+
+
+def _built_path(job: WorkerJob) -> Path:
+    return Path(job.blend_path).with_suffix(".built.json")
+
+
+def _open_baked(job: WorkerJob):
+    """The baked scene saved by the `bake` stage."""
     import bpy
 
     from blender import scene as scene_mod
 
-    blend = Path(job.blend_path)
-    built_path = blend.with_suffix(".built.json")
-    timings: dict[str, float] = {}
+    if not (Path(job.blend_path).exists() and _built_path(job).exists()):
+        raise RuntimeError(f"{job.blend_path}: no baked scene; run the bake stage first")
+    bpy.ops.wm.open_mainfile(filepath=job.blend_path)
+    return scene_mod.BuiltScene.from_json(json.loads(_built_path(job).read_text()))
+
+
+def _bake(job: WorkerJob) -> None:
+    """Build, bake, add the twin and save; the timings go into the summary for the render stage."""
+    from blender import scene as scene_mod
+
+    blend, built_path = Path(job.blend_path), _built_path(job)
     if blend.exists() and built_path.exists():
-        bpy.ops.wm.open_mainfile(filepath=str(blend))
-        built = scene_mod.BuiltScene.from_json(json.loads(built_path.read_text()))
         emit("stage", name="bake", status="reused")
-        return built, timings
+        return
+    timings: dict[str, float] = {}
     t0 = time.perf_counter()
     built = scene_mod.build(job)
     timings["build"] = time.perf_counter() - t0
@@ -46,13 +65,16 @@ def _prepare(job: WorkerJob):
         timings["bake"] = time.perf_counter() - t0
         emit("stage", name="bake", status="done", seconds=timings["bake"])
         scene_mod.add_interpolation_twin(built)
+    import bpy
+
     tmp = blend.with_name(blend.stem + ".tmp.blend")
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp), compress=False)
     os.replace(tmp, blend)
+    previous = _previous_summary(job)
+    _save_summary(job, {**previous, "timings": {**previous["timings"], **timings}})
     tmp_json = built_path.with_suffix(".tmp")
     tmp_json.write_text(json.dumps(built.to_json()))
     os.replace(tmp_json, built_path)
-    return built, timings
 
 
 def _previous_summary(job: WorkerJob) -> dict[str, Any]:
@@ -61,11 +83,12 @@ def _previous_summary(job: WorkerJob) -> dict[str, Any]:
     return json.loads(path.read_text()) if path.exists() else {"timings": {}, "passes": {}}
 
 
-def _render_all(job: WorkerJob, built, timings: dict[str, float]) -> dict[str, Any]:
+def _render_all(job: WorkerJob, built) -> dict[str, Any]:
     from blender import render
 
     render.configure_engine(job.seed, job.threads)
     previous = _previous_summary(job)
+    timings = previous["timings"]
     per_pass: dict[str, dict[str, float]] = {}
     for modality, passes in job.passes.items():
         camera = job.cameras[modality]
@@ -106,8 +129,8 @@ def _save_summary(job: WorkerJob, summary: dict[str, Any]) -> None:
 
 
 def main(argv: list[str]) -> None:
-    if len(argv) != 2:
-        sys.stderr.write("usage: python -m blender.worker JOB.json\n")
+    if len(argv) != 3 or argv[2] not in STAGES:
+        sys.stderr.write("usage: python -m blender.worker JOB.json {bake|render}\n")
         os._exit(2)
     try:
         job = WorkerJob.read(Path(argv[1]))
@@ -121,12 +144,14 @@ def main(argv: list[str]) -> None:
 
         relinked = repair_manta_hierarchy()
         emit("stage", name="manta_repair", relinked=relinked)
-        built, timings = _prepare(job)
-        summary = _render_all(job, built, timings)
-        summary["grids"] = sorted(job.grids)
-        summary["bpy"] = bpy.app.version_string
-        _save_summary(job, summary)
-        emit("done", summary=job.summary_path)
+        if argv[2] == "bake":
+            _bake(job)
+        else:
+            summary = _render_all(job, _open_baked(job))
+            summary["grids"] = sorted(job.grids)
+            summary["bpy"] = bpy.app.version_string
+            _save_summary(job, summary)
+        emit("done", stage=argv[2], summary=job.summary_path)
         code = 0
     except Exception as exc:  # the parent turns this into one clear line plus the log path
         traceback.print_exc()

@@ -19,15 +19,28 @@ log = logging.getLogger("generate-scene")
 
 
 def run_worker(job: WorkerJob, work: Path, show_progress: bool = True) -> dict[str, Any]:
+    """Bake, then render, each in its own worker process (see blender/worker.py for why)."""
     job_path = work / "job.json"
     job.write(job_path)
     log_path = work / "logs" / "worker.log"
     log_path.parent.mkdir(parents=True, exist_ok=True)
-    repo_root = Path(__file__).resolve().parents[1]
-    cmd = [sys.executable, "-m", "blender.worker", str(job_path)]
     bars: dict[str, tqdm] = {}
     counts = {True: 0, False: 0}
     started = time.perf_counter()
+    for stage in ("bake", "render"):
+        _run_stage(job_path, stage, log_path, bars, counts, show_progress)
+    for bar in bars.values():
+        bar.close()
+    log.info("rendered %d images, reused %d from an earlier run", counts[True], counts[False])
+    summary = json.loads(Path(job.summary_path).read_text())
+    summary["wall_s"] = time.perf_counter() - started
+    return summary
+
+
+def _run_stage(job_path: Path, stage: str, log_path: Path, bars: dict[str, tqdm], counts: dict[bool, int],
+               show_progress: bool) -> None:
+    repo_root = Path(__file__).resolve().parents[1]
+    cmd = [sys.executable, "-m", "blender.worker", str(job_path), stage]
     with log_path.open("a") as log_file:
         log_file.write(f"\n=== worker started: {' '.join(cmd)}\n")
         log_file.flush()
@@ -39,15 +52,9 @@ def run_worker(job: WorkerJob, work: Path, show_progress: bool = True) -> dict[s
             proc.wait()
             raise
         code = proc.wait()
-    for bar in bars.values():
-        bar.close()
     if code != 0:
         reason = error or f"exited with code {code}"
-        raise WorkerError(f"Blender worker failed: {reason}. Full log: {log_path}")
-    log.info("rendered %d images, reused %d from an earlier run", counts[True], counts[False])
-    summary = json.loads(Path(job.summary_path).read_text())
-    summary["wall_s"] = time.perf_counter() - started
-    return summary
+        raise WorkerError(f"Blender worker failed ({stage}): {reason}. Full log: {log_path}")
 
 
 def _follow(proc: subprocess.Popen, log_file: TextIO, bars: dict[str, tqdm], counts: dict[bool, int],

@@ -236,7 +236,7 @@ def test_worker_crash_reports_its_log_and_leaves_no_dataset(tmp_path: Path) -> N
     result = run_cli(str(spec), "--out", str(out), "--quiet")
     assert result.returncode == 2
     line = result.stderr.strip().splitlines()[-1]
-    assert "Blender worker failed: ValueError" in line and "Full log: " in line
+    assert "Blender worker failed (bake): ValueError" in line and "Full log: " in line
     log = Path(line.split("Full log: ")[1])
     assert log.is_file() and "Traceback" in log.read_text()
     assert not out.exists()

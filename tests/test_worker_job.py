@@ -71,7 +71,7 @@ def test_the_writer_refuses_an_invalid_job(demo_job: WorkerJob, tmp_path: Path) 
 @pytest.mark.blender
 def test_worker_reports_a_bad_job_as_one_line(demo_job: WorkerJob, tmp_path: Path) -> None:
     path = _corrupt(demo_job, tmp_path, lambda d: d["sim"].update(resolution="high"))
-    result = subprocess.run([sys.executable, "-m", "blender.worker", str(path)], cwd=REPO, capture_output=True,
+    result = subprocess.run([sys.executable, "-m", "blender.worker", str(path), "render"], cwd=REPO, capture_output=True,
                             text=True, timeout=120)
     assert result.returncode == 2
     errors = [line for line in result.stdout.splitlines() if line.startswith("@@error ")]
