@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from smokeseer.raster.cpu_backend import composite_tiles
+from smokeseer.raster.cpu_backend import composite_tiles, project_compiled
 from smokeseer.raster.projection import project_gaussians
 from smokeseer.raster.sh import eval_sh, num_sh_bases
 from smokeseer.raster.torch_backend import composite
@@ -168,7 +168,10 @@ def rasterize(
         )
 
     c = viewmats.shape[0]
-    proj = project_gaussians(means, quats, lin_scales, viewmats, Ks, width, height, near_plane, far_plane)
+    # The compiled projection has no gradient for Ks; differentiable intrinsics take the torch one
+    # (same maths, so the outputs agree to rounding).
+    project = project_compiled if chosen == "cpu" and not Ks.requires_grad else project_gaussians
+    proj = project(means, quats, lin_scales, viewmats, Ks, width, height, near_plane, far_plane)
     if proj.means2d.requires_grad:
         proj.means2d.retain_grad()
     comp = (composite_tiles if chosen == "cpu" else composite)(

@@ -1,7 +1,7 @@
-"""Compiled CPU compositing: 16x16 tile binning in C++ with an analytic backward.
+"""Compiled CPU backend: EWA projection and 16x16-tile compositing in C++, each with an analytic
+backward, wrapped as autograd Functions (SH colours stay in torch: elementwise, cheap).
 
-Projection and SH stay in torch (autograd differentiates them); this module composites the
-projected Gaussians. The kernel takes one feature table per camera, [C, N, F] = colours, then
+The projection returns the same ``Projection`` as the torch one. The kernel takes one feature table per camera, [C, N, F] = colours, then
 depth and the subset flag when asked, so one pass yields every image ``rasterize`` returns.
 The alpha image is 1 - T_final. Backward follows 3DGS: walk each pixel's blended Gaussians back
 to front, rebuilding transmittance from the final one (kept in float64 per pixel), so no
@@ -19,6 +19,37 @@ from torch.autograd.function import once_differentiable
 from smokeseer.raster.extension import load_kernel
 from smokeseer.raster.projection import Projection
 from smokeseer.raster.torch_backend import Composite
+
+
+class _Projection(torch.autograd.Function):
+    """(means, quats, linear scales, viewmats) -> (means2d, conics, depths, radii, visible)."""
+
+    @staticmethod
+    def forward(ctx: Any, means: Tensor, quats: Tensor, scales: Tensor, viewmats: Tensor, ks: Tensor,
+                width: int, height: int, near_plane: float, far_plane: float) -> tuple[Tensor, ...]:
+        means2d, conics, depths, radii, visible = load_kernel().project_forward(
+            means, quats, scales, viewmats, ks, width, height, near_plane, far_plane)
+        ctx.save_for_backward(means, quats, scales, viewmats, ks)
+        ctx.size = (width, height, near_plane, far_plane)
+        ctx.mark_non_differentiable(radii, visible)
+        return means2d, conics, depths, radii, visible
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx: Any, g_means2d: Tensor, g_conics: Tensor, g_depths: Tensor, _g_radii: Tensor,
+                 _g_visible: Tensor) -> tuple:
+        g_means, g_quats, g_scales, g_viewmats = load_kernel().project_backward(
+            *ctx.saved_tensors, *ctx.size, g_means2d.contiguous(), g_conics.contiguous(), g_depths.contiguous())
+        return g_means, g_quats, g_scales, g_viewmats, None, None, None, None, None
+
+
+def project_compiled(means: Tensor, quats: Tensor, scales: Tensor, viewmats: Tensor, ks: Tensor,
+                     width: int, height: int, near_plane: float, far_plane: float) -> Projection:
+    """``projection.project_gaussians`` in C++ (no gradient for ``ks``: the caller checks)."""
+    means2d, conics, depths, radii, visible = _Projection.apply(
+        means.contiguous(), quats.contiguous(), scales.contiguous(), viewmats.contiguous(),
+        ks.detach().contiguous(), width, height, float(near_plane), float(far_plane))
+    return Projection(means2d=means2d, conics=conics, depths=depths, radii=radii, visible=visible)
 
 
 class _TileComposite(torch.autograd.Function):

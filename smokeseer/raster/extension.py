@@ -9,17 +9,32 @@ from __future__ import annotations
 
 import hashlib
 import os
+import subprocess
 import sys
 import threading
 import time
 from pathlib import Path
 from types import ModuleType
 
-SOURCE = Path(__file__).resolve().parent / "csrc" / "tile_raster.cpp"
+CSRC = Path(__file__).resolve().parent / "csrc"
+SOURCES = [CSRC / "tile_raster.cpp", CSRC / "projection.cpp"]
+HEADERS = [CSRC / "projection.h"]
 # -ffp-contract=off: forward and backward recompute alpha with the same rounding (no FMA fusion
 # that could differ between the two call sites), so both passes agree on which pairs are skipped.
-CFLAGS = ["-O3", "-fopenmp", "-ffp-contract=off"]
+BASE_CFLAGS = ["-O3", "-fopenmp", "-ffp-contract=off"]
 LDFLAGS = ["-fopenmp"]
+AVX2_FLAGS = ["-mavx2", "-mfma"]  # 8-wide float loops; used only where /proc/cpuinfo lists both
+
+
+def compiler_flags() -> list[str]:
+    """Base flags, plus AVX2/FMA when this machine's CPU has them (never -march=native, so a
+    build cache copied to an older CPU of the same family still runs; the cache key holds the flags)."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            flags = next((line.split(":", 1)[1].split() for line in f if line.startswith("flags")), [])
+    except OSError:
+        flags = []
+    return BASE_CFLAGS + (AVX2_FLAGS if {"avx2", "fma"} <= set(flags) else [])
 
 _lock = threading.Lock()
 _module: ModuleType | None = None
@@ -34,7 +49,8 @@ def build_directory() -> tuple[Path, str]:
     (``TORCH_EXTENSIONS_DIR`` when set, else ~/.cache/torch_extensions)."""
     from torch.utils.cpp_extension import get_default_build_root
 
-    digest = hashlib.sha256(SOURCE.read_bytes() + " ".join(CFLAGS + LDFLAGS).encode()).hexdigest()[:12]
+    digest = hashlib.sha256(b"".join(p.read_bytes() for p in SOURCES + HEADERS)
+                            + " ".join(compiler_flags() + LDFLAGS).encode()).hexdigest()[:12]
     name = f"smokeseer_tile_raster_{digest}"
     root = Path(os.environ.get("TORCH_EXTENSIONS_DIR") or get_default_build_root())
     folder = root / name
@@ -64,13 +80,13 @@ def load_kernel() -> ModuleType:
         start = time.perf_counter()
         try:
             _module = cpp_extension.load(
-                name=name, sources=[str(SOURCE)], extra_cflags=CFLAGS, extra_ldflags=LDFLAGS,
+                name=name, sources=[str(p) for p in SOURCES], extra_cflags=compiler_flags(), extra_ldflags=LDFLAGS,
                 build_directory=str(folder), verbose=False,
             )
-        except (RuntimeError, OSError, ImportError, FileNotFoundError) as err:
+        except (RuntimeError, OSError, ImportError, subprocess.CalledProcessError) as err:
             compiler = os.environ.get("CXX", "c++")
             raise KernelBuildError(
-                f"could not build the CPU tile rasterizer {SOURCE} with compiler {compiler!r}: "
+                f"could not build the CPU tile rasterizer {CSRC} with compiler {compiler!r}: "
                 f"{_compiler_summary(err)}. Install g++ (and ninja: pip install ninja), or pass "
                 "backend='torch' explicitly to use the slow reference backend."
             ) from None

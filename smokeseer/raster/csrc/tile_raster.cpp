@@ -7,6 +7,8 @@
 
 #include <torch/extension.h>
 
+#include "projection.h"
+
 #include <ATen/Parallel.h>
 #include <omp.h>
 
@@ -613,4 +615,6 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.doc() = "Tile-based CPU Gaussian compositing with an analytic backward (3DGS semantics)";
   m.def("forward", &forward, "Bin and composite projected Gaussians; returns images and saved state");
   m.def("backward", &backward, "Gradients w.r.t. means2d, conics, per-camera opacities and features");
+  m.def("project_forward", &smokeseer::project_forward, "EWA projection: means2d, conics, depths, radii, visible");
+  m.def("project_backward", &smokeseer::project_backward, "Gradients of the projection w.r.t. its inputs");
 }
