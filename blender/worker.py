@@ -43,7 +43,9 @@ def _open_baked(job: WorkerJob):
     if not (Path(job.blend_path).exists() and _built_path(job).exists()):
         raise RuntimeError(f"{job.blend_path}: no baked scene; run the bake stage first")
     bpy.ops.wm.open_mainfile(filepath=job.blend_path)
-    return scene_mod.BuiltScene.from_json(json.loads(_built_path(job).read_text()))
+    built = scene_mod.BuiltScene.from_json(json.loads(_built_path(job).read_text()))
+    scene_mod.prepare_for_rendering(built)
+    return built
 
 
 def _bake(job: WorkerJob) -> None:
