@@ -128,6 +128,7 @@ def _metadata(spec: SceneSpec, plan: Plan, sensor: ThermalSensor | None, summary
                    "ambient_temperature_k": spec.lights.ambient_temperature_k,
                    "sky_temperature_k": spec.lights.sky_temperature_k,
                    "coefficients_per_unit_density": coeffs},
+        "render_restarts": summary.get("render_restarts", 0),
         "render": {m: {"samples": cam.samples, "denoise": effective_denoise(spec, cam),
                        "volume_step_rate": cam.volume_step_rate}
                    for m, cam in (("rgb", spec.rig.rgb), ("thermal", spec.rig.thermal)) if spec.passes.get(m)},
