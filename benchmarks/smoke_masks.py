@@ -6,8 +6,8 @@ Each candidate (smokeseer/smoke_masks.py) is scored by IoU per frame against the
 ``rgb/smoke_mask``. The candidate and threshold are chosen by the mean IoU over the
 *validation* frames (the training views of every dataset given); the *test* views are only
 scored afterwards. Writes benchmarks/results/smoke_masks.csv (every candidate, threshold,
-scene and split), smoke_masks_choice.csv (the chosen one per scene) and smoke_masks.png
-(validation IoU against threshold).
+scene and split, plus the trivial all-pixels mask as a reference), smoke_masks_choice.csv (the
+chosen one per scene) and smoke_masks.png (validation IoU against threshold).
 """
 from __future__ import annotations
 
@@ -25,7 +25,9 @@ from smokeseer.data import load_scene  # noqa: E402
 from smokeseer.smoke_masks import CANDIDATES, candidate_scores, iou  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
-THRESHOLDS = np.round(np.arange(0.05, 0.96, 0.05), 3)
+THRESHOLDS = np.round(np.concatenate([[0.01, 0.02, 0.03], np.arange(0.05, 0.96, 0.05)]), 3)
+REFERENCE = "all-pixels"
+"""The trivial mask that calls every pixel smoke: a candidate must beat it to be worth anything."""
 
 
 def main() -> None:
@@ -47,7 +49,13 @@ def main() -> None:
                     vals = [iou(scores[i] > thr, scene.rgb.masks[i]) for i in idx]
                     rows.append({"candidate": cand, "threshold": float(thr), "scene": scene.name, "split": name,
                                  "frames": len(idx), "iou": float(np.mean(vals)) if vals else float("nan")})
-        print(f"{scene.name}: scored {len(CANDIDATES)} candidates", flush=True)
+        for split, name in (("train", "validation"), ("test", "test")):
+            idx = scene.rgb.indices(split)
+            vals = [iou(np.ones_like(scene.rgb.masks[i]), scene.rgb.masks[i]) for i in idx]
+            rows.append({"candidate": REFERENCE, "threshold": 0.0, "scene": scene.name, "split": name,
+                         "frames": len(idx), "iou": float(np.mean(vals)) if vals else float("nan")})
+        print(f"{scene.name}: scored {len(CANDIDATES)} candidates; ground truth covers "
+              f"{100 * float(scene.rgb.masks.mean()):.1f} % of the pixels", flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
     with (args.out / "smoke_masks.csv").open("w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
@@ -64,17 +72,22 @@ def main() -> None:
     for c in CANDIDATES:
         print(f"{c}, {best[c]}, {mean_iou(c, float(best[c]), 'validation'):.3f}, "
               f"{mean_iou(c, float(best[c]), 'test'):.3f}")
+    print(f"{REFERENCE} (reference), -, {mean_iou(REFERENCE, 0.0, 'validation'):.3f}, "
+          f"{mean_iou(REFERENCE, 0.0, 'test'):.3f}")
     print(f"chosen by validation: {chosen} at {best[chosen]}")
     per_scene = [r for r in rows if r["candidate"] == chosen and r["threshold"] == best[chosen]]
     with (args.out / "smoke_masks_choice.csv").open("w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(per_scene[0]))
         w.writeheader()
         w.writerows(per_scene)
+    reference = {(r["scene"], r["split"]): r["iou"] for r in rows if r["candidate"] == REFERENCE}
     for r in per_scene:
-        print(f"  {r['scene']:<12} {r['split']:<10} frames {r['frames']:>3}  IoU {r['iou']:.3f}")
+        print(f"  {r['scene']:<12} {r['split']:<10} frames {r['frames']:>3}  IoU {r['iou']:.3f}  "
+              f"(all-pixels {reference[(r['scene'], r['split'])]:.3f})")
     fig, ax = plt.subplots(figsize=(6, 4))
     for c in CANDIDATES:
         ax.plot(THRESHOLDS, [mean_iou(c, float(t), "validation") for t in THRESHOLDS], label=c)
+    ax.axhline(mean_iou(REFERENCE, 0.0, "validation"), color="k", linestyle="--", label="all pixels smoke")
     ax.set_xlabel("threshold")
     ax.set_ylabel("mean validation IoU")
     ax.set_title(f"smoke masks without weights ({len(args.datasets)} scenes)")
