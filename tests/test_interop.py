@@ -213,3 +213,26 @@ def test_bad_requests_leave_nothing_behind(source: Path, tmp_path: Path, capsys:
     assert main([str(broken), "--to", "nerfstudio", "--out", str(tmp_path / "z")]) == 2
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["broken"]
+
+
+def test_official_layouts_without_our_sidecar(outputs: dict[str, Path], tmp_path: Path) -> None:
+    """Data prepared for the official code by someone else: no smokeseer_interop.json. Times
+    follow the official reader, and what was assumed is said."""
+    import shutil
+
+    for layout in ("blender", "colmap"):
+        bare = tmp_path / layout
+        shutil.copytree(outputs[layout], bare)
+        (bare / "smokeseer_interop.json").unlink()
+        scene = load_scene(bare)
+        assert scene.smoke_present and not scene.smoke_static
+        assert any("smokeseer_interop.json" in n for n in scene.notes)
+        times = [f.time for f in scene.rgb.frames + scene.thermal.frames]
+        assert min(times) == pytest.approx(0.0) and max(times) <= 1.0 + 1e-12
+    images = tmp_path / "colmap" / "images"
+    (images / "rgb_0000000000.png").rename(images / "rgb_first.png")
+    data = (tmp_path / "colmap" / "sparse" / "0" / "images.bin").read_bytes()
+    (tmp_path / "colmap" / "sparse" / "0" / "images.bin").write_bytes(
+        data.replace(b"rgb_0000000000.png\0", b"rgb_first.png\0"))
+    with pytest.raises(Exception, match="has no digits"):
+        load_scene(tmp_path / "colmap")
