@@ -184,6 +184,9 @@ def write_blender(scene: SceneData, frames: dict[str, list[OutFrame]], out: Path
         if items is None:
             continue
         k, w = items[0].k, items[0].frame.width
+        if any(abs(it.k[0, 0] - k[0, 0]) > 1e-9 or it.frame.width != w for it in items):
+            raise ValueError(f"{scene.path}: {modality} frames differ in focal length or size; the Blender layout "
+                             "holds one camera_angle_x per file")
         fovx = 2.0 * math.atan(0.5 * w / k[0, 0])
         by_split: dict[str, list[dict[str, Any]]] = {"train": [], "test": []}
         for it in items:
