@@ -118,7 +118,7 @@ def time_pair(n: int, res: int, repeats: int) -> Timing:
             fwd, total, pairs[backend] = forward_backward(backend, params, viewmats, ks, weights, res)
             if i > 0:
                 best[backend] = min(best[backend], (total, fwd))
-    if pairs["cpu"] != pairs["torch"]:
+    if abs(pairs["cpu"] - pairs["torch"]) > 1e-4 * pairs["torch"]:
         raise RuntimeError(f"backends blended different pair counts: {pairs}")
     cpu_s, cpu_fwd = best["cpu"]
     floor = arithmetic_floor(pairs["cpu"])

@@ -42,8 +42,8 @@ struct Bins {
   torch::Tensor source;         // [S] int64 camera * N + Gaussian of each packed record
   torch::Tensor tile_offsets;   // [C*T + 1] int64 start of each tile's list in `entries`
   torch::Tensor entries;        // [E] int32 packed record index, front to back within a tile
-  torch::Tensor record_offsets; // [S + 1] int64 start of each record's slots in `entry_of`
-  torch::Tensor entry_of;       // [E] int64 position in `entries` of each (record, tile) pair
+  torch::Tensor record_offsets; // [S + 1] int64 start of each record's gradient slots (one per tile)
+  torch::Tensor slot_of;        // [E] int64 gradient slot of each tile entry (record-major order)
 };
 
 int num_threads() { return std::max(1, at::get_num_threads()); }
@@ -198,9 +198,9 @@ Bins bin_gaussians(const torch::Tensor& means2d, const torch::Tensor& conics, co
   toff[0] = 0;
   for (int64_t t = 0; t < cams * tiles; ++t) toff[t + 1] = toff[t] + tile_count[t];
   b.entries = torch::empty({total}, i32);
-  b.entry_of = torch::empty({total}, i64);
+  b.slot_of = torch::empty({total}, i64);
   int32_t* ent = b.entries.data_ptr<int32_t>();
-  int64_t* eof = b.entry_of.data_ptr<int64_t>();
+  int64_t* sof = b.slot_of.data_ptr<int64_t>();
   // Each task owns one tile row of one camera and appends in depth order: deterministic.
 #pragma omp parallel for schedule(dynamic, 1) num_threads(num_threads())
   for (int64_t row = 0; row < cams * tiles_y; ++row) {
@@ -217,7 +217,7 @@ Bins bin_gaussians(const torch::Tensor& means2d, const torch::Tensor& conics, co
       for (int tx = tx0; tx <= tx1; ++tx) {
         const int64_t pos = cursor[tx]++;
         ent[pos] = int32_t(s);
-        eof[slot + (tx - tx0)] = pos;
+        sof[pos] = slot + (tx - tx0);
       }
     }
   }
@@ -373,7 +373,7 @@ std::vector<torch::Tensor> forward_impl(const torch::Tensor& means2d, const torc
     }
   }
   return {out, alpha, pair_count.sum(), t_final, last, b.records, b.rects, b.source, b.tile_offsets, b.entries,
-          b.record_offsets, b.entry_of};
+          b.record_offsets, b.slot_of};
 }
 
 // Per-tile pixel state of the backward pass (structure of arrays over the 16x16 pixels).
@@ -454,14 +454,17 @@ std::vector<torch::Tensor> backward_impl(int64_t cams, int64_t n, const torch::T
                                          const torch::Tensor& last, const torch::Tensor& records,
                                          const torch::Tensor& rects_t, const torch::Tensor& source,
                                          const torch::Tensor& tile_offsets, const torch::Tensor& entries,
-                                         const torch::Tensor& record_offsets, const torch::Tensor& entry_of,
+                                         const torch::Tensor& record_offsets, const torch::Tensor& slot_of,
                                          const torch::Tensor& grad_out, const torch::Tensor& grad_alpha,
                                          int64_t width, int64_t height) {
   const int64_t stride = records.size(1), nf = stride - 6;
   const int64_t tiles_x = (width + kTile - 1) / kTile, tiles_y = (height + kTile - 1) / kTile;
   const int64_t tiles = tiles_x * tiles_y;
   const int64_t total = entries.size(0), packed = records.size(0);
-  std::vector<double> partial(total * stride);  // per-(record, tile) gradient partials
+  // Per-(record, tile) gradient partials in record-major slot order, zero where a tile never
+  // reaches the entry; the final per-record sums then read memory sequentially.
+  std::vector<double> partial(total * stride, 0.0);
+  const int64_t* sof = slot_of.data_ptr<int64_t>();
 
   const scalar_t* rec = records.data_ptr<scalar_t>();
   const double* tf_p = t_final.data_ptr<double>();
@@ -479,7 +482,7 @@ std::vector<torch::Tensor> backward_impl(int64_t cams, int64_t n, const torch::T
     for (int64_t ct = 0; ct < cams * tiles; ++ct) {
       const int64_t c = ct / tiles;
       const TileBox tb = tile_box(ct % tiles, tiles_x, width, height);
-      const int64_t begin = toff[ct], count = toff[ct + 1] - begin;
+      const int64_t begin = toff[ct];
       int32_t max_stop = 0;
       std::fill(st.behind.begin(), st.behind.end(), 0.0);
       std::fill(st.stop.begin(), st.stop.end(), 0);
@@ -494,13 +497,11 @@ std::vector<torch::Tensor> backward_impl(int64_t cams, int64_t n, const torch::T
           max_stop = std::max(max_stop, st.stop[p]);
         }
       }
-      std::fill(partial.begin() + (begin + max_stop) * stride, partial.begin() + (begin + count) * stride, 0.0);
       // Back to front: rebuild each pair's transmittance from the final one, as 3DGS does.
       for (int64_t e = max_stop - 1; e >= 0; --e) {
         const int64_t s = ent[begin + e];
         const Splat<scalar_t> sp(rec + s * stride, rects[s], tb);
-        double* g = partial.data() + (begin + e) * stride;
-        std::fill(g, g + stride, 0.0);
+        double* g = partial.data() + sof[begin + e] * stride;
         const EllipseSpans span(sp.mx, sp.my, sp.qa, sp.qb, sp.qc, sp.opac);
         if (span.empty()) continue;
         int ry0 = sp.y0, ry1 = sp.y1;
@@ -521,7 +522,7 @@ std::vector<torch::Tensor> backward_impl(int64_t cams, int64_t n, const torch::T
   torch::Tensor g_opac = torch::zeros({cams, n}, opts);
   torch::Tensor g_feats = torch::zeros({cams, n, nf}, opts);
   const int64_t* roff = record_offsets.data_ptr<int64_t>();
-  const int64_t* eof = entry_of.data_ptr<int64_t>();
+
   const int64_t* src = source.data_ptr<int64_t>();
   scalar_t* gm = g_means2d.data_ptr<scalar_t>();
   scalar_t* gc = g_conics.data_ptr<scalar_t>();
@@ -532,7 +533,7 @@ std::vector<torch::Tensor> backward_impl(int64_t cams, int64_t n, const torch::T
     for (int64_t s = lo; s < hi; ++s) {
       std::fill(sum.begin(), sum.end(), 0.0);
       for (int64_t k = roff[s]; k < roff[s + 1]; ++k) {
-        const double* part = &partial[eof[k] * stride];
+        const double* part = &partial[k * stride];
         for (int64_t j = 0; j < stride; ++j) sum[j] += part[j];
       }
       const int64_t cg = src[s];
@@ -594,14 +595,14 @@ std::vector<torch::Tensor> backward(int64_t cams, int64_t n, const torch::Tensor
                                     const torch::Tensor& records, const torch::Tensor& rects,
                                     const torch::Tensor& source, const torch::Tensor& tile_offsets,
                                     const torch::Tensor& entries, const torch::Tensor& record_offsets,
-                                    const torch::Tensor& entry_of, const torch::Tensor& grad_out,
+                                    const torch::Tensor& slot_of, const torch::Tensor& grad_out,
                                     const torch::Tensor& grad_alpha, int64_t width, int64_t height) {
   TORCH_CHECK(records.dim() == 2 && records.size(1) >= 6, "tile rasterizer: records must be [S, 6 + F]");
   std::vector<torch::Tensor> result;
   AT_DISPATCH_FLOATING_TYPES(records.scalar_type(), "tile_raster_backward", [&] {
     result = with_feature_count(records.size(1) - 6, [&](auto nf) {
       return backward_impl<scalar_t, decltype(nf)::value>(
-          cams, n, t_final, last, records, rects, source, tile_offsets, entries, record_offsets, entry_of,
+          cams, n, t_final, last, records, rects, source, tile_offsets, entries, record_offsets, slot_of,
           grad_out.to(records.scalar_type()).contiguous(), grad_alpha.to(records.scalar_type()).contiguous(), width,
           height);
     });
