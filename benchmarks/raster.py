@@ -10,7 +10,7 @@ vectorised kernels take for the unavoidable per-pair arithmetic (two exps, one p
 ~30 multiply-adds of the alpha, blend and gradient terms) on arrays of that many pairs, divided
 by the pair count. A kernel below it would need to skip work, not to do it faster.
 
-    python benchmarks/raster.py             # 20k/128^2, 100k/256^2, 300k/512^2 + memory sweep
+    python benchmarks/raster.py             # 20k/128^2, 100k/256^2, 300k/512^2 (cpu only) + memory
     python benchmarks/raster.py --quick     # small sizes, well under a minute
 Writes benchmarks/results/raster.csv and raster.png.
 """
@@ -22,7 +22,6 @@ import csv
 import json
 import math
 import os
-import resource
 import subprocess
 import sys
 import time
@@ -108,40 +107,46 @@ def arithmetic_floor(pairs: int, repeats: int = 3) -> float:
     return best
 
 
-def time_pair(n: int, res: int, repeats: int) -> Timing:
-    """Both backends alternately in this process; best of ``repeats`` each after one warm-up."""
+def time_pair(n: int, res: int, repeats: int, with_torch: bool) -> Timing:
+    """Both backends alternately in this process; best of ``repeats`` each after one warm-up.
+    Without ``with_torch`` only the cpu backend runs (the torch one would not fit in memory)."""
     params, viewmats, ks, weights = make_scene(n, res)
+    backends = BACKENDS if with_torch else ("cpu",)
     best = {b: (math.inf, math.inf) for b in BACKENDS}
     pairs = {}
     for i in range(repeats + 1):
-        for backend in BACKENDS:
+        for backend in backends:
             fwd, total, pairs[backend] = forward_backward(backend, params, viewmats, ks, weights, res)
             if i > 0:
                 best[backend] = min(best[backend], (total, fwd))
-    if abs(pairs["cpu"] - pairs["torch"]) > 1e-4 * pairs["torch"]:
+    if with_torch and abs(pairs["cpu"] - pairs["torch"]) > 1e-4 * pairs["torch"]:
         raise RuntimeError(f"backends blended different pair counts: {pairs}")
     cpu_s, cpu_fwd = best["cpu"]
+    torch_s = best["torch"][0]
     floor = arithmetic_floor(pairs["cpu"])
-    return Timing(n, res, cpu_s, best["torch"][0], best["torch"][0] / cpu_s, cpu_fwd, pairs["cpu"],
+    return Timing(n, res, cpu_s, torch_s, torch_s / cpu_s, cpu_fwd, pairs["cpu"],
                   cpu_s / max(pairs["cpu"], 1) * 1e9, floor / max(pairs["cpu"], 1) * 1e9,
                   torch.get_num_threads(), os.getloadavg()[0])
 
 
-def _rss_mb() -> float:
-    with open("/proc/self/statm") as f:
-        return int(f.read().split()[1]) * resource.getpagesize() / 2**20
+def _status_mb(field: str) -> float:
+    with open("/proc/self/status") as f:
+        line = next(ln for ln in f if ln.startswith(field + ":"))
+    return int(line.split()[1]) / 1024
 
 
 def memory_worker(backend: str, n: int, res: int) -> Memory:
-    """Peak resident memory of one forward + backward, measured in this (fresh) process."""
-    from smokeseer.raster.extension import load_kernel
-
-    load_kernel()
+    """Peak resident memory of one forward + backward, measured in this (fresh) process: a tiny
+    warm-up render first (one-off allocator, OpenMP and autograd set-up), then the kernel's peak
+    RSS counter (VmHWM) is reset through /proc/self/clear_refs and read after the render."""
+    params, viewmats, ks, weights = make_scene(200, 32)
+    forward_backward(backend, params, viewmats, ks, weights, 32)
     params, viewmats, ks, weights = make_scene(n, res)
-    base = _rss_mb()
+    with open("/proc/self/clear_refs", "w") as f:
+        f.write("5")
+    base = _status_mb("VmRSS")
     _, _, pairs = forward_backward(backend, params, viewmats, ks, weights, res)
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 - base
-    return Memory(backend, n, res, peak, pairs)
+    return Memory(backend, n, res, _status_mb("VmHWM") - base, pairs)
 
 
 def measure_memory(backend: str, n: int, res: int, threads: int) -> Memory:
@@ -169,11 +174,13 @@ def write_plot(path: Path, timings: list[Timing], memory: list[Memory]) -> None:
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     pairs = [t.blended_pairs for t in timings]
-    axes[0].loglog(pairs, [t.torch_s for t in timings], "s--", label="torch backend")
+    with_torch = [t for t in timings if math.isfinite(t.torch_s)]
+    axes[0].loglog([t.blended_pairs for t in with_torch], [t.torch_s for t in with_torch], "s--", label="torch backend")
     axes[0].loglog(pairs, [t.cpu_s for t in timings], "o-", label="cpu backend (compiled)")
     axes[0].loglog(pairs, [t.floor_ns_per_pair * t.blended_pairs * 1e-9 for t in timings], ":", label="arithmetic floor")
     for t in timings:
-        axes[0].annotate(f"{t.n // 1000}k,{t.res}² ({t.speedup:.0f}x)", (t.blended_pairs, t.cpu_s), fontsize=7)
+        gain = f" ({t.speedup:.0f}x)" if math.isfinite(t.speedup) else ""
+        axes[0].annotate(f"{t.n // 1000}k,{t.res}²{gain}", (t.blended_pairs, t.cpu_s), fontsize=7)
     axes[0].set(xlabel="blended (Gaussian, pixel) pairs", ylabel="forward + backward [s]", title="time")
     for backend, style in (("cpu", "o-"), ("torch", "s--")):
         rows = sorted((m.blended_pairs, m.peak_mb) for m in memory if m.backend == backend)
@@ -204,12 +211,14 @@ def main() -> None:
         return
     sizes = [(2000, 64), (5000, 128)] if args.quick else [(20000, 128), (100000, 256), (300000, 512)]
     mem_sizes = sizes if args.quick else [(5000, 128), (20000, 128), (20000, 256), (100000, 256), (300000, 512)]
+    # The torch backend keeps ~300 B per blended pair; 300k Gaussians at 512^2 blend ~50M pairs.
+    torch_sizes = set(sizes) - {(300000, 512)}
     from smokeseer.raster.extension import load_kernel
 
     load_kernel()
     timings = []
     for n, res in sizes:
-        t = time_pair(n, res, args.repeats)
+        t = time_pair(n, res, args.repeats, (n, res) in torch_sizes)
         timings.append(t)
         print(f"N={n:>6d} {res:>3d}^2  cpu {t.cpu_s * 1e3:8.1f} ms (forward {t.cpu_forward_s * 1e3:.1f})  "
               f"torch {t.torch_s * 1e3:8.1f} ms  speed-up {t.speedup:5.1f}x  pairs {t.blended_pairs:>9d}  "
@@ -217,7 +226,7 @@ def main() -> None:
               f"load {t.load_avg_1min:.1f}", flush=True)
     memory = []
     for n, res in mem_sizes:
-        for backend in BACKENDS:
+        for backend in BACKENDS if (n, res) in torch_sizes or (n, res) not in set(sizes) else ("cpu",):
             m = measure_memory(backend, n, res, torch.get_num_threads())
             memory.append(m)
             print(f"memory {backend:5s} N={n:>6d} {res:>3d}^2  peak {m.peak_mb:8.1f} MB  pairs {m.blended_pairs:>9d}  "
