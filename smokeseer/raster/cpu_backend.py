@@ -1,8 +1,9 @@
 """Compiled CPU backend: EWA projection and 16x16-tile compositing in C++, each with an analytic
 backward, wrapped as autograd Functions (SH colours stay in torch: elementwise, cheap).
 
-The projection returns the same ``Projection`` as the torch one. The kernel takes one feature table per camera, [C, N, F] = colours, then
-depth and the subset flag when asked, so one pass yields every image ``rasterize`` returns.
+The projection returns the same ``Projection`` as the torch one. The compositing kernel takes one
+feature table per camera, [C, N, F] = colours, then depth and the subset flag when asked, so one
+pass yields every image ``rasterize`` returns.
 The alpha image is 1 - T_final. Backward follows 3DGS: walk each pixel's blended Gaussians back
 to front, rebuilding transmittance from the final one (kept in float64 per pixel), so no
 per-pair state is stored; per-Gaussian sums use a fixed reduction order (see csrc/tile_raster.cpp).
