@@ -7,8 +7,7 @@ ru_maxrss minus the resident size just before rendering.
 
 The "arithmetic floor" estimates this machine's limit per blended pair: the time torch's
 vectorised kernels take for the unavoidable per-pair arithmetic (two exps, one per pass, plus the
-~30 multiply-adds of the alpha, blend and gradient terms) on arrays of that many pairs, divided
-by the pair count. A kernel below it would need to skip work, not to do it faster.
+~30 multiply-adds of the alpha, blend and gradient terms) on a cache-resident array, per element. A kernel below it would need to skip work, not to do it faster.
 
     python benchmarks/raster.py             # 20k/128^2, 100k/256^2, 300k/512^2 (cpu only) + memory
     python benchmarks/raster.py --quick     # small sizes, well under a minute
@@ -92,19 +91,20 @@ def forward_backward(backend: str, params, viewmats, ks, weights, res: int) -> t
     return t1 - t0, time.perf_counter() - t0, out.n_pairs
 
 
-def arithmetic_floor(pairs: int, repeats: int = 3) -> float:
-    """Seconds torch's vectorised kernels need for the per-pair arithmetic of ``pairs`` pairs."""
-    x = torch.rand(max(pairs, 1))
+def arithmetic_floor(pairs: int, repeats: int = 20, chunk: int = 1 << 14) -> float:
+    """Seconds torch's vectorised kernels need for the per-pair arithmetic of ``pairs`` pairs,
+    timed on a cache-resident chunk (so it measures arithmetic, not memory) and scaled."""
+    x = torch.rand(chunk)  # below torch's parallel grain: one core's vector units
     y = torch.empty_like(x)
     best = math.inf
-    for _ in range(repeats):
+    for _ in range(repeats + 1):  # the first pass warms up and is never the best
         t0 = time.perf_counter()
         for _ in range(2):
             torch.exp(x, out=y)
         for _ in range(FLOOR_MULADDS // 2):
             torch.addcmul(x, y, y, out=y)
         best = min(best, time.perf_counter() - t0)
-    return best
+    return best * pairs / chunk
 
 
 def time_pair(n: int, res: int, repeats: int, with_torch: bool) -> Timing:
