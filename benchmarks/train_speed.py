@@ -6,10 +6,14 @@ seconds per iteration of each stage (from train_log.csv's wall_s; the first logg
 dropped as warm-up) plus the top functions by own time and by cumulative time. Writes
 ``train_speed.csv`` and ``train_speed_profile_<backend>.txt``.
 
+``train``: one full ``train-and-evaluate`` run (quick profile) with the chosen backend, for
+before/after comparisons of wall time and PSNR at the same seed.
+
 ``curve``: test PSNR against wall time of finished runs (their train_log.csv), one line per run,
 written as ``train_speed_curve.csv`` + ``.png``.
 
     python benchmarks/train_speed.py profile DATASET [--iterations 60] [--threads 1]
+    python benchmarks/train_speed.py train DATASET --backend torch --out RUN [--seed 0]
     python benchmarks/train_speed.py curve torch=RUN_A cpu=RUN_B
 """
 
@@ -68,29 +72,41 @@ def stage_speeds(rows: list[dict[str, str]], backend: str, wall: float, cpu: flo
     return out
 
 
-def profile_backend(dataset: Path, backend: str, iterations: int, top: int) -> tuple[list[StageSpeed], str]:
-    from smokeseer.api import train_and_evaluate
+def backend_forced(backend: str):
+    """Context manager: ``backend="auto"`` on CPU tensors means ``backend`` inside this process."""
+    import contextlib
+
     from smokeseer.raster import api as raster_api
 
-    original = raster_api._resolve_backend
+    @contextlib.contextmanager
+    def forced():
+        original = raster_api._resolve_backend
 
-    def resolve(name: str, device: torch.device) -> str:
-        return backend if name == "auto" and device.type == "cpu" else original(name, device)
+        def resolve(name: str, device: torch.device) -> str:
+            return backend if name == "auto" and device.type == "cpu" else original(name, device)
+
+        raster_api._resolve_backend = resolve
+        try:
+            yield
+        finally:
+            raster_api._resolve_backend = original
+
+    return forced()
+
+
+def profile_backend(dataset: Path, backend: str, iterations: int, top: int) -> tuple[list[StageSpeed], str]:
+    from smokeseer.api import train_and_evaluate
 
     overrides = {"stage2.iterations": iterations, "stage3.iterations": iterations, "log_every": 5,
-                 "stage3.test_every": 10 * iterations}
-    raster_api._resolve_backend = resolve
-    try:
-        with tempfile.TemporaryDirectory() as tmp:
-            prof = cProfile.Profile()
-            wall0, cpu0 = time.perf_counter(), time.process_time()
-            prof.enable()
-            train_and_evaluate(dataset, Path(tmp) / "run", profile="quick", seed=0, overrides=overrides)
-            prof.disable()
-            wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
-            rows = read_log(Path(tmp) / "run" / "train_log.csv")
-    finally:
-        raster_api._resolve_backend = original
+                 "stage3.test_every": 10 * iterations, "progress": False}
+    with backend_forced(backend), tempfile.TemporaryDirectory() as tmp:
+        prof = cProfile.Profile()
+        wall0, cpu0 = time.perf_counter(), time.process_time()
+        prof.enable()
+        train_and_evaluate(dataset, Path(tmp) / "run", profile="quick", seed=0, overrides=overrides)
+        prof.disable()
+        wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
+        rows = read_log(Path(tmp) / "run" / "train_log.csv")
     text = io.StringIO()
     stats = pstats.Stats(prof, stream=text)
     text.write(f"# backend={backend}, {iterations} iterations per stage, wall {wall:.1f} s, cpu {cpu:.1f} s, "
@@ -98,6 +114,18 @@ def profile_backend(dataset: Path, backend: str, iterations: int, top: int) -> t
     stats.sort_stats("tottime").print_stats(top)
     stats.sort_stats("cumulative").print_stats(top)
     return stage_speeds(rows, backend, wall, cpu), text.getvalue()
+
+
+def run_train(args: argparse.Namespace) -> None:
+    from smokeseer.api import train_and_evaluate
+
+    with backend_forced(args.backend):
+        wall0, cpu0 = time.perf_counter(), time.process_time()
+        doc = train_and_evaluate(args.dataset, args.out, profile="quick", seed=args.seed,
+                                 overrides={"progress": False})
+    print(f"backend {args.backend} seed {args.seed}: wall {time.perf_counter() - wall0:.1f} s, "
+          f"cpu {time.process_time() - cpu0:.1f} s, test PSNR {doc['metrics']['psnr']:.3f} dB, "
+          f"threads {torch.get_num_threads()}, load {os.getloadavg()[0]:.1f}")
 
 
 def write_csv(path: Path, rows: list) -> None:
@@ -162,13 +190,19 @@ def main() -> None:
     prof.add_argument("--top", type=int, default=25)
     prof.add_argument("--threads", type=int, default=0)
     prof.add_argument("--out", type=Path, default=RESULTS)
+    train = sub.add_parser("train", help="one full quick-profile run with the chosen backend")
+    train.add_argument("dataset", type=Path)
+    train.add_argument("--backend", choices=["cpu", "torch"], required=True)
+    train.add_argument("--out", type=Path, required=True)
+    train.add_argument("--seed", type=int, default=0)
+    train.add_argument("--threads", type=int, default=0)
     curve = sub.add_parser("curve", help="test PSNR against wall time of finished runs")
     curve.add_argument("runs", nargs="+", help="LABEL=RUN_DIR")
     curve.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args()
     if getattr(args, "threads", 0):
         torch.set_num_threads(args.threads)
-    run_profile(args) if args.command == "profile" else run_curve(args)
+    {"profile": run_profile, "train": run_train, "curve": run_curve}[args.command](args)
 
 
 if __name__ == "__main__":
