@@ -28,17 +28,17 @@ class _Projection(torch.autograd.Function):
     @staticmethod
     def forward(ctx: Any, means: Tensor, quats: Tensor, scales: Tensor, viewmats: Tensor, ks: Tensor,
                 width: int, height: int, near_plane: float, far_plane: float) -> tuple[Tensor, ...]:
-        means2d, conics, depths, radii, visible = load_kernel().project_forward(
+        means2d, conics, depths, radii, visible, sort_depths = load_kernel().project_forward(
             means, quats, scales, viewmats, ks, width, height, near_plane, far_plane)
         ctx.save_for_backward(means, quats, scales, viewmats, ks)
         ctx.size = (width, height, near_plane, far_plane)
-        ctx.mark_non_differentiable(radii, visible)
-        return means2d, conics, depths, radii, visible
+        ctx.mark_non_differentiable(radii, visible, sort_depths)
+        return means2d, conics, depths, radii, visible, sort_depths
 
     @staticmethod
     @once_differentiable
     def backward(ctx: Any, g_means2d: Tensor, g_conics: Tensor, g_depths: Tensor, _g_radii: Tensor,
-                 _g_visible: Tensor) -> tuple:
+                 _g_visible: Tensor, _g_sort: Tensor) -> tuple:
         g_means, g_quats, g_scales, g_viewmats = load_kernel().project_backward(
             *ctx.saved_tensors, *ctx.size, g_means2d.contiguous(), g_conics.contiguous(), g_depths.contiguous())
         return g_means, g_quats, g_scales, g_viewmats, None, None, None, None, None
@@ -47,10 +47,11 @@ class _Projection(torch.autograd.Function):
 def project_compiled(means: Tensor, quats: Tensor, scales: Tensor, viewmats: Tensor, ks: Tensor,
                      width: int, height: int, near_plane: float, far_plane: float) -> Projection:
     """``projection.project_gaussians`` in C++ (no gradient for ``ks``: the caller checks)."""
-    means2d, conics, depths, radii, visible = _Projection.apply(
+    means2d, conics, depths, radii, visible, sort_depths = _Projection.apply(
         means.contiguous(), quats.contiguous(), scales.contiguous(), viewmats.contiguous(),
         ks.detach().contiguous(), width, height, float(near_plane), float(far_plane))
-    return Projection(means2d=means2d, conics=conics, depths=depths, radii=radii, visible=visible)
+    return Projection(means2d=means2d, conics=conics, depths=depths, radii=radii, visible=visible,
+                      sort_depths=sort_depths)
 
 
 class _TileComposite(torch.autograd.Function):
@@ -99,7 +100,10 @@ def composite_tiles(
     if subset_mask is not None:
         columns.append(subset_mask.to(opacities.dtype)[None, :, None].expand(c_count, n, 1))
     feats = torch.cat(columns, dim=-1).contiguous()
-    order = torch.argsort(proj.depths.detach(), dim=1, stable=True)
+    # Front to back by view z, ties by index; float64 depths where the projection kept them, so two
+    # Gaussians whose float32 depths round to the same value keep their true order.
+    key = proj.sort_depths if proj.sort_depths is not None else proj.depths.detach()
+    order = torch.argsort(key, dim=1, stable=True)
     image, alpha, n_pairs = _TileComposite.apply(
         proj.means2d.contiguous(), proj.conics.contiguous(), opacities.contiguous(), feats,
         proj.radii.detach().contiguous(), order, proj.visible.contiguous(), width, height,

@@ -25,6 +25,7 @@ class Projection:
     depths: Tensor  # [C, N] view-space z
     radii: Tensor  # [C, N] float pixel radius (0 where culled)
     visible: Tensor  # [C, N] bool
+    sort_depths: Tensor | None = None  # [C, N] float64 view z where available (sort key without float32 ties)
 
 
 def quat_to_rotmat(quats: Tensor) -> Tensor:

@@ -134,6 +134,7 @@ std::vector<at::Tensor> forward_impl(const at::Tensor& means, const at::Tensor& 
   at::Tensor depths = at::empty({cams, n}, opts);
   at::Tensor radii = at::empty({cams, n}, opts);
   at::Tensor visible = at::empty({cams, n}, opts.dtype(at::kBool));
+  at::Tensor sort_depths = at::empty({cams, n}, opts.dtype(at::kDouble));
   const scalar_t* mp = means.data_ptr<scalar_t>();
   const scalar_t* qp = quats.data_ptr<scalar_t>();
   const scalar_t* sp = scales.data_ptr<scalar_t>();
@@ -147,6 +148,7 @@ std::vector<at::Tensor> forward_impl(const at::Tensor& means, const at::Tensor& 
   scalar_t* dp = depths.data_ptr<scalar_t>();
   scalar_t* rp = radii.data_ptr<scalar_t>();
   bool* vp = visible.data_ptr<bool>();
+  double* sdp = sort_depths.data_ptr<double>();
   at::parallel_for(0, n, 512, [&](int64_t lo, int64_t hi) {
     Projected o;
     for (int64_t c = 0; c < cams; ++c) {
@@ -159,12 +161,13 @@ std::vector<at::Tensor> forward_impl(const at::Tensor& means, const at::Tensor& 
         m2[2 * i + 1] = vis ? scalar_t(o.mean2d[1]) : scalar_t(0);
         for (int k = 0; k < 3; ++k) cn[3 * i + k] = vis ? scalar_t(o.conic[k]) : scalar_t(0);
         dp[i] = scalar_t(o.p[2]);
+        sdp[i] = o.p[2];
         rp[i] = vis ? scalar_t(o.radius) : scalar_t(0);
         vp[i] = vis;
       }
     }
   });
-  return {means2d, conics, depths, radii, visible};
+  return {means2d, conics, depths, radii, visible, sort_depths};
 }
 
 template <typename scalar_t>

@@ -7,7 +7,8 @@
 
 namespace smokeseer {
 
-// (means2d [C,N,2], conics [C,N,3], depths [C,N], radii [C,N], visible [C,N] bool)
+// (means2d [C,N,2], conics [C,N,3], depths [C,N], radii [C,N], visible [C,N] bool,
+//  depths in float64 [C,N]: the front-to-back sort key, free of float32 ties)
 std::vector<at::Tensor> project_forward(const at::Tensor& means, const at::Tensor& quats, const at::Tensor& scales,
                                         const at::Tensor& viewmats, const at::Tensor& ks, int64_t width,
                                         int64_t height, double near_plane, double far_plane);
