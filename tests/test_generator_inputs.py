@@ -123,7 +123,7 @@ def test_sigterm_stops_like_ctrl_c_and_resumes(tmp_path: Path) -> None:
     assert stderr.strip().splitlines()[-1] == "generate-scene: interrupted; run the same command again to resume"
     assert not out.exists() and (staging / "scene.blend").exists()
     worker_log = (staging / "logs" / "worker.log").read_text()
-    assert "@@done" not in worker_log, "the worker must stop with its parent"
+    assert '@@done {"stage": "render"' not in worker_log, "the render worker must stop with its parent"
     resumed = subprocess.run(args, cwd=REPO, capture_output=True, text=True, timeout=600)
     assert resumed.returncode == 0, resumed.stderr
     assert "bake reused" in resumed.stderr and not staging.exists()
