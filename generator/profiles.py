@@ -58,6 +58,10 @@ PROFILES: dict[str, Profile] = {
     "bench": Profile(
         "bench", "sized for a 2-core machine: the first second of each scene at thumbnail size",
         Overrides(frames=12, resolution=(96, 72), thermal_resolution=(48, 36), samples=16, sim_resolution=32)),
+    "standard": Profile(
+        "standard", "5 s of smoke (60 RGB frames at 12 fps) at 200x150 RGB / 80x60 thermal, 32 denoised "
+        "samples, 48-voxel simulation: the size at which smoke uncovers the surface over time",
+        Overrides(frames=60, resolution=(200, 150), thermal_resolution=(80, 60), samples=32, sim_resolution=48)),
     "paper": Profile(
         "paper", "150 frames at 800x600 RGB / 320x240 thermal, 128 samples, 128-voxel simulation",
         Overrides(frames=150, resolution=(800, 600), thermal_resolution=(320, 240), samples=128,
