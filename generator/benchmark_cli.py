@@ -115,7 +115,7 @@ def run_scene(scene: str, profile: Profile, out_root: Path, force: bool, threads
         "size_bytes": size, "files": n_files, "stats": meta.get("stats", {}),
         "opacity_in_smoke": float(inside.mean()) if inside.size else None, "target_opacity": target,
         "extinction_scale": extinction_scale(alphas, threshold, target),
-        "extinction_per_m": spec.smoke.extinction_per_m,
+        "extinction_per_m": spec.smoke.extinction_per_m, "code_sha256": meta.get("code_sha256"),
     }
 
 

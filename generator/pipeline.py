@@ -23,6 +23,7 @@ from tqdm import tqdm
 from generator import postprocess
 from generator.assets import Manifest, load_manifest
 from contracts.atomic import write_json
+from contracts.source import code_digest
 from contracts.dataset_format import FORMAT, FORMAT_VERSION, PASS_FILES, file_path, transforms_name, validate_dataset
 from generator.errors import GeneratorError
 from generator.job import (Plan, effective_denoise, load_scene_meshes, make_job, make_plan, resolve_asset_materials,
@@ -48,19 +49,30 @@ def versions() -> dict[str, str]:
     return out
 
 
-def _staging(out: Path, spec: SceneSpec) -> Path:
-    """The staging folder for this spec: reused when the spec hash matches, else replaced."""
+def render_code_digest() -> str:
+    """Digest of the code that turns a spec into images: this module's and the Blender worker's
+    project imports (docstrings and comments excluded, package data such as presets included)."""
+    return code_digest("generator.pipeline", "blender.worker")
+
+
+def _staging(out: Path, spec: SceneSpec, code: str) -> Path:
+    """The staging folder for this spec: reused only when both the spec hash and the render code
+    digest match (images from other code are not this code's output), else replaced."""
     work = out.parent / f".{out.name}.partial"
     mark = work / STAGING_MARK
     if work.exists():
         previous = json.loads(mark.read_text()) if mark.exists() else {}
-        if previous.get("spec_sha256") == spec.sha256():
+        if previous.get("spec_sha256") != spec.sha256():
+            log.info("discarding stale staging folder %s (different spec)", work)
+        elif previous.get("code_sha256") != code:
+            log.info("discarding stale staging folder %s (different generator code: %s, now %s)", work,
+                     str(previous.get("code_sha256", "not recorded"))[:12], code[:12])
+        else:
             log.info("resuming from %s", work)
             return work
-        log.info("discarding stale staging folder %s (different spec)", work)
         shutil.rmtree(work)
     (work / "dataset").mkdir(parents=True)
-    write_json(mark, {"spec_sha256": spec.sha256(), "scene": spec.name})
+    write_json(mark, {"spec_sha256": spec.sha256(), "code_sha256": code, "scene": spec.name})
     return work
 
 
@@ -113,12 +125,13 @@ def _postprocess(spec: SceneSpec, plan: Plan, work: Path, sensor: ThermalSensor 
 
 
 def _metadata(spec: SceneSpec, plan: Plan, sensor: ThermalSensor | None, summary: dict[str, Any],
-              stats: dict[str, Any], timings: dict[str, Any]) -> dict[str, Any]:
+              stats: dict[str, Any], timings: dict[str, Any], code: str) -> dict[str, Any]:
     optics = plan.optics
     coeffs = smoke_coefficients(spec, optics) if spec.has_smoke else None
     meta: dict[str, Any] = {
         "format": FORMAT, "format_version": FORMAT_VERSION, "scene": spec.name, "seed": spec.seed,
-        "spec_sha256": spec.sha256(), "duration_s": plan.timeline.duration_s, "sim_fps": spec.sim.fps,
+        "spec_sha256": spec.sha256(), "code_sha256": code,
+        "duration_s": plan.timeline.duration_s, "sim_fps": spec.sim.fps,
         "passes": {m: list(p) for m, p in spec.passes.items()},
         "smoke": {"present": spec.has_smoke, "fire": spec.has_fire, "static": spec.sim.static,
                   "mask_threshold": spec.smoke.mask_threshold, "density": spec.smoke.density,
@@ -153,7 +166,8 @@ def generate(spec: SceneSpec, out: Path, manifest: Manifest | None = None, sourc
     spec = resolve_asset_materials(spec, manifest, source)
     plan = make_plan(spec)
     meshes = load_scene_meshes(spec, manifest, source)
-    work = _staging(out, spec)
+    code = render_code_digest()
+    work = _staging(out, spec, code)
     threads = threads or max(1, os.cpu_count() or 1)
     job = make_job(spec, plan, manifest, source, work, threads, meshes)
     log.info("scene %s: %d RGB + %d thermal frames, passes %s, sim %d^3 over %d frames",
@@ -178,7 +192,7 @@ def generate(spec: SceneSpec, out: Path, manifest: Manifest | None = None, sourc
                "worker": summary.get("wall_s"), "postprocess": post_s,
                "render": {k: v["seconds_per_frame"] for k, v in summary["passes"].items()},
                "total": time.perf_counter() - started}
-    write_json(dataset / "dataset.json", _metadata(spec, plan, sensor, summary, stats, timings))
+    write_json(dataset / "dataset.json", _metadata(spec, plan, sensor, summary, stats, timings, code))
     validate_dataset(dataset)
     if out.exists():
         shutil.rmtree(out)

@@ -127,3 +127,39 @@ def test_sigterm_stops_like_ctrl_c_and_resumes(tmp_path: Path) -> None:
     resumed = subprocess.run(args, cwd=REPO, capture_output=True, text=True, timeout=600)
     assert resumed.returncode == 0, resumed.stderr
     assert "bake reused" in resumed.stderr and not staging.exists()
+
+
+def test_staging_folder_is_reused_only_for_the_same_spec_and_render_code(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
+    """Images rendered by older code are not this code's output: a resume after a code change
+    must start over, and the log must say it was the code, not the spec, that differed."""
+    import dataclasses
+    import logging
+
+    from contracts.source import module_closure
+    from generator import pipeline
+    from generator.spec import load_spec_file
+
+    spec = load_spec_file(PRESET_DIR / "demo.yaml")
+    out = tmp_path / "scene"
+    monkeypatch.setattr(pipeline, "code_digest", lambda *roots: "a" * 64)
+    work = pipeline._staging(out, spec, pipeline.render_code_digest())
+    old_image = work / "raw" / "0000.png"
+    old_image.parent.mkdir()
+    old_image.write_bytes(b"rendered by code a")
+    assert pipeline._staging(out, spec, pipeline.render_code_digest()) == work and old_image.exists()
+
+    monkeypatch.setattr(pipeline, "code_digest", lambda *roots: "b" * 64)
+    with caplog.at_level(logging.INFO, logger="generate-scene"):
+        work = pipeline._staging(out, spec, pipeline.render_code_digest())
+    assert not old_image.exists(), "a staging folder from other render code was reused"
+    assert "different generator code" in caplog.text and "different spec" not in caplog.text
+    assert (work / "dataset").is_dir()
+
+    changed = dataclasses.replace(spec, seed=spec.seed + 1)
+    with caplog.at_level(logging.INFO, logger="generate-scene"):
+        pipeline._staging(out, changed, pipeline.render_code_digest())
+    assert "different spec" in caplog.text
+    # the digest's roots reach the modules that actually render and post-process
+    names = {m.name for m in module_closure("generator.pipeline", "blender.worker")}
+    assert {"blender.render", "blender.scene", "generator.postprocess", "generator.optics.sensor"} <= names
