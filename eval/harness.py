@@ -35,7 +35,7 @@ from contracts.results_format import ResultsFormatError, read_metrics
 from contracts.source import code_digest
 from eval.dehaze import dehaze_dataset, get_dehazer
 from eval.runs import ABLATIONS, METHODS, VARIANTS, RunResult, RunSpec, config_hash
-from smokeseer.config import LPIPS_NETS
+from smokeseer.config import LPIPS_NETS, PROFILES
 
 log = logging.getLogger("regenerate-tables")
 
@@ -104,8 +104,8 @@ class HarnessConfig:
             raise ValueError("methods: nothing to run (no methods and no ablations)")
         if not self.seeds or any(s < 0 for s in self.seeds) or len(set(self.seeds)) != len(self.seeds):
             raise ValueError(f"seeds: need distinct non-negative seeds, got {self.seeds}")
-        if self.profile not in ("quick", "paper"):
-            raise ValueError(f"profile: must be quick or paper, got {self.profile!r}")
+        if self.profile not in PROFILES:
+            raise ValueError(f"profile: must be one of {', '.join(PROFILES)}, got {self.profile!r}")
         if self.workers < 1:
             raise ValueError(f"workers: must be >= 1, got {self.workers}")
         if self.lpips_net not in LPIPS_NETS:
@@ -422,9 +422,10 @@ def plan_runs(cfg: HarnessConfig, datasets: dict[str, DatasetOutcome],
     return specs
 
 
-SECONDS_PER_RUN = {"quick": 240.0, "paper": 2700.0}
+SECONDS_PER_RUN = {"quick": 240.0, "standard": 600.0, "paper": 2700.0}
 """Rough wall time of one run when the output folder has no finished run to learn from: the
-quick profile's demo run on 2 CPU cores (README), and the paper's 10 + 30 minutes on an RTX 4090."""
+quick profile's demo run on 2 CPU cores (README), the standard profile's 5-10 min budget on one
+core, and the paper's 10 + 30 minutes on an RTX 4090."""
 
 
 @dataclass

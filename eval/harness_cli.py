@@ -64,8 +64,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also run Table 2's ablations")
     p.add_argument("--ablation-list", type=_list, default=list(ABLATIONS), help=f"subset of {', '.join(ABLATIONS)}")
     p.add_argument("--seeds", default="3", help="count N (seeds 0..N-1) or comma list (default 3)")
-    p.add_argument("--profile", choices=("quick", "paper"), default="quick",
-                   help="training profile of every run (quick: minutes on a CPU; paper: the paper's schedule, GPU)")
+    p.add_argument("--profile", choices=("quick", "standard", "paper"), default="quick",
+                   help="training profile of every run (quick: minutes on a CPU; standard: the benchmark scale, 5-10 min a "
+                        "run on one core; paper: the paper's schedule, GPU)")
     p.add_argument("--workers", type=int, default=default_workers(), help="parallel tasks (default: cores/2)")
     p.add_argument("--scheduler", default=None,
                    help='Dask scheduler address (tcp://host:8786), or "local" for a Dask LocalCluster; '
@@ -77,9 +78,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="tiny budget: stage2/stage3 iterations (also sets stage3.test_every to a quarter)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="trainer override, dotted key, value read as YAML (as train-and-evaluate --set)")
-    p.add_argument("--gen-profile", choices=("bench", "paper", "native"), default=None,
-                   help="generator size profile for the scenes (default: bench with --profile quick, paper "
-                        "with --profile paper; native keeps each preset's own size); the flags below refine it")
+    p.add_argument("--gen-profile", choices=("bench", "standard", "paper", "native"), default=None,
+                   help="generator size profile for the scenes (default: bench with --profile quick, standard with "
+                        "--profile standard, paper with --profile paper; native keeps each preset's own size); the flags below refine it")
     p.add_argument("--frames", type=int, default=None, help="generator override")
     p.add_argument("--resolution", type=parse_size_checked, default=None, help="generator override: RGB WIDTHxHEIGHT")
     p.add_argument("--thermal-resolution", type=parse_size_checked, default=None, help="generator override: WIDTHxHEIGHT")
@@ -117,7 +118,7 @@ def config_from_args(args: argparse.Namespace) -> HarnessConfig:
         train.setdefault("stage2.iterations", args.iterations)
         train.setdefault("stage3.iterations", args.iterations)
         train.setdefault("stage3.test_every", max(1, args.iterations // 4))
-    gen_profile = args.gen_profile or ("bench" if args.profile == "quick" else "paper")
+    gen_profile = args.gen_profile or {"quick": "bench", "standard": "standard", "paper": "paper"}[args.profile]
     gen = {} if gen_profile == "native" else get_profile(gen_profile).kwargs()
     gen.update(parse_set_items(args.gen_set, "--gen-set"))
     for key in ("frames", "resolution", "thermal_resolution", "samples", "sim_resolution"):

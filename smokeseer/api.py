@@ -23,8 +23,9 @@ from smokeseer.cameras import sample_in_view
 from smokeseer.config import TrainConfig, make_config
 from smokeseer.data import ModalityData, SceneData, load_scene
 from smokeseer.depth_prior import DepthPriorMaps, monocular_depth_prior, rendered_depth_prior
-from smokeseer.evaluate import quick_test_psnr, score, write_plys, write_renders
+from smokeseer.evaluate import heldout_psnr, score, score_validation, write_plys, write_renders
 from smokeseer.model import Placed, SceneModel, init_gaussians, render
+from smokeseer.splits import hold_out_validation
 from smokeseer.stage1 import Stage1Report, run_stage1
 from smokeseer.stage2 import train_stage2, views_of
 from smokeseer.stage3 import Stage3Switches, build_scene_model, dropped_term_notes, train_stage3
@@ -89,6 +90,7 @@ def prepare(dataset: Path, mode: str = "full", profile: str = "quick", seed: int
     if (dataset / "dataset.json").is_file():
         validate_dataset(dataset)
     scene = load_scene(dataset, cfg.max_width)
+    hold_out_validation(scene.rgb, cfg.validation_every)
     report = run_stage1(cfg, scene)
     return PreparedRun(cfg, dataset, scene, report, switches_for(cfg, scene), time.perf_counter() - t)
 
@@ -141,7 +143,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
                      torch.as_tensor(b.center, dtype=torch.float32, device=dev), b.extent)
     geo = scene.thermal if switches.use_thermal else scene.rgb
     ctx.log_line(f"stage 1: {scene.name}: {len(scene.rgb.frames)} RGB frames "
-                 f"({len(scene.rgb.indices('test'))} test), "
+                 f"({len(scene.rgb.indices('test'))} test, {len(scene.rgb.indices('val'))} validation), "
                  f"{len(scene.thermal.frames) if scene.thermal else 0} thermal; geometry from {geo.name}; "
                  f"smoke={'on' if switches.use_smoke else 'off'} deform={'on' if switches.use_deform else 'off'} "
                  f"registered={report.registered} extent={b.extent:.3g}")
@@ -171,10 +173,10 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
             return None
         m = SceneModel(g, None, None, True, ctx.center, cfg.sh_degree, surface_deform=deform,
                        background_rgb=background)
-        return quick_test_psnr(m, scene, dev)
+        return heldout_psnr(m, scene, dev)
 
     t = time.perf_counter()
-    s2 = train_stage2(ctx, geo, init, deformable=deformable, test_psnr=s2_psnr)
+    s2 = train_stage2(ctx, geo, init, deformable=deformable, heldout_psnr=s2_psnr)
     wall["stage2"] = time.perf_counter() - t
     ctx.log_line(f"stage 2: {s2.gaussians.n} Gaussians from {geo.name} in {wall['stage2']:.1f} s")
     t = time.perf_counter()
@@ -188,13 +190,14 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
         model = build_scene_model(ctx, s2, switches, smoke_pts, scene.smoke_static)
         prior = _depth_prior(cfg, s2.gaussians, scene, dev)
         model = train_stage3(ctx, model, scene.rgb, scene.thermal, switches, prior,
-                             test_psnr=lambda m, it: quick_test_psnr(m, scene, dev))
+                             heldout_psnr=lambda m, it: heldout_psnr(m, scene, dev))
         wall["stage3"] = time.perf_counter() - t
         ctx.log_line(f"stage 3: {model.surface.n} surface + {model.smoke.n if model.smoke else 0} smoke "
                      f"Gaussians in {wall['stage3']:.1f} s")
     t = time.perf_counter()
     renders = write_renders(model, scene, out, dev)
     scores = score(renders, scene, cfg.lpips_net, cfg.lpips_weights or None, cfg.lpips_heads or None)
+    validation = score_validation(model, scene, dev)
     write_plys(model, out, cfg.smoke_ply_times)
     wall["eval"] = time.perf_counter() - t
     wall["total"] = time.perf_counter() - t_start
@@ -203,6 +206,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
                  f"in {wall['eval']:.1f} s")
     doc = _metrics_doc(cfg, scene.name, prep.dataset, "ok")
     doc.update(scores)
+    doc["validation"] = validation
     doc["wall_time_s"] = {k: round(v, 3) for k, v in wall.items()}
     if estimate is not None:
         doc["wall_time_s"]["estimated_min"] = round(estimate, 3)

@@ -1,4 +1,4 @@
-"""``train-and-evaluate DATASET --mode MODE --out RUN_DIR [--profile quick|paper]``.
+"""``train-and-evaluate DATASET --mode MODE --out RUN_DIR [--profile quick|standard|paper]``.
 
 Bad input (options, dataset, a damaged checkpoint) prints one error line and exits 2, and
 leaves nothing new in RUN_DIR; a diverged run (NaN) exits 1 after writing the last good state
@@ -24,7 +24,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="method or ablation to train (default full; see docs/method.md)")
     p.add_argument("--out", type=Path, required=True, help="run directory (resumed if it has checkpoints)")
     p.add_argument("--profile", default="quick", choices=PROFILES,
-                   help="quick: minutes on a CPU at reduced size; paper: the paper's 15k+15k schedule, for a GPU")
+                   help="quick: minutes on a CPU at reduced size; standard: the benchmark scale, 5-10 min on one core with a "
+                        "validation split; paper: the paper's 15k+15k schedule, for a GPU")
     p.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
     p.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda")
     p.add_argument("--iterations-stage2", type=int, help="override the profile's Stage 2 iterations")

@@ -30,25 +30,44 @@ class TestRenders:
     smoke_alpha: list[np.ndarray | None]
 
 
-def test_views(scene: SceneData, device: torch.device) -> tuple[list[int], list[View]]:
-    idx = scene.rgb.indices("test")
+def split_views(scene: SceneData, device: torch.device, split: str = "test") -> tuple[list[int], list[View]]:
+    idx = scene.rgb.indices(split)
     fr = scene.rgb.frames
     return idx, [make_view(fr[i].viewmat, fr[i].K, fr[i].width, fr[i].height, fr[i].time, device) for i in idx]
 
 
-def quick_test_psnr(model: SceneModel, scene: SceneData, device: torch.device) -> float | None:
-    """Mean PSNR of surface-only renders against clean test images (for the run log)."""
-    if scene.rgb.clean is None:
-        return None
-    idx, views = test_views(scene, device)
-    if not idx:
-        return None
-    vals = []
+def _surface_images(model: SceneModel, views: list[View]) -> list[np.ndarray]:
     with torch.no_grad():
-        for i, v in zip(idx, views):
-            img = model.render_rgb(v, smoke=False).colors[0].clamp(0, 1).cpu().numpy()
-            vals.append(psnr(img, scene.rgb.clean[i]))
-    return float(np.mean(vals))
+        return [model.render_rgb(v, smoke=False).colors[0].clamp(0, 1).cpu().numpy() for v in views]
+
+
+def split_psnr(model: SceneModel, scene: SceneData, device: torch.device, split: str) -> float | None:
+    """Mean PSNR of surface-only renders against the clean images of one RGB split."""
+    idx, views = split_views(scene, device, split)
+    if scene.rgb.clean is None or not idx:
+        return None
+    return float(np.mean([psnr(img, scene.rgb.clean[i]) for i, img in zip(idx, _surface_images(model, views))]))
+
+
+def heldout_psnr(model: SceneModel, scene: SceneData, device: torch.device) -> dict[str, float | None]:
+    """Validation and test PSNR for the run log. Only the validation column may steer choices;
+    the test column is logged for the error-against-time curves."""
+    return {"val_psnr": split_psnr(model, scene, device, "val"),
+            "test_psnr": split_psnr(model, scene, device, "test")}
+
+
+def score_validation(model: SceneModel, scene: SceneData, device: torch.device) -> dict[str, Any] | None:
+    """PSNR and SSIM of the surface-only renders on the validation views (metrics.json
+    ``validation``); None without validation views or clean ground truth."""
+    idx, views = split_views(scene, device, "val")
+    if scene.rgb.clean is None or not idx:
+        return None
+    imgs = _surface_images(model, views)
+    gts = [scene.rgb.clean[i].astype(np.float64) for i in idx]
+    return {"views": len(idx),
+            "psnr": float(np.mean([psnr(a, b) for a, b in zip(imgs, gts)])),
+            "ssim": float(np.mean([ssim_3dgs(a, b) for a, b in zip(imgs, gts)])),
+            "psnr_input": float(np.mean([psnr(scene.rgb.images[i], g) for i, g in zip(idx, gts)]))}
 
 
 def _save_png8(path: Path, img: np.ndarray) -> None:
@@ -75,7 +94,7 @@ def thermal_test_view(scene: SceneData, i: int, device: torch.device) -> View | 
 
 def write_renders(model: SceneModel, scene: SceneData, out: Path, device: torch.device) -> TestRenders:
     """renders/{composite,surface,smoke,thermal}/NNNN.png for every test view."""
-    idx, views = test_views(scene, device)
+    idx, views = split_views(scene, device)
     res = TestRenders([], [], [], [])
     lo_hi = scene.thermal.counts_range if scene.thermal is not None else None
     with torch.no_grad():

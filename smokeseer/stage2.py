@@ -61,7 +61,8 @@ def draw_index(ctx: RunContext, n: int) -> int:
     return int(torch.randint(n, (1,), generator=ctx.generator, device=ctx.generator.device))
 
 
-Stage2TestPsnr = Callable[[GaussianSet, DeformNetwork | None, EnvironmentBackground | None, int], float | None]
+Stage2HeldoutPsnr = Callable[[GaussianSet, DeformNetwork | None, EnvironmentBackground | None, int],
+                             dict[str, float | None] | None]
 
 
 class Stage2Problem(StageProblem):
@@ -72,9 +73,9 @@ class Stage2Problem(StageProblem):
     name = "stage 2"
 
     def __init__(self, ctx: RunContext, mod: ModalityData, init_points: np.ndarray, deformable: bool,
-                 test_psnr: Stage2TestPsnr | None) -> None:
+                 heldout_psnr: Stage2HeldoutPsnr | None) -> None:
         cfg, dev = ctx.cfg, ctx.device
-        self.ctx, self.cfg, self.test_fn = ctx, cfg, test_psnr
+        self.ctx, self.cfg, self.heldout_fn = ctx, cfg, heldout_psnr
         self.color = "thermal" if mod.name == "thermal" else "rgb"
         tensors = init_gaussians(init_points, cfg.stage2.init_opacity, cfg.stage2.init_scale_max * ctx.extent, dev)
         if self.color == "thermal":
@@ -156,25 +157,25 @@ class Stage2Problem(StageProblem):
                 module.load_state_dict(payload[key])
                 opt.load_state_dict(payload[f"{key}_optimizer"])
 
-    def log_row(self, it: int, out: IterationOutput, test_psnr: float | None) -> dict[str, Any]:
+    def log_row(self, it: int, out: IterationOutput, heldout: dict[str, float | None] | None) -> dict[str, Any]:
         row: dict[str, Any] = {"stage": 2, "iteration": it, "n_gaussians": self.g.n,
-                               "loss": float(out.loss.detach()), "test_psnr": test_psnr}
+                               "loss": float(out.loss.detach()), **(heldout or {})}
         row.update({n: float(v.detach()) for n, v in out.terms.items()})
         return row
 
-    def test_psnr(self, it: int) -> float | None:
-        return None if self.test_fn is None else self.test_fn(self.g, self.deform, self.background, it)
+    def heldout_psnr(self, it: int) -> dict[str, float | None] | None:
+        return None if self.heldout_fn is None else self.heldout_fn(self.g, self.deform, self.background, it)
 
     def result(self) -> Stage2Result:
         return Stage2Result(self.g, self.deform, self.color, self.background)
 
 
 def train_stage2(ctx: RunContext, mod: ModalityData, init_points: np.ndarray, deformable: bool,
-                 test_psnr: Stage2TestPsnr | None = None) -> Stage2Result:
+                 heldout_psnr: Stage2HeldoutPsnr | None = None) -> Stage2Result:
     """Stage 2 through the shared loop; resumes from checkpoints/stage2.pt. Its checkpoint is keyed
     by the Stage-2 settings only, so ablations that differ in Stage 3 share it."""
     cfg = ctx.cfg
-    problem = Stage2Problem(ctx, mod, init_points, deformable, test_psnr)
+    problem = Stage2Problem(ctx, mod, init_points, deformable, heldout_psnr)
     run_stage(ctx, problem, StageSchedule(cfg.stage2.iterations, cfg.log_every, cfg.stage3.test_every,
                                           cfg.checkpoint_every, ctx.stage2_sha))
     return problem.result()

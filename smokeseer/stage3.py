@@ -25,6 +25,8 @@ from smokeseer.stage2 import Stage2Result, draw_index, make_background, views_of
 from smokeseer.trainloop import IterationOutput, StageProblem, StageSchedule, run_stage
 from smokeseer.trainutil import RunContext, exp_lr, grads_of
 
+HeldoutPsnr = Callable[[SceneModel, int], dict[str, float | None] | None]
+
 
 @dataclass
 class Stage3Switches:
@@ -123,9 +125,9 @@ class Stage3Problem(StageProblem):
 
     def __init__(self, ctx: RunContext, model: SceneModel, rgb: ModalityData, thermal: ModalityData | None,
                  switches: Stage3Switches, prior: DepthPriorMaps | None,
-                 test_psnr: Callable[[SceneModel, int], float | None] | None) -> None:
+                 heldout_psnr: HeldoutPsnr | None) -> None:
         cfg, dev = ctx.cfg, ctx.device
-        self.ctx, self.cfg, self.model, self.prior, self.test_fn = ctx, cfg, model, prior, test_psnr
+        self.ctx, self.cfg, self.model, self.prior, self.heldout_fn = ctx, cfg, model, prior, heldout_psnr
         self.weights = loss_weights(cfg)
         self._make_optimizers()
         self.strategy = DensifyStrategy(cfg.stage3.smoke_densify, ("opacity_rgb", "opacity_thermal"), ctx.extent)
@@ -261,24 +263,24 @@ class Stage3Problem(StageProblem):
             if opt is not None and payload.get(key) is not None:
                 opt.load_state_dict(payload[key])
 
-    def log_row(self, it: int, out: IterationOutput, test_psnr: float | None) -> dict[str, Any]:
+    def log_row(self, it: int, out: IterationOutput, heldout: dict[str, float | None] | None) -> dict[str, Any]:
         model = self.model
         row: dict[str, Any] = {"stage": 3, "iteration": it, "n_gaussians": model.surface.n,
                                "n_smoke": model.smoke.n if model.smoke is not None else 0,
-                               "loss": float(out.loss.detach()), "test_psnr": test_psnr}
+                               "loss": float(out.loss.detach()), **(heldout or {})}
         row.update({n: float(v.detach()) for n, v in out.terms.items()})
         return row
 
-    def test_psnr(self, it: int) -> float | None:
-        return None if self.test_fn is None else self.test_fn(self.model, it)
+    def heldout_psnr(self, it: int) -> dict[str, float | None] | None:
+        return None if self.heldout_fn is None else self.heldout_fn(self.model, it)
 
 
 def train_stage3(ctx: RunContext, model: SceneModel, rgb: ModalityData, thermal: ModalityData | None,
                  switches: Stage3Switches, prior: DepthPriorMaps | None,
-                 test_psnr: Callable[[SceneModel, int], float | None] | None = None) -> SceneModel:
+                 heldout_psnr: HeldoutPsnr | None = None) -> SceneModel:
     """Stage 3 through the shared loop; resumes from checkpoints/stage3.pt."""
     cfg = ctx.cfg
-    problem = Stage3Problem(ctx, model, rgb, thermal, switches, prior, test_psnr)
+    problem = Stage3Problem(ctx, model, rgb, thermal, switches, prior, heldout_psnr)
     run_stage(ctx, problem, StageSchedule(cfg.stage3.iterations, cfg.log_every, cfg.stage3.test_every,
                                           cfg.checkpoint_every, ctx.config_sha))
     return problem.model

@@ -61,11 +61,11 @@ class StageProblem(ABC):
         """Restore what ``state`` returned."""
 
     @abstractmethod
-    def log_row(self, it: int, out: IterationOutput, test_psnr: float | None) -> dict[str, Any]:
+    def log_row(self, it: int, out: IterationOutput, heldout: dict[str, float | None] | None) -> dict[str, Any]:
         """The train_log.csv row of iteration ``it``."""
 
-    def test_psnr(self, it: int) -> float | None:
-        """Held-out PSNR for the log, or None where the stage has none."""
+    def heldout_psnr(self, it: int) -> dict[str, float | None] | None:
+        """Held-out PSNRs for the log (``val_psnr``, ``test_psnr``), or None where the stage has none."""
         return None
 
 
@@ -140,7 +140,7 @@ def run_stage(ctx: RunContext, problem: StageProblem, sched: StageSchedule) -> N
         del last_good
         if it % sched.log_every == 0 or it == total:
             due = sched.test_every > 0 and (it % sched.test_every == 0 or it == total)
-            ctx.log.write(problem.log_row(it, out, problem.test_psnr(it) if due else None))
+            ctx.log.write(problem.log_row(it, out, problem.heldout_psnr(it) if due else None))
             bar.set_postfix(loss=f"{float(out.loss.detach()):.4f}")
         if sched.checkpoint_every and it % sched.checkpoint_every == 0 and it < total:
             save_checkpoint(ctx.checkpoint_path(problem.stage), payload(it, False, problem.state()))

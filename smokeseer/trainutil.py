@@ -44,14 +44,14 @@ def grads_of(prefix: str, params: dict[str, torch.nn.Parameter]) -> list[tuple[s
 
 
 class RunLog:
-    """train_log.csv: iteration, stage, wall_s, loss terms, test_psnr; appends across resumes.
+    """train_log.csv: iteration, stage, wall_s, loss terms, val_psnr, test_psnr; appends across resumes.
 
     Columns are fixed up front (every loss term any stage may log) so the file stays one table.
     """
 
     COLUMNS = ["stage", "iteration", "wall_s", "n_gaussians", "n_smoke", "loss", "render_rgb",
                "render_thermal", "smoke_alpha", "smoke_color", "mono", "depth", "mask",
-               "thermal_smoke_opacity", "test_psnr"]
+               "thermal_smoke_opacity", "val_psnr", "test_psnr"]
 
     def __init__(self, path: Path, wall_offset: float = 0.0) -> None:
         self.path = path
