@@ -54,7 +54,7 @@ class DeformConfig:
     warmup_iterations: int = 3000
     lr_init: float = 8e-4
     lr_final: float = 1.6e-6
-    predict_rotation_scale: bool = False
+    predict_rotation_scale: bool = False  # smoke offsets in rotation and log-scale too (the paper)
 
 
 @dataclass
@@ -244,14 +244,14 @@ def _standard() -> TrainConfig:
                                     max_gaussians=10_000),
         test_every=250,
     )
-    deform = DeformConfig(depth=6, width=128, skip_layer=3, warmup_iterations=500)
+    deform = DeformConfig(depth=6, width=128, skip_layer=3, warmup_iterations=500, predict_rotation_scale=True)
     return TrainConfig(profile="standard", max_width=0, sh_degree=2, sh_increase_every=800,
                        stage2=s2, stage3=s3, deform=deform, checkpoint_every=500)
 
 
 def _paper() -> TrainConfig:
     """The paper's schedule: 15k + 15k iterations at full resolution (meant for GPUs)."""
-    return TrainConfig(profile="paper", max_width=0)
+    return TrainConfig(profile="paper", max_width=0, deform=DeformConfig(predict_rotation_scale=True))
 
 
 def make_config(mode: str = "full", profile: str = "quick", seed: int = 0,
