@@ -14,6 +14,7 @@ from typing import Any
 
 from contracts.errors import DatasetError
 from smokeseer.config import LPIPS_NETS, MODES, PROFILES, parse_set_items
+from smokeseer.raster.extension import KernelBuildError
 from smokeseer.trainutil import NaNDetected
 
 
@@ -61,6 +62,9 @@ def main(argv: list[str] | None = None) -> int:
         doc = train_and_evaluate(args.dataset, args.out, mode=args.mode, profile=args.profile,
                                  seed=args.seed, overrides=overrides_from_args(args))
     except (DatasetError, ValueError, FileNotFoundError) as exc:
+        print(f"train-and-evaluate: error: {exc}", file=sys.stderr)
+        return 2
+    except KernelBuildError as exc:
         print(f"train-and-evaluate: error: {exc}", file=sys.stderr)
         return 2
     except NaNDetected as exc:

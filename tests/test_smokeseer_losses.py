@@ -130,3 +130,35 @@ def test_deformation_sees_detached_canonical_positions() -> None:
     placed.means.sum().backward()
     assert torch.equal(g["means"].grad, torch.ones(n, 3))
     assert net.head.weight.grad is not None and net.head.weight.grad.abs().sum() > 0
+
+
+def _ssim_dense_reference(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """The former implementation: one 11×11 grouped convolution per map, zero padding."""
+    c = pred.shape[-1]
+    x, y = pred.permute(2, 0, 1)[None], target.permute(2, 0, 1)[None]
+    t = torch.arange(11, dtype=pred.dtype) - 5
+    g = torch.exp(-(t ** 2) / (2 * 1.5 ** 2))
+    g = g / g.sum()
+    w = torch.outer(g, g).expand(c, 1, 11, 11).contiguous()
+
+    def blur(z: torch.Tensor) -> torch.Tensor:
+        return torch.nn.functional.conv2d(z, w, padding=5, groups=c)
+
+    mx, my = blur(x), blur(y)
+    sxx, syy, sxy = blur(x * x) - mx * mx, blur(y * y) - my * my, blur(x * y) - mx * my
+    num = (2 * mx * my + 0.01 ** 2) * (2 * sxy + 0.03 ** 2)
+    den = (mx * mx + my * my + 0.01 ** 2) * (sxx + syy + 0.03 ** 2)
+    return (num / den).mean()
+
+
+@pytest.mark.parametrize("shape", [(30, 41, 3), (7, 5, 1), (64, 48, 2)])
+def test_separable_ssim_equals_dense_11x11_value_and_gradient(shape: tuple[int, int, int]) -> None:
+    gen = torch.Generator().manual_seed(sum(shape))
+    a = torch.rand(shape, generator=gen, dtype=torch.float32, requires_grad=True)
+    b = (a.detach() + 0.1 * torch.randn(shape, generator=gen)).clamp(0, 1)
+    ours = ssim(a, b)
+    (g_ours,) = torch.autograd.grad(ours, a)
+    ref = _ssim_dense_reference(a, b)
+    (g_ref,) = torch.autograd.grad(ref, a)
+    assert abs(float(ours) - float(ref)) < 1e-6
+    assert float((g_ours - g_ref).abs().max()) < 1e-6 * max(1.0, float(g_ref.abs().max()))

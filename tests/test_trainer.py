@@ -8,8 +8,11 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 import re
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -144,6 +147,18 @@ def test_divergence_is_reported_with_checkpoint(splat: Path, tmp_path: Path, cap
     doc = validate_run_dir(run)
     assert doc["status"] == "failed" and "NaNDetected" in doc["error"] and "metrics" not in doc
     assert (run / "checkpoints" / "stage2_nan.pt").is_file()
+
+
+def test_failed_kernel_build_is_one_line_and_exit_2(splat: Path, tmp_path: Path) -> None:
+    """A compiler that cannot build the CPU rasterizer ends the CLI with one error line, no traceback."""
+    env = {**os.environ, "CXX": "/bin/false", "TORCH_EXTENSIONS_DIR": str(tmp_path / "ext")}
+    proc = subprocess.run([sys.executable, "-m", "smokeseer.cli", str(splat), "--out", str(tmp_path / "r")] + TINY,
+                          env=env, cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True,
+                          timeout=300, check=False)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("train-and-evaluate:")]
+    assert len(errors) == 1 and "could not build the CPU tile rasterizer" in errors[0], proc.stderr[-2000:]
+    assert "Traceback" not in proc.stderr
 
 
 def test_bad_input_gives_one_line_and_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
