@@ -189,6 +189,13 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
         smoke_pts = _sample(scene.rgb, cfg.stage3.smoke_points, b, rng) if switches.use_smoke else None
         model = build_scene_model(ctx, s2, switches, smoke_pts, scene.smoke_static)
         prior = _depth_prior(cfg, s2.gaussians, scene, dev)
+        if prior is not None:
+            ctx.log_line(f"stage 3: depth term at the {prior.camera} camera ({cfg.depth_prior} prior, "
+                         f"{prior.maps.shape[0]} training views)")
+            if prior.camera != cfg.depth_camera:
+                note = f"depth term at the {prior.camera} camera, not {cfg.depth_camera}: this run has no thermal input"
+                switches.notes.append(note)
+                ctx.log_line(f"stage 3: {note}")
         model = train_stage3(ctx, model, scene.rgb, scene.thermal, switches, prior,
                              heldout_psnr=lambda m, it: heldout_psnr(m, scene, dev))
         wall["stage3"] = time.perf_counter() - t
@@ -223,7 +230,17 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
 def _depth_prior(cfg: TrainConfig, geometry: Any, scene: SceneData, dev: torch.device) -> DepthPriorMaps | None:
     if cfg.depth_prior == "none" or cfg.mode == "no-depth" or not cfg.stage3.train_surface_geometry:
         return None
-    idx = scene.rgb.indices("train")
+    camera = depth_camera(cfg, scene)
+    mod = scene.thermal if camera == "thermal" else scene.rgb
+    idx = mod.indices("train")
     if cfg.depth_prior == "mono":
-        return monocular_depth_prior(Path(cfg.mono_weights), torch.as_tensor(scene.rgb.images[idx], device=dev))
-    return rendered_depth_prior(geometry, views_of(scene.rgb, idx, dev))
+        return monocular_depth_prior(Path(cfg.mono_weights), torch.as_tensor(mod.images[idx], device=dev), camera)
+    return rendered_depth_prior(geometry, views_of(mod, idx, dev), camera)
+
+
+def depth_camera(cfg: TrainConfig, scene: SceneData) -> str:
+    """The camera the depth term compares at: ``cfg.depth_camera``, except that a run without
+    thermal input (rgb-only, or a capture without thermal) has only the RGB camera."""
+    if cfg.depth_camera == "thermal" and (cfg.mode == "rgb-only" or scene.thermal is None):
+        return "rgb"
+    return cfg.depth_camera

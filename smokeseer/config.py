@@ -131,6 +131,7 @@ class TrainConfig:
     background: str = "environment"
     background_sh_degree: int = 2
     depth_prior: str = "thermal-render"
+    depth_camera: str = "thermal"
     mono_weights: str = ""
     pose_noise_rot_deg: float = 0.0
     pose_noise_trans: float = 0.0
@@ -165,6 +166,8 @@ class TrainConfig:
             raise ValueError(f"background_sh_degree: must be in 0..3, got {self.background_sh_degree}")
         if self.depth_prior not in ("thermal-render", "mono", "none"):
             raise ValueError(f"depth_prior: {self.depth_prior!r} is not thermal-render, mono or none")
+        if self.depth_camera not in ("thermal", "rgb"):
+            raise ValueError(f"depth_camera: {self.depth_camera!r} is not thermal or rgb")
         if self.registration not in ("auto", "off", "trajectory"):
             raise ValueError(f"registration: {self.registration!r} is not auto, off or trajectory")
         if len(self.registration_lever_arm) not in (0, 3):
@@ -189,7 +192,7 @@ class TrainConfig:
         """Hash of the settings Stage 2 depends on, so a Stage 2 checkpoint is reused by runs
         that differ only in Stage 3 (ablations, Stage 3 budgets) on the same geometry."""
         d = self.to_dict()
-        for key in ("stage3", "loss", "depth_prior", "mono_weights", "smoke_ply_times", "progress",
+        for key in ("stage3", "loss", "depth_prior", "depth_camera", "mono_weights", "smoke_ply_times", "progress",
                     "log_every", "checkpoint_every", "profile", "lpips_net", "lpips_weights", "lpips_heads"):
             d.pop(key)
         d["mode"] = {"rgb-only": "rgb", "deformable-3dgs": "deformable-3dgs"}.get(self.mode, "thermal")
@@ -223,7 +226,8 @@ def _quick() -> TrainConfig:
     )
     deform = DeformConfig(depth=4, width=64, skip_layer=2, warmup_iterations=200)
     return TrainConfig(profile="quick", max_width=64, sh_degree=1, sh_increase_every=300,
-                       stage2=s2, stage3=s3, deform=deform, checkpoint_every=200, validation_every=0)
+                       stage2=s2, stage3=s3, deform=deform, checkpoint_every=200, validation_every=0,
+                       depth_camera="rgb")
 
 
 def _standard() -> TrainConfig:

@@ -159,6 +159,7 @@ class Stage3Problem(StageProblem):
         view = self.rgb_views[k]
         out = model.render_rgb(view, degree=degree, deform_active=deform_on)
         terms: dict[str, torch.Tensor] = {"render_rgb": render_loss(out.colors[0], self.rgb_imgs[k], cfg.loss.dssim)}
+        j = -1
         if self.th_imgs is not None:
             j = draw_index(self.ctx, len(self.th_views))
             tout = model.render_thermal(self.th_views[j], deform_active=deform_on)
@@ -177,7 +178,8 @@ class Stage3Problem(StageProblem):
             if self.th_imgs is not None and weights["thermal_smoke_opacity"] > 0:
                 terms["thermal_smoke_opacity"] = torch.sigmoid(model.smoke["opacity_thermal"]).mean()
         if self.prior is not None and weights["depth"] > 0:
-            terms["depth"] = self._depth_term(view, k)
+            terms["depth"] = (self._depth_term(self.th_views[j], j) if self.prior.camera == "thermal"
+                              else self._depth_term(view, k))
         loss = sum(weights["render"] * v if n.startswith("render") else weights[n] * v for n, v in terms.items())
         return IterationOutput(loss, terms, {"raster": out, "view": view, "deform_on": deform_on})
 

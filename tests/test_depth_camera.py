@@ -1,0 +1,48 @@
+"""The depth term compares at the thermal camera (the paper), or at the RGB camera when asked
+or when a run has no thermal input, and says which in the log and metrics.json."""
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+
+from smokeseer.api import depth_camera, prepare
+from smokeseer.cli import main
+from tests.test_smokeseer_data import write_splat_dataset
+from tests.test_trainer import TINY
+
+
+@pytest.fixture(scope="module")
+def splat(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_splat_dataset(tmp_path_factory.mktemp("dc") / "moving", n_rgb=8, n_thermal=6)
+
+
+def _depth_losses(run: Path) -> list[float]:
+    with (run / "train_log.csv").open() as fh:
+        return [float(r["depth"]) for r in csv.DictReader(fh) if r["stage"] == "3" and r["depth"]]
+
+
+@pytest.mark.parametrize("camera", ["thermal", "rgb"])
+def test_depth_term_runs_at_the_chosen_camera(splat: Path, tmp_path: Path, camera: str,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    run = tmp_path / camera
+    assert main([str(splat), "--out", str(run), "--set", f"depth_camera={camera}"] + TINY) == 0
+    assert f"depth term at the {camera} camera" in capsys.readouterr().err
+    losses = _depth_losses(run)
+    assert losses and all(v >= 0.0 for v in losses)
+
+
+def test_rgb_only_has_no_thermal_camera_and_says_so(splat: Path, tmp_path: Path) -> None:
+    prep = prepare(splat, mode="rgb-only", overrides={"depth_camera": "thermal"})
+    assert depth_camera(prep.cfg, prep.scene) == "rgb"
+    run = tmp_path / "rgb-only"
+    assert main([str(splat), "--mode", "rgb-only", "--out", str(run), "--set", "depth_camera=thermal"] + TINY) == 0
+    notes = json.loads((run / "metrics.json").read_text())["stages"]["notes"]
+    assert any("depth term at the rgb camera, not thermal" in n for n in notes)
+
+
+def test_unknown_camera_is_refused(splat: Path) -> None:
+    with pytest.raises(ValueError, match="depth_camera"):
+        prepare(splat, overrides={"depth_camera": "lidar"})
