@@ -40,9 +40,38 @@ def find_module(name: str, root: Path = PROJECT_ROOT) -> ModuleSource | None:
     return None
 
 
+@dataclass(frozen=True)
+class _Parsed:
+    """What the digest needs from one module file: its import names and its fingerprint."""
+
+    imports: frozenset[str]
+    fingerprint: str
+
+
+_PARSED: dict[tuple[str, bool, str], _Parsed] = {}
+
+
+def _parse(module: ModuleSource) -> _Parsed:
+    """Parse the module once per content and name (keyed by the bytes' SHA-256, so an edit is
+    never served stale): a run's provenance, the generator's staging key and the harness all
+    ask for overlapping closures in one process, and parsing plus dumping is most of the cost."""
+    source = module.path.read_bytes()
+    key = (module.name, module.is_package, hashlib.sha256(source).hexdigest())
+    parsed = _PARSED.get(key)
+    if parsed is None:
+        tree = ast.parse(source, filename=str(module.path))
+        imports = frozenset(_imported_names(tree, module))
+        fingerprint = ast.dump(_strip_docstrings(tree), annotate_fields=False, include_attributes=False)
+        parsed = _PARSED[key] = _Parsed(imports, fingerprint)
+    return parsed
+
+
 def imported_names(module: ModuleSource) -> set[str]:
     """Every dotted name the module's imports may refer to, wherever the import statement sits."""
-    tree = ast.parse(module.path.read_text(), filename=str(module.path))
+    return set(_parse(module).imports)
+
+
+def _imported_names(tree: ast.AST, module: ModuleSource) -> set[str]:
     package = module.name if module.is_package else module.name.rpartition(".")[0]
     names: set[str] = set()
     for node in ast.walk(tree):
@@ -103,8 +132,7 @@ def _strip_docstrings(tree: ast.AST) -> ast.AST:
 
 def code_fingerprint(path: Path) -> str:
     """The module's syntax tree without docstrings, as text: comments and layout do not count."""
-    tree = ast.parse(Path(path).read_text(), filename=str(path))
-    return ast.dump(_strip_docstrings(tree), annotate_fields=False, include_attributes=False)
+    return _parse(ModuleSource("", Path(path), False)).fingerprint
 
 
 def _package_data(module: ModuleSource) -> list[Path]:
@@ -127,7 +155,7 @@ def code_digest(*roots: str, root: Path = PROJECT_ROOT) -> str:
     """SHA-256 of the code of ``roots`` and everything of the project they import."""
     h = hashlib.sha256()
     for module in module_closure(*roots, root=root):
-        h.update(f"{module.name}\0{code_fingerprint(module.path)}\0".encode())
+        h.update(f"{module.name}\0{_parse(module).fingerprint}\0".encode())
         if module.is_package:
             for f in _package_data(module):
                 h.update(f"{module.name}/{f.relative_to(module.path.parent).as_posix()}\0".encode())
