@@ -11,12 +11,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
 import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from contracts.atomic import write_text
 
 Vec3 = tuple[float, float, float]
 
@@ -198,9 +199,7 @@ class WorkerJob:
     def write(self, path: Path) -> None:
         """Checked, then written atomically (the worker may be started on it at any time)."""
         check(self, str(path))
-        tmp = path.with_name(f".{path.name}.tmp")
-        tmp.write_text(json.dumps(self.to_data(), indent=1))
-        os.replace(tmp, path)
+        write_text(path, json.dumps(self.to_data(), indent=1))
 
     @classmethod
     def read(cls, path: Path) -> "WorkerJob":

@@ -5,14 +5,15 @@ what is visible, which objects are holdouts, the film, the samples and the outpu
 """
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Sequence
 
 import bpy
 from mathutils import Matrix
 
 from blender.job import CameraJob, ImageSize
+from contracts.atomic import atomic_path
 from blender.materials import SMOKE_WEIGHT
 from blender.scene import BuiltScene
 
@@ -151,7 +152,6 @@ def render_to(path: str, c2w: Sequence[Sequence[float]], blender_frame: int) -> 
     scene = bpy.context.scene
     scene.frame_set(blender_frame)  # always: right after a bake the current frame's state is stale
     scene.camera.matrix_world = Matrix(c2w)
-    tmp = f"{path}.tmp{os.path.splitext(path)[1]}"
-    scene.render.filepath = tmp
-    bpy.ops.render.render(write_still=True)
-    os.replace(tmp, path)
+    with atomic_path(Path(path)) as tmp:
+        scene.render.filepath = str(tmp)
+        bpy.ops.render.render(write_still=True)

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from blender.job import JobError, WorkerJob
+from contracts.atomic import atomic_path, write_text
 
 
 def emit(kind: str, **payload: Any) -> None:
@@ -69,14 +70,11 @@ def _bake(job: WorkerJob) -> None:
         scene_mod.add_interpolation_twin(built)
     import bpy
 
-    tmp = blend.with_name(blend.stem + ".tmp.blend")
-    bpy.ops.wm.save_as_mainfile(filepath=str(tmp), compress=False)
-    os.replace(tmp, blend)
+    with atomic_path(blend) as tmp:
+        bpy.ops.wm.save_as_mainfile(filepath=str(tmp), compress=False)
     previous = _previous_summary(job)
     _save_summary(job, {**previous, "timings": {**previous["timings"], **timings}})
-    tmp_json = built_path.with_suffix(".tmp")
-    tmp_json.write_text(json.dumps(built.to_json()))
-    os.replace(tmp_json, built_path)
+    write_text(built_path, json.dumps(built.to_json()))
 
 
 def _previous_summary(job: WorkerJob) -> dict[str, Any]:
@@ -124,10 +122,7 @@ def _render_all(job: WorkerJob, built) -> dict[str, Any]:
 
 
 def _save_summary(job: WorkerJob, summary: dict[str, Any]) -> None:
-    path = Path(job.summary_path)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(summary, indent=2))
-    os.replace(tmp, path)
+    write_text(Path(job.summary_path), json.dumps(summary, indent=2))
 
 
 def main(argv: list[str]) -> None:

@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from contracts.atomic import atomic_path
 from blender.job import (AssetJob, CameraJob, FireJob, FrameJob, ImageSize, MaterialJob, ObjectJob, RgbSmokeJob,
                         SimJob, SourceJob, TextureJob, ThermalSmokeJob, WorkerJob, WorldJob)
 from generator.assets import Manifest, MeshArrays, load_mesh
@@ -156,10 +157,8 @@ def _objects(spec: SceneSpec, manifest: Manifest, source: str, meshes: dict[str,
             mesh = meshes[asset.name]
             npz = mesh_dir / f"{asset.name}.npz"
             if not npz.exists():
-                mesh_dir.mkdir(parents=True, exist_ok=True)
-                tmp = npz.with_suffix(".tmp.npz")
-                np.savez(tmp, vertices=mesh.vertices, faces=mesh.faces)
-                tmp.replace(npz)
+                with atomic_path(npz) as tmp:
+                    np.savez(tmp, vertices=mesh.vertices, faces=mesh.faces)
             mesh_npz = str(npz)
         assert obj.material is not None, "resolve_asset_materials runs before the job is made"
         out.append(ObjectJob(name=obj.name, asset=AssetJob(asset.kind, dict(asset.params), asset.recipe, mesh_npz),

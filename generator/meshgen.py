@@ -18,6 +18,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from contracts.atomic import atomic_path
+
 MESH_DIR = Path(__file__).resolve().parents[1] / "assets" / "meshes"
 _MASK64 = np.uint64(0xFFFFFFFFFFFFFFFF)
 
@@ -186,13 +188,10 @@ def write_ply(path: Path, vertices: np.ndarray, faces: np.ndarray, comment: str)
     face_rows = np.zeros(len(faces), dtype=[("n", "u1"), ("i", "<i4", (3,))])
     face_rows["n"] = 3
     face_rows["i"] = faces
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    with tmp.open("wb") as fh:
+    with atomic_path(path) as tmp, tmp.open("wb") as fh:
         fh.write(header.encode("ascii"))
         fh.write(np.ascontiguousarray(vertices, dtype="<f4").tobytes())
         fh.write(face_rows.tobytes())
-    tmp.replace(path)
 
 
 def write_all(out_dir: Path = MESH_DIR) -> dict[str, Path]:
