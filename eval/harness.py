@@ -417,7 +417,7 @@ def plan_runs(cfg: HarnessConfig, datasets: dict[str, DatasetOutcome],
             v = VARIANTS[key]
             ds = dehazed[scene] if v.dehazer else datasets[scene]
             for seed in cfg.seeds:
-                specs.append(RunSpec(scene, key, v.mode, seed, cfg.profile, cfg.run_overrides(),
+                specs.append(RunSpec(scene, key, v.mode, seed, cfg.profile, {**cfg.run_overrides(), **v.overrides},
                                      ds.path, ds.hash, code))
     return specs
 

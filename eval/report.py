@@ -28,8 +28,9 @@ def _version(pkg: str) -> str:
 def _settings(cfg: "HarnessConfig", backend: str) -> list[tuple[str, Any]]:
     return [
         ("scenes", ", ".join(cfg.scenes)),
-        ("methods", ", ".join(f"{k} ({VARIANTS[k].label}, trainer mode `{VARIANTS[k].mode}`)" for k in cfg.methods)
-         or "none"),
+        ("methods", ", ".join(f"{k} ({VARIANTS[k].label}, trainer mode `{VARIANTS[k].mode}`"
+                              + "".join(f", `{o}={v}`" for o, v in VARIANTS[k].overrides.items()) + ")"
+                              for k in cfg.methods) or "none"),
         ("ablations", ", ".join(f"{k} (mode `{VARIANTS[k].mode}`)" for k in cfg.ablations) or "none"),
         ("seeds", ", ".join(map(str, cfg.seeds))),
         ("training profile", cfg.profile),

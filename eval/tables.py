@@ -144,7 +144,8 @@ def _footnotes(rows: list[Row], n_scenes: int) -> list[str]:
     for r in rows:
         v = VARIANTS.get(r.variant)
         if v is not None and v.note:
-            notes.append(f"{r.label}: {v.note}; its Input PSNR is that of the dehazed frames.")
+            dehazed = "; its Input PSNR is that of the dehazed frames" if v.dehazer else ""
+            notes.append(f"{r.label}: {v.note}{dehazed}.")
         if r.runs_failed or r.runs_ok < r.runs_expected:
             notes.append(f"† {r.label}: {r.runs_failed} failed, {r.runs_ok} of {r.runs_expected} runs "
                          "averaged; see report.md for the errors.")

@@ -303,3 +303,15 @@ def test_trainer_and_harness_read_set_values_alike() -> None:
                                                                          ("loss.depth", "stage3.iterations",
                                                                           "smoke_ply_times", "progress")}
     assert trainer["smoke_ply_times"] == [0.0, 1.0] and trainer["progress"] is False
+
+
+def test_estimated_stage1_variant_trains_full_with_stage1_estimate_and_its_own_cache_key(tmp_path: Path) -> None:
+    cfg = _cfg(tmp_path, scenes=["alpha"], methods=["full", "full-estimated"], ablations=[], seeds=[0],
+               train_overrides={"stage3.iterations": 5})
+    ds = {"alpha": harness.DatasetOutcome("alpha", "generated", str(tmp_path / "ds"), "d" * 64)}
+    specs = {s.variant: s for s in harness.plan_runs(cfg, ds, {})}
+    assert specs["full-estimated"].mode == specs["full"].mode == "full"
+    assert specs["full-estimated"].overrides == {"stage3.iterations": 5, "stage1": "estimate"}
+    assert specs["full"].overrides == {"stage3.iterations": 5}
+    assert specs["full"].hash() != specs["full-estimated"].hash()
+    assert specs["full-estimated"].run_dir(tmp_path) != specs["full"].run_dir(tmp_path)

@@ -72,6 +72,25 @@ def test_table1_and_table2_contents(tmp_path: Path) -> None:
     assert float(a_full["mean"]) == pytest.approx(20.5) and float(a_full["std"]) == pytest.approx(math.sqrt(0.5))
 
 
+def test_estimated_stage1_row_sits_beside_ground_truth_full_in_table1(tmp_path: Path) -> None:
+    # Estimated Stage 1: seed 0 scenes (18, 19) -> 18.5; seed 1 (19, 20) -> 19.5 => 19.00 ± 0.71
+    estimated = [_run("a", "full-estimated", 0, 18.0), _run("b", "full-estimated", 0, 19.0),
+                 _run("a", "full-estimated", 1, 19.0), _run("b", "full-estimated", 1, 20.0)]
+    paths = write_tables(FIXTURE + estimated, tmp_path)
+    md = paths["table1.md"].read_text()
+    assert "| Ours (Full, estimated Stage 1) | 19.00 ± 0.71 | 0.500 ± 0.000 | skipped: no weights | — | — | — |" in md
+    lines = md.splitlines()
+    full = next(i for i, ln in enumerate(lines) if ln.startswith("| Ours (Full) |"))
+    assert lines[full + 1].startswith("| Ours (Full, estimated Stage 1) |")
+    assert "Ours (Full): Stage 1 (smoke masks, thermal-to-RGB registration) read from the generator's ground truth." in md
+    assert "stage1=estimate" in md and "dehazed frames" not in md.split("Ours (Full, estimated")[-1]
+    rows = {(r["variant"], r["metric"]): r for r in csv.DictReader(open(paths["table1.csv"]))}
+    assert float(rows[("full-estimated", "psnr")]["mean"]) == pytest.approx(19.0)
+    assert rows[("full-estimated", "psnr")]["paper"] == ""
+    assert "Ours (Full, estimated Stage 1)" in paths["table1.tex"].read_text()
+    assert "Ours (Full, estimated" not in paths["table2.md"].read_text()
+
+
 def test_no_table2_without_ablations(tmp_path: Path) -> None:
     paths = write_tables([r for r in FIXTURE if r.variant != "no-depth"], tmp_path)
     assert "table2.md" not in paths and not (tmp_path / "table2.md").exists()
