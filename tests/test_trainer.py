@@ -311,3 +311,22 @@ def test_lpips_is_scored_by_the_trainer_when_weights_exist(splat: Path, tmp_path
     doc = validate_run_dir(run)
     assert doc["metrics"]["lpips_status"].startswith("ok: alex") and math.isfinite(doc["metrics"]["lpips"])
     assert all("lpips" in e for e in doc["per_image"])
+
+
+def test_state_snapshot_is_an_independent_detached_copy() -> None:
+    from smokeseer.trainloop import detached_copy
+
+    p = torch.nn.Parameter(torch.randn(5, 3))
+    opt = torch.optim.Adam([{"params": [p], "lr": 0.1, "name": "means"}], fused=True)
+    p.grad = torch.randn(5, 3)
+    opt.step()
+    live = {"means": p, "optimizer": opt.state_dict()}
+    snap = detached_copy(live)
+    moment = snap["optimizer"]["state"][0]["exp_avg"]
+    assert torch.equal(snap["means"], p.detach()) and not snap["means"].requires_grad
+    assert type(snap["means"]) is torch.Tensor
+    assert snap["optimizer"]["param_groups"] == live["optimizer"]["param_groups"]
+    before = snap["means"].clone(), moment.clone()
+    opt.step()  # the live state moves on; the snapshot does not
+    assert torch.equal(snap["means"], before[0]) and torch.equal(moment, before[1])
+    assert not torch.equal(p.detach(), before[0])
