@@ -95,14 +95,17 @@ def _copy(obj: Any) -> Any:
 def guard(stage: int, it: int, named: list[tuple[str, torch.Tensor | None]]) -> None:
     """Raise NaNDetected naming the first non-finite tensor of ``named``.
 
-    Why fused: one max-abs reduction per tensor (``_foreach_norm`` with ord=inf propagates NaN
-    and Inf, and a finite tensor's max-abs is finite) and a single host sync replace one
-    ``isfinite().all()`` and sync per tensor; only a failure pays for the per-tensor search."""
+    Why fused: one vectorised 2-norm per tensor (``_foreach_norm``; NaN and Inf propagate into
+    it) and a single host sync replace one ``isfinite().all()`` and sync per tensor, about ten
+    times less CPU on the demo's state (benchmarks/iteration_parts.py). A norm that overflows
+    from finite values only costs the exact per-tensor check, which then finds nothing."""
     tensors = [t.detach() for _, t in named if t is not None and t.numel() and t.is_floating_point()]
     if not tensors:
         return
-    maxabs = torch._foreach_norm(tensors, float("inf"))
-    if not bool(torch.isfinite(torch.stack([m.double() for m in maxabs])).all()):
+    norms = torch._foreach_norm(tensors, 2)
+    if len({n.dtype for n in norms}) > 1:
+        norms = [n.double() for n in norms]
+    if not bool(torch.isfinite(torch.stack(norms)).all()):
         check_finite(stage, it, named)
 
 

@@ -330,3 +330,19 @@ def test_state_snapshot_is_an_independent_detached_copy() -> None:
     opt.step()  # the live state moves on; the snapshot does not
     assert torch.equal(snap["means"], before[0]) and torch.equal(moment, before[1])
     assert not torch.equal(p.detach(), before[0])
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), float("-inf")])
+def test_guard_names_the_first_non_finite_tensor_and_passes_huge_finite_values(bad: float) -> None:
+    from smokeseer.trainloop import guard
+    from smokeseer.trainutil import NaNDetected
+
+    huge = torch.full((4, 3), 3e38)  # its 2-norm overflows to inf, yet every value is finite
+    named = [("loss.render", torch.tensor(0.3)), ("a.grad", None), ("b", huge), ("c", torch.zeros(0)),
+             ("d", torch.arange(5)), ("e", torch.ones(2, 2, dtype=torch.float64))]
+    guard(3, 7, named)
+    broken = torch.ones(6, 5)
+    broken[4, 2] = bad
+    with pytest.raises(NaNDetected) as exc:
+        guard(3, 7, named + [("f.grad", broken), ("g.grad", torch.full((2,), bad))])
+    assert (exc.value.stage, exc.value.iteration, exc.value.tensor) == (3, 7, "f.grad")
