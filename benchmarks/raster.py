@@ -17,14 +17,13 @@ Writes benchmarks/results/raster.csv and raster.png.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import os
 import subprocess
 import sys
 import time
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -32,6 +31,8 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 import torch  # noqa: E402
+
+from contracts.atomic import write_dataclass_csv  # noqa: E402
 
 BACKENDS = ("cpu", "torch")
 FLOOR_MULADDS = 30  # per-pair multiply-adds besides the exps (alpha, blend, gradient terms)
@@ -157,13 +158,6 @@ def measure_memory(backend: str, n: int, res: int, threads: int) -> Memory:
     return Memory(**json.loads(proc.stdout.strip().splitlines()[-1]))
 
 
-def write_csv(path: Path, rows: list) -> None:
-    tmp = path.with_suffix(".csv.partial")
-    with open(tmp, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=[fl.name for fl in fields(rows[0])])
-        writer.writeheader()
-        writer.writerows(asdict(r) for r in rows)
-    tmp.replace(path)
 
 
 def write_plot(path: Path, timings: list[Timing], memory: list[Memory]) -> None:
@@ -232,8 +226,8 @@ def main() -> None:
             print(f"memory {backend:5s} N={n:>6d} {res:>3d}^2  peak {m.peak_mb:8.1f} MB  pairs {m.blended_pairs:>9d}  "
                   f"{m.peak_mb * 2**20 / max(m.blended_pairs, 1):6.0f} B/pair", flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
-    write_csv(args.out / "raster.csv", timings)
-    write_csv(args.out / "raster_memory.csv", memory)
+    write_dataclass_csv(args.out / "raster.csv", timings)
+    write_dataclass_csv(args.out / "raster_memory.csv", memory)
     write_plot(args.out / "raster.png", timings, memory)
     print(f"wrote {args.out / 'raster.csv'}, raster_memory.csv and raster.png")
 

@@ -28,7 +28,7 @@ import pstats
 import sys
 import tempfile
 import time
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -36,6 +36,8 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 import torch  # noqa: E402
+
+from contracts.atomic import write_dataclass_csv  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 
@@ -128,13 +130,6 @@ def run_train(args: argparse.Namespace) -> None:
           f"threads {torch.get_num_threads()}, load {os.getloadavg()[0]:.1f}")
 
 
-def write_csv(path: Path, rows: list) -> None:
-    tmp = path.with_suffix(".csv.partial")
-    with open(tmp, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=[fl.name for fl in fields(rows[0])])
-        writer.writeheader()
-        writer.writerows(asdict(r) for r in rows)
-    tmp.replace(path)
 
 
 def run_profile(args: argparse.Namespace) -> None:
@@ -147,7 +142,7 @@ def run_profile(args: argparse.Namespace) -> None:
             print(f"{backend:5s} stage {r.stage}: {r.seconds_per_iteration * 1e3:7.1f} ms/iteration "
                   f"({r.iterations_per_second:.1f} it/s), run wall {r.run_wall_s:.1f} s cpu {r.run_cpu_s:.1f} s, "
                   f"load {r.load_avg_1min:.1f}", flush=True)
-    write_csv(args.out / "train_speed.csv", speeds)
+    write_dataclass_csv(args.out / "train_speed.csv", speeds)
     print(f"wrote {args.out / 'train_speed.csv'} and train_speed_profile_*.txt")
 
 

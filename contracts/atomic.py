@@ -2,6 +2,8 @@
 resumed run) never sees a half-written file."""
 from __future__ import annotations
 
+import csv
+import dataclasses
 import json
 import os
 from contextlib import contextmanager
@@ -37,3 +39,11 @@ def write_text(path: Path, text: str) -> None:
 def write_json(path: Path, data: Any) -> None:
     """Strict JSON (NaN and Inf refused), written atomically."""
     write_text(path, json.dumps(data, indent=2, allow_nan=False) + "\n")
+
+
+def write_dataclass_csv(path: Path, rows: list[Any]) -> None:
+    """One CSV row per dataclass instance, the field names as header, written atomically."""
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=[f.name for f in dataclasses.fields(rows[0])])
+        writer.writeheader()
+        writer.writerows(dataclasses.asdict(r) for r in rows)
