@@ -85,9 +85,11 @@ class Stage2Problem(StageProblem):
         self.g = GaussianSet(tensors)
         self.deform = DeformNetwork(_deform_cfg(cfg, deformable), ctx.extent, dev) if deformable else None
         self.background = make_background(cfg, mod.channels, dev)
-        self.opt = make_optimizer(self.g, stage2_lrs(cfg, self.g, ctx.extent))
-        self.dopt = torch.optim.Adam(self.deform.parameters(), lr=cfg.deform.lr_init) if self.deform else None
-        self.bopt = torch.optim.Adam(self.background.parameters(), lr=cfg.lr.background) if self.background else None
+        self.optimizer = make_optimizer(self.g, stage2_lrs(cfg, self.g, ctx.extent))
+        self.deform_optimizer = (torch.optim.Adam(self.deform.parameters(), lr=cfg.deform.lr_init)
+                                 if self.deform else None)
+        self.background_optimizer = (torch.optim.Adam(self.background.parameters(), lr=cfg.lr.background)
+                                     if self.background else None)
         self.strategy = DensifyStrategy(cfg.stage2.densify, ("opacity",), ctx.extent)
         idx = mod.indices("train")
         self.views = views_of(mod, idx, dev)
@@ -119,40 +121,43 @@ class Stage2Problem(StageProblem):
 
     def optimizer_step(self, it: int) -> None:
         cfg, total = self.cfg, self.cfg.stage2.iterations
-        for group in self.opt.param_groups:
+        for group in self.optimizer.param_groups:
             if group["name"] == "means":
-                group["lr"] = exp_lr(it, total, cfg.lr.means_init * self.ctx.extent, cfg.lr.means_final * self.ctx.extent)
-        self.opt.step()
-        self.opt.zero_grad(set_to_none=True)
-        if self.dopt is not None:
-            for group in self.dopt.param_groups:
+                group["lr"] = exp_lr(it, total, cfg.lr.means_init * self.ctx.extent,
+                                     cfg.lr.means_final * self.ctx.extent)
+        self.optimizer.step()
+        self.optimizer.zero_grad(set_to_none=True)
+        if self.deform_optimizer is not None:
+            for group in self.deform_optimizer.param_groups:
                 group["lr"] = exp_lr(it, total, cfg.deform.lr_init, cfg.deform.lr_final)
             if it > cfg.deform.warmup_iterations:
-                self.dopt.step()
-            self.dopt.zero_grad(set_to_none=True)
-        if self.bopt is not None:
-            self.bopt.step()
-            self.bopt.zero_grad(set_to_none=True)
+                self.deform_optimizer.step()
+            self.deform_optimizer.zero_grad(set_to_none=True)
+        if self.background_optimizer is not None:
+            self.background_optimizer.step()
+            self.background_optimizer.zero_grad(set_to_none=True)
 
     def after_step(self, it: int, out: IterationOutput) -> None:
         raster, view = out.extra["raster"], out.extra["view"]
         if raster.means2d.grad is not None:
             self.strategy.accumulate(raster.means2d.grad[0], raster.radii[0], view.width, view.height)
-        self.strategy.step(it, self.g, self.opt, self.ctx.generator)
+        self.strategy.step(it, self.g, self.optimizer, self.ctx.generator)
 
     def state(self) -> dict[str, Any]:
-        return {"gaussians": self.g.state_dict(), "optimizer": self.opt.state_dict(),
+        return {"gaussians": self.g.state_dict(), "optimizer": self.optimizer.state_dict(),
                 "deform": self.deform.state_dict() if self.deform is not None else None,
-                "deform_optimizer": self.dopt.state_dict() if self.dopt is not None else None,
+                "deform_optimizer": self.deform_optimizer.state_dict() if self.deform_optimizer is not None else None,
                 "background": self.background.state_dict() if self.background is not None else None,
-                "background_optimizer": self.bopt.state_dict() if self.bopt is not None else None}
+                "background_optimizer": (self.background_optimizer.state_dict()
+                                         if self.background_optimizer is not None else None)}
 
     def load_state(self, payload: dict[str, Any]) -> None:
         dev = self.ctx.device
         self.g = GaussianSet({k: v.to(dev) for k, v in payload["gaussians"].items()})
-        self.opt = make_optimizer(self.g, stage2_lrs(self.cfg, self.g, self.ctx.extent))
-        self.opt.load_state_dict(payload["optimizer"])
-        for module, opt, key in ((self.deform, self.dopt, "deform"), (self.background, self.bopt, "background")):
+        self.optimizer = make_optimizer(self.g, stage2_lrs(self.cfg, self.g, self.ctx.extent))
+        self.optimizer.load_state_dict(payload["optimizer"])
+        for module, opt, key in ((self.deform, self.deform_optimizer, "deform"),
+                                 (self.background, self.background_optimizer, "background")):
             if module is not None and payload.get(key) is not None:
                 module.load_state_dict(payload[key])
                 opt.load_state_dict(payload[f"{key}_optimizer"])

@@ -145,11 +145,13 @@ class Stage3Problem(StageProblem):
 
     def _make_optimizers(self) -> None:
         cfg, model = self.cfg, self.model
-        self.s_opt = make_optimizer(model.surface, _surface_lrs(cfg, model.surface, self.ctx.extent))
-        self.k_opt = make_optimizer(model.smoke, _smoke_lrs(cfg, self.ctx.extent)) if model.smoke is not None else None
-        self.d_opt = torch.optim.Adam(model.deform.parameters(), lr=cfg.deform.lr_init) if model.deform else None
+        self.surface_optimizer = make_optimizer(model.surface, _surface_lrs(cfg, model.surface, self.ctx.extent))
+        self.smoke_optimizer = (make_optimizer(model.smoke, _smoke_lrs(cfg, self.ctx.extent))
+                                if model.smoke is not None else None)
+        self.deform_optimizer = (torch.optim.Adam(model.deform.parameters(), lr=cfg.deform.lr_init)
+                                 if model.deform else None)
         bg_params = [p for bg in _backgrounds(model).values() for p in bg.parameters()]
-        self.b_opt = torch.optim.Adam(bg_params, lr=cfg.lr.background) if bg_params else None
+        self.background_optimizer = torch.optim.Adam(bg_params, lr=cfg.lr.background) if bg_params else None
 
     def forward(self, it: int) -> IterationOutput:
         cfg, model, weights = self.cfg, self.model, self.weights
@@ -211,41 +213,43 @@ class Stage3Problem(StageProblem):
 
     def optimizer_step(self, it: int) -> None:
         cfg, total, extent = self.cfg, self.cfg.stage3.iterations, self.ctx.extent
-        for opt in (self.s_opt, self.k_opt):
+        for opt in (self.surface_optimizer, self.smoke_optimizer):
             if opt is None:
                 continue
             for group in opt.param_groups:
                 if group["name"] == "means" and group["lr"] > 0:
                     group["lr"] = exp_lr(it, total, cfg.lr.means_init * extent, cfg.lr.means_final * extent)
-        for opt in (self.s_opt, self.k_opt, self.b_opt):
+        for opt in (self.surface_optimizer, self.smoke_optimizer, self.background_optimizer):
             if opt is not None:
                 opt.step()
                 opt.zero_grad(set_to_none=True)
-        if self.d_opt is not None:
-            for group in self.d_opt.param_groups:
+        if self.deform_optimizer is not None:
+            for group in self.deform_optimizer.param_groups:
                 group["lr"] = exp_lr(it, total, cfg.deform.lr_init, cfg.deform.lr_final)
             if it > cfg.deform.warmup_iterations:
-                self.d_opt.step()
-            self.d_opt.zero_grad(set_to_none=True)
+                self.deform_optimizer.step()
+            self.deform_optimizer.zero_grad(set_to_none=True)
 
     def after_step(self, it: int, out: IterationOutput) -> None:
         model = self.model
-        if model.smoke is None or self.k_opt is None:
+        if model.smoke is None or self.smoke_optimizer is None:
             return
         raster, view = out.extra["raster"], out.extra["view"]
         if raster.means2d.grad is not None:
             ns = model.surface.n
             self.strategy.accumulate(raster.means2d.grad[0, ns:], raster.radii[0, ns:], view.width, view.height)
-        self.strategy.step(it, model.smoke, self.k_opt, self.ctx.generator)
+        self.strategy.step(it, model.smoke, self.smoke_optimizer, self.ctx.generator)
 
     def state(self) -> dict[str, Any]:
         model = self.model
-        return {"surface": model.surface.state_dict(), "surface_optimizer": self.s_opt.state_dict(),
-                "smoke": model.smoke.state_dict() if model.smoke is not None else None,
-                "smoke_optimizer": self.k_opt.state_dict() if self.k_opt is not None else None,
-                "deform": model.deform.state_dict() if model.deform is not None else None,
-                "deform_optimizer": self.d_opt.state_dict() if self.d_opt is not None else None,
-                "background_optimizer": self.b_opt.state_dict() if self.b_opt is not None else None,
+
+        def saved(part: torch.nn.Module | torch.optim.Optimizer | GaussianSet | None) -> dict[str, Any] | None:
+            return part.state_dict() if part is not None else None
+
+        return {"surface": model.surface.state_dict(), "surface_optimizer": self.surface_optimizer.state_dict(),
+                "smoke": saved(model.smoke), "smoke_optimizer": saved(self.smoke_optimizer),
+                "deform": saved(model.deform), "deform_optimizer": saved(self.deform_optimizer),
+                "background_optimizer": saved(self.background_optimizer),
                 **{name: bg.state_dict() for name, bg in _backgrounds(model).items()}}
 
     def load_state(self, payload: dict[str, Any]) -> None:
@@ -259,9 +263,9 @@ class Stage3Problem(StageProblem):
             if payload.get(name) is not None:
                 bg.load_state_dict(payload[name])
         self._make_optimizers()
-        self.s_opt.load_state_dict(payload["surface_optimizer"])
-        for opt, key in ((self.k_opt, "smoke_optimizer"), (self.d_opt, "deform_optimizer"),
-                         (self.b_opt, "background_optimizer")):
+        self.surface_optimizer.load_state_dict(payload["surface_optimizer"])
+        for opt, key in ((self.smoke_optimizer, "smoke_optimizer"), (self.deform_optimizer, "deform_optimizer"),
+                         (self.background_optimizer, "background_optimizer")):
             if opt is not None and payload.get(key) is not None:
                 opt.load_state_dict(payload[key])
 

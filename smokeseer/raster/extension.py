@@ -1,7 +1,9 @@
 """Builds (once) and loads the compiled tile rasterizer with torch.utils.cpp_extension.
 
 The build directory is keyed by a hash of the source and the flags, so an edited kernel is
-rebuilt and an unchanged one loads in milliseconds. A failed build raises ``KernelBuildError``
+rebuilt and an unchanged one loads in milliseconds. The sources are copied into that directory
+and compiled from there: ninja's command line then holds no checkout path, so two checkouts of
+the same kernel share one build instead of rebuilding it each time the other one loads it. A failed build raises ``KernelBuildError``
 with the compiler's own complaint; nothing falls back to the slower torch backend.
 """
 
@@ -11,6 +13,7 @@ import hashlib
 import os
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -59,6 +62,21 @@ def build_directory() -> tuple[Path, str]:
     return folder, name
 
 
+def staged_sources(folder: Path) -> list[Path]:
+    """The kernel's sources copied into ``folder`` (only where missing or different; each through
+    a uniquely named temporary file and a rename, so processes staging at once never see a
+    half-written source); returns the copied .cpp paths to compile."""
+    for src in SOURCES + HEADERS:
+        dst = folder / src.name
+        data = src.read_bytes()
+        if dst.is_file() and dst.read_bytes() == data:
+            continue
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=f".{src.name}.", delete=False) as tmp:
+            tmp.write(data)
+        os.replace(tmp.name, dst)
+    return [folder / p.name for p in SOURCES]
+
+
 def _compiler_summary(err: BaseException) -> str:
     text = str(err).strip()
     lines = [ln for ln in text.splitlines() if "error" in ln.lower()] or text.splitlines()[-3:]
@@ -81,7 +99,8 @@ def load_kernel() -> ModuleType:
         start = time.perf_counter()
         try:
             _module = cpp_extension.load(
-                name=name, sources=[str(p) for p in SOURCES], extra_cflags=compiler_flags(), extra_ldflags=LDFLAGS,
+                name=name, sources=[str(p) for p in staged_sources(folder)], extra_cflags=compiler_flags(),
+                extra_ldflags=LDFLAGS,
                 build_directory=str(folder), verbose=False,
             )
         except (RuntimeError, OSError, ImportError, subprocess.CalledProcessError) as err:

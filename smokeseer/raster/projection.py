@@ -55,7 +55,15 @@ def project_gaussians(
 
     The Jacobian uses the view-frustum clamp of 3DGS (1.3x the half field of view), so Gaussians
     far off-screen do not produce huge, useless footprints; the centre itself is not clamped.
+
+    Evaluated in float64 and returned in the input dtype, as the compiled projection does: in
+    float32 the rotation gradient of an isotropic Gaussian (truly zero) comes out as ~1e-7
+    rounding noise, which Adam (eps 1e-15) turns into full-size random steps.
     """
+    dtype = means.dtype
+    wide = torch.promote_types(dtype, torch.float64)
+    means, quats, scales = means.to(wide), quats.to(wide), scales.to(wide)
+    viewmats, Ks = viewmats.to(wide), Ks.to(wide)
     rot_w2c = viewmats[:, :3, :3]
     trans = viewmats[:, :3, 3]
     means_c = torch.einsum("cij,nj->cni", rot_w2c, means) + trans[:, None, :]
@@ -92,11 +100,12 @@ def project_gaussians(
     mx, my = means2d.detach().unbind(-1)
     on_screen = (mx + radius > 0) & (mx - radius < width) & (my + radius > 0) & (my - radius < height)
     visible = in_depth & on_screen & torch.isfinite(radius)
-    zero = torch.zeros((), dtype=means.dtype, device=means.device)
+    zero = torch.zeros((), dtype=wide, device=means.device)
     return Projection(
-        means2d=torch.where(visible[..., None], means2d, zero),
-        conics=torch.where(visible[..., None], conics, zero),
-        depths=z,
-        radii=torch.where(visible, radius, zero),
+        means2d=torch.where(visible[..., None], means2d, zero).to(dtype),
+        conics=torch.where(visible[..., None], conics, zero).to(dtype),
+        depths=z.to(dtype),
+        radii=torch.where(visible, radius, zero).to(dtype),
         visible=visible,
+        sort_depths=z.detach(),
     )
