@@ -7,9 +7,11 @@ divergence handling lands in both stages at once.
 """
 from __future__ import annotations
 
+import gc
 from abc import ABC, abstractmethod
+from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Iterator
 
 import torch
 from tqdm import tqdm
@@ -120,6 +122,36 @@ class StageSchedule:
     checkpoint_sha: str
 
 
+GC_EVERY = 100
+"""Iterations between the explicit garbage collections of ``collect_every``."""
+
+
+@contextmanager
+def collect_every(iterations: int) -> Iterator[Any]:
+    """Python's cyclic garbage collector off inside the loop, with an explicit young-generation
+    collection every ``iterations`` calls of the yielded function.
+
+    Why: an iteration allocates thousands of short-lived tensor wrappers, so the automatic
+    collector runs many times per iteration and walks every tracked object; perf put it at about
+    5 % of a demo Stage 3 CPU profile. Tensors are freed by reference counting either way; the
+    periodic collection keeps any reference cycle from piling up."""
+    count = 0
+
+    def tick() -> None:
+        nonlocal count
+        count += 1
+        if count % iterations == 0:
+            gc.collect(1)
+
+    was_enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield tick
+    finally:
+        if was_enabled:
+            gc.enable()
+
+
 def resume(ctx: RunContext, problem: StageProblem, sched: StageSchedule) -> tuple[int, bool]:
     """Load the stage's checkpoint if there is one for these settings: (start iteration, done)."""
     path = ctx.checkpoint_path(problem.stage)
@@ -150,27 +182,29 @@ def run_stage(ctx: RunContext, problem: StageProblem, sched: StageSchedule) -> N
 
     total = sched.iterations
     bar = tqdm(range(start + 1, total + 1), desc=problem.name, disable=not ctx.cfg.progress, leave=False)
-    for it in bar:
-        out = problem.forward(it)
-        try:
-            out.loss.backward()
-            guard(problem.stage, it, [(f"loss.{n}", v) for n, v in out.terms.items()] + problem.named_gradients())
-        except NaNDetected:
-            save_checkpoint(nan_path, payload(it - 1, False, problem.state()))
-            raise
-        last_good = detached_copy(problem.state())
-        problem.optimizer_step(it)
-        problem.after_step(it, out)
-        try:
-            guard(problem.stage, it, problem.named_parameters())
-        except NaNDetected:
-            save_checkpoint(nan_path, payload(it - 1, False, last_good))
-            raise
-        del last_good
-        if it % sched.log_every == 0 or it == total:
-            due = sched.test_every > 0 and (it % sched.test_every == 0 or it == total)
-            ctx.log.write(problem.log_row(it, out, problem.heldout_psnr(it) if due else None))
-            bar.set_postfix(loss=f"{float(out.loss.detach()):.4f}")
-        if sched.checkpoint_every and it % sched.checkpoint_every == 0 and it < total:
-            save_checkpoint(ctx.checkpoint_path(problem.stage), payload(it, False, problem.state()))
+    with collect_every(GC_EVERY) as collect:
+        for it in bar:
+            out = problem.forward(it)
+            try:
+                out.loss.backward()
+                guard(problem.stage, it, [(f"loss.{n}", v) for n, v in out.terms.items()] + problem.named_gradients())
+            except NaNDetected:
+                save_checkpoint(nan_path, payload(it - 1, False, problem.state()))
+                raise
+            last_good = detached_copy(problem.state())
+            problem.optimizer_step(it)
+            problem.after_step(it, out)
+            try:
+                guard(problem.stage, it, problem.named_parameters())
+            except NaNDetected:
+                save_checkpoint(nan_path, payload(it - 1, False, last_good))
+                raise
+            del last_good
+            if it % sched.log_every == 0 or it == total:
+                due = sched.test_every > 0 and (it % sched.test_every == 0 or it == total)
+                ctx.log.write(problem.log_row(it, out, problem.heldout_psnr(it) if due else None))
+                bar.set_postfix(loss=f"{float(out.loss.detach()):.4f}")
+            if sched.checkpoint_every and it % sched.checkpoint_every == 0 and it < total:
+                save_checkpoint(ctx.checkpoint_path(problem.stage), payload(it, False, problem.state()))
+            collect()
     save_checkpoint(ctx.checkpoint_path(problem.stage), payload(total, True, problem.state()))
