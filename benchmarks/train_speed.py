@@ -12,9 +12,16 @@ before/after comparisons of wall time and PSNR at the same seed.
 ``curve``: test PSNR against wall time of finished runs (their train_log.csv), one line per run,
 written as ``train_speed_curve.csv`` + ``.png``.
 
+``parity``: test PSNR of finished ``train`` runs grouped by label (one run per seed), mean and
+sample std per label and the same-seed differences against the first label, written as
+``train_speed_parity.csv``. Why not one seed: training is chaotic, so two backends that differ
+only in float rounding follow different trajectories after a few dozen iterations, and one
+seed's difference is a draw from the seed-to-seed spread.
+
     python benchmarks/train_speed.py profile DATASET [--iterations 60] [--threads 1]
     python benchmarks/train_speed.py train DATASET --backend torch --out RUN [--seed 0]
     python benchmarks/train_speed.py curve torch=RUN_A cpu=RUN_B
+    python benchmarks/train_speed.py parity cpu=RUN_S0 cpu=RUN_S1 torch=RUN_T0 torch=RUN_T1
 """
 
 from __future__ import annotations
@@ -40,6 +47,21 @@ import torch  # noqa: E402
 from contracts.atomic import write_dataclass_csv  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
+
+
+@dataclass
+class CurvePoint:
+    run: str
+    wall_s: float
+    test_psnr: float
+
+
+@dataclass
+class ParityRow:
+    label: str
+    seed: int
+    test_psnr: float
+    run: str
 
 
 @dataclass
@@ -130,8 +152,6 @@ def run_train(args: argparse.Namespace) -> None:
           f"threads {torch.get_num_threads()}, load {os.getloadavg()[0]:.1f}")
 
 
-
-
 def run_profile(args: argparse.Namespace) -> None:
     speeds = []
     for backend in args.backends:
@@ -160,7 +180,7 @@ def run_curve(args: argparse.Namespace) -> None:
                if r.get("test_psnr")]
         if not pts:
             raise SystemExit(f"{folder}/train_log.csv: no test_psnr entries")
-        table += [{"run": label, "wall_s": t, "test_psnr": p} for t, p in pts]
+        table += [CurvePoint(label, t, p) for t, p in pts]
         ax.plot(*zip(*pts), "o-", label=label)
     ax.set(xlabel="wall time [s]", ylabel="test PSNR [dB]", title="demo, --profile quick")
     ax.grid(True, alpha=0.3)
@@ -168,11 +188,34 @@ def run_curve(args: argparse.Namespace) -> None:
     fig.tight_layout()
     args.out.mkdir(parents=True, exist_ok=True)
     fig.savefig(args.out / "train_speed_curve.png", dpi=120)
-    with open(args.out / "train_speed_curve.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=["run", "wall_s", "test_psnr"])
-        writer.writeheader()
-        writer.writerows(table)
+    write_dataclass_csv(args.out / "train_speed_curve.csv", table)
     print(f"wrote {args.out / 'train_speed_curve.csv'} and .png")
+
+
+def run_parity(args: argparse.Namespace) -> None:
+    import json
+    import statistics
+
+    rows = []
+    for spec in args.runs:
+        label, _, folder = spec.partition("=")
+        doc = json.loads((Path(folder) / "metrics.json").read_text())
+        rows.append(ParityRow(label, int(doc["seed"]), float(doc["metrics"]["psnr"]), folder))
+    labels = list(dict.fromkeys(r.label for r in rows))
+    by = {lab: {r.seed: r.test_psnr for r in rows if r.label == lab} for lab in labels}
+    for lab in labels:
+        vals = list(by[lab].values())
+        spread = statistics.stdev(vals) if len(vals) > 1 else float("nan")
+        print(f"{lab:>24s}: {len(vals)} seeds, test PSNR {statistics.mean(vals):.3f} +- {spread:.3f} dB "
+              f"({', '.join(f'{v:.3f}' for v in vals)})")
+    ref = labels[0]
+    for lab in labels[1:]:
+        seeds = sorted(set(by[ref]) & set(by[lab]))
+        diffs = [by[lab][s] - by[ref][s] for s in seeds]
+        print(f"{lab} - {ref}, same seed: {', '.join(f'{d:+.3f}' for d in diffs)}; mean {statistics.mean(diffs):+.3f} dB")
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_dataclass_csv(args.out / "train_speed_parity.csv", rows)
+    print(f"wrote {args.out / 'train_speed_parity.csv'}")
 
 
 def main() -> None:
@@ -194,10 +237,13 @@ def main() -> None:
     curve = sub.add_parser("curve", help="test PSNR against wall time of finished runs")
     curve.add_argument("runs", nargs="+", help="LABEL=RUN_DIR")
     curve.add_argument("--out", type=Path, default=RESULTS)
+    parity = sub.add_parser("parity", help="test PSNR per label over seeds, same-seed differences")
+    parity.add_argument("runs", nargs="+", help="LABEL=RUN_DIR (finished train runs, one per seed)")
+    parity.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args()
     if getattr(args, "threads", 0):
         torch.set_num_threads(args.threads)
-    {"profile": run_profile, "train": run_train, "curve": run_curve}[args.command](args)
+    {"profile": run_profile, "train": run_train, "curve": run_curve, "parity": run_parity}[args.command](args)
 
 
 if __name__ == "__main__":
