@@ -37,6 +37,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lpips-weights", default=None,
                    help="torchvision backbone .pth or its folder (default: $TORCH_HOME/hub/checkpoints)")
     p.add_argument("--lpips-heads", default=None, help="LPIPS v0.1 linear heads .pth, or an lpips wheel")
+    p.add_argument("--threads", type=int, default=None,
+                   help="CPU threads for torch and the compiled rasterizer alike (default: OMP_NUM_THREADS, "
+                        "else the core count); the rasterizer's output does not depend on it")
     p.add_argument("--no-progress", action="store_true", help="hide the tqdm bars")
     return p
 
@@ -56,7 +59,15 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if args.threads is not None and args.threads < 1:
+        print(f"train-and-evaluate: error: --threads: must be at least 1, got {args.threads}", file=sys.stderr)
+        return 2
+    import torch
+
     from smokeseer.api import train_and_evaluate
+
+    if args.threads is not None:
+        torch.set_num_threads(args.threads)
 
     try:
         doc = train_and_evaluate(args.dataset, args.out, mode=args.mode, profile=args.profile,
