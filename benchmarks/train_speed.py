@@ -12,6 +12,11 @@ before/after comparisons of wall time and PSNR at the same seed.
 ``curve``: test PSNR against wall time of finished runs (their train_log.csv), one line per run,
 written as ``train_speed_curve.csv`` + ``.png``.
 
+``e2e``: ``train-and-evaluate`` on DATASET at the quick profile, this checkout against an earlier
+commit (exported with ``git archive``), alternated, default threads; keeps the best wall time of
+each side, prints the ratio and the load, writes ``train_speed_e2e.csv``; the run folders stay
+under ``--keep`` for ``curve``.
+
 ``parity``: test PSNR of finished ``train`` runs grouped by label (one run per seed), mean and
 sample std per label and the same-seed differences against the first label, written as
 ``train_speed_parity.csv``. Why not one seed: training is chaotic, so two backends that differ
@@ -21,6 +26,7 @@ seed's difference is a draw from the seed-to-seed spread.
     python benchmarks/train_speed.py profile DATASET [--iterations 60] [--threads 1]
     python benchmarks/train_speed.py train DATASET --backend torch --out RUN [--seed 0]
     python benchmarks/train_speed.py curve torch=RUN_A cpu=RUN_B
+    python benchmarks/train_speed.py e2e DATASET --baseline c300de9 [--repeats 2] [--keep DIR]
     python benchmarks/train_speed.py parity cpu=RUN_S0 cpu=RUN_S1 torch=RUN_T0 torch=RUN_T1
 """
 
@@ -54,6 +60,19 @@ class CurvePoint:
     run: str
     wall_s: float
     test_psnr: float
+
+
+@dataclass
+class EndToEnd:
+    side: str
+    commit: str
+    repeat: int
+    wall_s: float
+    cpu_s: float
+    test_psnr: float
+    threads: int
+    load_before: float
+    load_after: float
 
 
 @dataclass
@@ -192,6 +211,48 @@ def run_curve(args: argparse.Namespace) -> None:
     print(f"wrote {args.out / 'train_speed_curve.csv'} and .png")
 
 
+def run_e2e(args: argparse.Namespace) -> None:
+    import json
+    import resource
+    import subprocess
+
+    from benchmarks.generate_demo_time import export_commit
+
+    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                          check=True).stdout.strip()
+    rows: list[EndToEnd] = []
+    with tempfile.TemporaryDirectory() as tmp_name:
+        export_commit(args.baseline, Path(tmp_name) / "baseline")
+        sides = (("baseline", args.baseline, Path(tmp_name) / "baseline"), ("current", head, ROOT))
+        for repeat in range(args.repeats):
+            for side, commit, root in sides:
+                out = args.keep / f"{side}_{repeat}"
+                cmd = [sys.executable, "-m", "smokeseer.cli", str(args.dataset), "--out", str(out),
+                       "--profile", "quick", "--no-progress"]
+                if args.iterations:
+                    cmd += ["--iterations-stage2", str(args.iterations), "--iterations-stage3", str(args.iterations)]
+                before = resource.getrusage(resource.RUSAGE_CHILDREN)
+                load0, wall0 = os.getloadavg()[0], time.perf_counter()
+                done = subprocess.run(cmd, cwd=root, env={**os.environ, "PYTHONPATH": str(root)},
+                                      capture_output=True, text=True)
+                wall = time.perf_counter() - wall0
+                if done.returncode != 0:
+                    raise SystemExit(f"{side} ({commit}) failed: {done.stderr.strip()[-500:]}")
+                after = resource.getrusage(resource.RUSAGE_CHILDREN)
+                cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+                psnr = json.loads((out / "metrics.json").read_text())["metrics"]["psnr"]
+                rows.append(EndToEnd(side, commit, repeat, wall, cpu, psnr, torch.get_num_threads(), load0,
+                                     os.getloadavg()[0]))
+                print(f"{side} {commit} #{repeat}: {wall:.1f} s wall, {cpu:.1f} s CPU, test PSNR {psnr:.3f} dB, "
+                      f"load {load0:.2f} -> {os.getloadavg()[0]:.2f}", flush=True)
+    best = {side: min((r for r in rows if r.side == side), key=lambda r: r.wall_s) for side, _, _ in sides}
+    print(f"best wall: baseline {best['baseline'].wall_s:.1f} s, current {best['current'].wall_s:.1f} s: "
+          f"{best['baseline'].wall_s / best['current'].wall_s:.2f}x less wall time "
+          f"({best['baseline'].cpu_s / best['current'].cpu_s:.2f}x less CPU)")
+    write_dataclass_csv(args.out / "train_speed_e2e.csv", rows)
+    print(f"wrote {args.out / 'train_speed_e2e.csv'}; runs kept in {args.keep}")
+
+
 def run_parity(args: argparse.Namespace) -> None:
     import json
     import statistics
@@ -237,13 +298,21 @@ def main() -> None:
     curve = sub.add_parser("curve", help="test PSNR against wall time of finished runs")
     curve.add_argument("runs", nargs="+", help="LABEL=RUN_DIR")
     curve.add_argument("--out", type=Path, default=RESULTS)
+    e2e = sub.add_parser("e2e", help="train-and-evaluate, this checkout against an earlier commit, alternated")
+    e2e.add_argument("dataset", type=Path)
+    e2e.add_argument("--baseline", required=True, help="git revision to compare against")
+    e2e.add_argument("--repeats", type=int, default=2, help="runs of each side (best wall time kept)")
+    e2e.add_argument("--keep", type=Path, required=True, help="folder for the run folders (for curve)")
+    e2e.add_argument("--iterations", type=int, default=0, help="iterations per stage (default: the profile's)")
+    e2e.add_argument("--out", type=Path, default=RESULTS)
     parity = sub.add_parser("parity", help="test PSNR per label over seeds, same-seed differences")
     parity.add_argument("runs", nargs="+", help="LABEL=RUN_DIR (finished train runs, one per seed)")
     parity.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args()
     if getattr(args, "threads", 0):
         torch.set_num_threads(args.threads)
-    {"profile": run_profile, "train": run_train, "curve": run_curve, "parity": run_parity}[args.command](args)
+    commands = {"profile": run_profile, "train": run_train, "curve": run_curve, "e2e": run_e2e, "parity": run_parity}
+    commands[args.command](args)
 
 
 if __name__ == "__main__":
