@@ -17,7 +17,7 @@ from smokeseer.gaussians import DensifyStrategy, GaussianSet, make_optimizer
 from smokeseer.losses import render_loss
 from smokeseer.model import View, add_rgb_sh, init_gaussians, make_view, place_deformed, render, sh_coeffs
 from smokeseer.trainloop import IterationOutput, StageProblem, StageSchedule, run_stage
-from smokeseer.trainutil import RunContext, exp_lr, grads_of
+from smokeseer.trainutil import RunContext, grads_of, step_optimizers
 
 
 @dataclass
@@ -120,22 +120,8 @@ class Stage2Problem(StageProblem):
         return [(f"gaussians.{k}", p) for k, p in self.g.params.items()]
 
     def optimizer_step(self, it: int) -> None:
-        cfg, total = self.cfg, self.cfg.stage2.iterations
-        for group in self.optimizer.param_groups:
-            if group["name"] == "means":
-                group["lr"] = exp_lr(it, total, cfg.lr.means_init * self.ctx.extent,
-                                     cfg.lr.means_final * self.ctx.extent)
-        self.optimizer.step()
-        self.optimizer.zero_grad(set_to_none=True)
-        if self.deform_optimizer is not None:
-            for group in self.deform_optimizer.param_groups:
-                group["lr"] = exp_lr(it, total, cfg.deform.lr_init, cfg.deform.lr_final)
-            if it > cfg.deform.warmup_iterations:
-                self.deform_optimizer.step()
-            self.deform_optimizer.zero_grad(set_to_none=True)
-        if self.background_optimizer is not None:
-            self.background_optimizer.step()
-            self.background_optimizer.zero_grad(set_to_none=True)
+        step_optimizers(it, self.cfg.stage2.iterations, self.cfg, self.ctx.extent, [self.optimizer],
+                        [self.background_optimizer], self.deform_optimizer)
 
     def after_step(self, it: int, out: IterationOutput) -> None:
         raster, view = out.extra["raster"], out.extra["view"]

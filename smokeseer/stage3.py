@@ -23,7 +23,7 @@ from smokeseer.losses import (depth_consistency, mask_alignment, monochromaticit
 from smokeseer.model import SceneModel, View, add_rgb_sh, make_smoke, place_static, render
 from smokeseer.stage2 import Stage2Result, draw_index, make_background, views_of
 from smokeseer.trainloop import IterationOutput, StageProblem, StageSchedule, run_stage
-from smokeseer.trainutil import RunContext, exp_lr, grads_of
+from smokeseer.trainutil import RunContext, grads_of, step_optimizers
 
 HeldoutPsnr = Callable[[SceneModel, int], dict[str, float | None] | None]
 
@@ -212,23 +212,9 @@ class Stage3Problem(StageProblem):
         return named
 
     def optimizer_step(self, it: int) -> None:
-        cfg, total, extent = self.cfg, self.cfg.stage3.iterations, self.ctx.extent
-        for opt in (self.surface_optimizer, self.smoke_optimizer):
-            if opt is None:
-                continue
-            for group in opt.param_groups:
-                if group["name"] == "means" and group["lr"] > 0:
-                    group["lr"] = exp_lr(it, total, cfg.lr.means_init * extent, cfg.lr.means_final * extent)
-        for opt in (self.surface_optimizer, self.smoke_optimizer, self.background_optimizer):
-            if opt is not None:
-                opt.step()
-                opt.zero_grad(set_to_none=True)
-        if self.deform_optimizer is not None:
-            for group in self.deform_optimizer.param_groups:
-                group["lr"] = exp_lr(it, total, cfg.deform.lr_init, cfg.deform.lr_final)
-            if it > cfg.deform.warmup_iterations:
-                self.deform_optimizer.step()
-            self.deform_optimizer.zero_grad(set_to_none=True)
+        step_optimizers(it, self.cfg.stage3.iterations, self.cfg, self.ctx.extent,
+                        [self.surface_optimizer, self.smoke_optimizer], [self.background_optimizer],
+                        self.deform_optimizer)
 
     def after_step(self, it: int, out: IterationOutput) -> None:
         model = self.model

@@ -6,12 +6,13 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, Sequence
 
 import torch
 from tqdm import tqdm
 
 from contracts.atomic import atomic_path
+from smokeseer.config import TrainConfig
 
 
 class NaNDetected(RuntimeError):
@@ -30,6 +31,29 @@ def exp_lr(step: int, total: int, lr_init: float, lr_final: float) -> float:
         return lr_init
     frac = min(max(step / total, 0.0), 1.0)
     return math.exp((1 - frac) * math.log(lr_init) + frac * math.log(lr_final))
+
+
+def step_optimizers(it: int, total: int, cfg: TrainConfig, extent: float,
+                    gaussian_optimizers: Sequence[torch.optim.Optimizer | None],
+                    other_optimizers: Sequence[torch.optim.Optimizer | None],
+                    deform_optimizer: torch.optim.Optimizer | None) -> None:
+    """One optimiser step of a stage: the Gaussian sets' ``means`` learning rate decays as in 3DGS
+    (a group frozen at lr 0 stays frozen), every optimiser steps and clears its gradients, and the
+    deformation network follows its own decay and only steps after its warm-up."""
+    for opt in gaussian_optimizers:
+        for group in opt.param_groups if opt is not None else ():
+            if group["name"] == "means" and group["lr"] > 0:
+                group["lr"] = exp_lr(it, total, cfg.lr.means_init * extent, cfg.lr.means_final * extent)
+    for opt in (*gaussian_optimizers, *other_optimizers):
+        if opt is not None:
+            opt.step()
+            opt.zero_grad(set_to_none=True)
+    if deform_optimizer is not None:
+        for group in deform_optimizer.param_groups:
+            group["lr"] = exp_lr(it, total, cfg.deform.lr_init, cfg.deform.lr_final)
+        if it > cfg.deform.warmup_iterations:
+            deform_optimizer.step()
+        deform_optimizer.zero_grad(set_to_none=True)
 
 
 def check_finite(stage: int, it: int, named: Iterable[tuple[str, torch.Tensor | None]]) -> None:
