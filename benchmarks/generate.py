@@ -9,7 +9,6 @@ Writes benchmarks/results/generate_{passes,samples,simres}.csv and generate.png.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import tempfile
 from pathlib import Path
@@ -20,6 +19,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from contracts.atomic import write_rows_csv  # noqa: E402
 from generator.api import generate  # noqa: E402
 from contracts.imageio import read_png  # noqa: E402
 
@@ -29,13 +29,6 @@ RESULTS = Path(__file__).resolve().parent / "results"
 def _run(tmp: Path, name: str, **overrides: object) -> tuple[Path, dict]:
     out = generate("demo", tmp / name, show_progress=False, force=True, **overrides)
     return out, json.loads((out / "dataset.json").read_text())
-
-
-def _write(path: Path, rows: list[dict]) -> None:
-    with path.open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
 
 
 def main() -> None:
@@ -53,7 +46,7 @@ def main() -> None:
         pass_rows = [{"step": k, "seconds": round(v, 4), "per": "frame"} for k, v in timing["render"].items()]
         pass_rows.append({"step": "bake", "seconds": round(timing["bake"], 3), "per": "scene"})
         pass_rows.append({"step": "total", "seconds": round(timing["total"], 3), "per": "scene"})
-        _write(RESULTS / "generate_passes.csv", pass_rows)
+        write_rows_csv(RESULTS / "generate_passes.csv", pass_rows)
         for row in pass_rows:
             print(f"  {row['step']:<22} {row['seconds']:8.3f} s per {row['per']}")
 
@@ -68,7 +61,7 @@ def main() -> None:
             sample_rows.append({"samples": spp, "seconds_per_frame": round(seconds, 4), "rmse_vs_reference": rmse,
                                 "psnr_vs_reference": round(-20 * np.log10(max(rmse, 1e-12)), 2)})
             print(f"  {spp:5d} spp: {seconds:.3f} s/frame, RMSE {rmse:.4f} vs {reference_spp} spp")
-        _write(RESULTS / "generate_samples.csv", sample_rows)
+        write_rows_csv(RESULTS / "generate_samples.csv", sample_rows)
 
         sim_rows = []
         for res in sim_res:
@@ -77,7 +70,7 @@ def main() -> None:
                              "rgb_mean_smoke_alpha": round(m["stats"]["rgb_mean_smoke_alpha"], 4)})
             print(f"  sim {res:3d}^3: bake {m['timings_s']['bake']:.2f} s, "
                   f"mean smoke alpha {m['stats']['rgb_mean_smoke_alpha']:.3f}")
-        _write(RESULTS / "generate_simres.csv", sim_rows)
+        write_rows_csv(RESULTS / "generate_simres.csv", sim_rows)
     base = sample_rows[0]["seconds_per_frame"]
     print("ratios against 1 spp: " + ", ".join(f"{r['samples']} spp ×{r['seconds_per_frame'] / base:.1f}"
                                                 for r in sample_rows))

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from contracts.atomic import write_rows_csv
 from generate_denoise import PASSES, load_images, masked_rmse, run
 from generator.api import resolve_spec
 from generator.optics.planck import band_radiance, band_radiance_derivative
@@ -79,10 +80,7 @@ def main() -> None:
             })
             print("  " + ", ".join(f"{k} {v}" for k, v in rows[-1].items()), flush=True)
     RESULTS.mkdir(parents=True, exist_ok=True)
-    with (RESULTS / "generate_bench_noise.csv").open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_rows_csv(RESULTS / "generate_bench_noise.csv", rows)
     print(f"wrote {RESULTS / 'generate_bench_noise.csv'}")
 
 

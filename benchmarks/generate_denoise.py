@@ -26,6 +26,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from contracts.atomic import write_rows_csv  # noqa: E402
 from contracts.imageio import read_exr_channel, read_png  # noqa: E402
 from generator.api import resolve_spec  # noqa: E402
 from generator.optics.planck import band_radiance, band_radiance_derivative  # noqa: E402
@@ -125,10 +126,7 @@ def main() -> None:
             })
             print("  " + ", ".join(f"{k} {v}" for k, v in rows[-1].items()), flush=True)
     RESULTS.mkdir(parents=True, exist_ok=True)
-    with (RESULTS / "generate_denoise.csv").open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_rows_csv(RESULTS / "generate_denoise.csv", rows)
     reference = next(r for r in rows if r["option"] == "16 spp")
     print("time ratios against 16 spp without denoising (RGB smoky): " + ", ".join(
         f"{r['option']} x{r['rgb_smoky_s_per_frame'] / reference['rgb_smoky_s_per_frame']:.2f}" for r in rows))

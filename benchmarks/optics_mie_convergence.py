@@ -11,7 +11,6 @@ Run: python benchmarks/optics_mie_convergence.py
 
 from __future__ import annotations
 
-import csv
 import time
 from pathlib import Path
 
@@ -21,6 +20,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from contracts.atomic import write_rows_csv  # noqa: E402
 from generator.optics.mie import (  # noqa: E402
     ORGANIC_SMOKE,
     SOOT,
@@ -92,10 +92,7 @@ def main() -> None:
                 "seconds": elapsed,
             })
 
-    with open(RESULTS / "optics_mie_convergence.csv", "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_rows_csv(RESULTS / "optics_mie_convergence.csv", rows)
 
     floor = 1e-12
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.3))

@@ -12,7 +12,6 @@ Writes benchmarks/results/optics_quadrature.{csv,png}. Run: python benchmarks/op
 
 from __future__ import annotations
 
-import csv
 import time
 from pathlib import Path
 
@@ -25,6 +24,7 @@ from colour.colorimetry import planck_law  # noqa: E402
 from colour.colorimetry.blackbody import CONSTANT_C1, CONSTANT_C2  # noqa: E402
 from scipy.integrate import quad  # noqa: E402
 
+from contracts.atomic import write_rows_csv  # noqa: E402
 from generator.optics.planck import LWIR_BAND_M, PlanckQuadrature, band_radiance  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -89,10 +89,7 @@ def main() -> None:
                  "err_300K": quad_err[5], "err_20K": quad_err[1], "err_max": max(quad_err),
                  "us_per_temperature": 1e6 * float(np.mean(quad_time))})
 
-    with open(RESULTS / "optics_quadrature.csv", "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_rows_csv(RESULTS / "optics_quadrature.csv", rows)
 
     floor = 1e-17
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))

@@ -41,9 +41,14 @@ def write_json(path: Path, data: Any) -> None:
     write_text(path, json.dumps(data, indent=2, allow_nan=False) + "\n")
 
 
+def write_rows_csv(path: Path, rows: list[dict[str, Any]]) -> None:
+    """One CSV row per dict, the first row's keys as header, written atomically."""
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+
+
 def write_dataclass_csv(path: Path, rows: list[Any]) -> None:
     """One CSV row per dataclass instance, the field names as header, written atomically."""
-    with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=[f.name for f in dataclasses.fields(rows[0])])
-        writer.writeheader()
-        writer.writerows(dataclasses.asdict(r) for r in rows)
+    write_rows_csv(path, [dataclasses.asdict(r) for r in rows])
