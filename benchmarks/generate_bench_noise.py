@@ -13,7 +13,6 @@ benchmarks/results/generate_bench_noise.csv.
 from __future__ import annotations
 
 import argparse
-import csv
 import tempfile
 from dataclasses import replace
 from pathlib import Path
