@@ -9,8 +9,9 @@ dropped as warm-up) plus the top functions by own time and by cumulative time. W
 ``train``: one full ``train-and-evaluate`` run (quick profile) with the chosen backend, for
 before/after comparisons of wall time and PSNR at the same seed.
 
-``curve``: test PSNR against wall time of finished runs (their train_log.csv), one line per run,
-written as ``train_speed_curve.csv`` + ``.png``.
+``curve``: test (or, with ``--metric val_psnr``, validation) PSNR against wall time of finished
+runs (their train_log.csv), one line per run, written as ``train_speed_curve.csv`` + ``.png``
+(``--name`` changes the stem).
 
 ``e2e``: ``train-and-evaluate`` on DATASET at the quick profile, this checkout against an earlier
 commit (exported with ``git archive``), alternated, default threads; keeps the best wall time of
@@ -58,8 +59,11 @@ RESULTS = ROOT / "benchmarks" / "results"
 @dataclass
 class CurvePoint:
     run: str
+    stage: int
+    iteration: int
     wall_s: float
-    test_psnr: float
+    metric: str
+    psnr: float
 
 
 @dataclass
@@ -195,20 +199,22 @@ def run_curve(args: argparse.Namespace) -> None:
     fig, ax = plt.subplots(figsize=(6.5, 4.2))
     for spec in args.runs:
         label, _, folder = spec.partition("=")
-        pts = [(float(r["wall_s"]), float(r["test_psnr"])) for r in read_log(Path(folder) / "train_log.csv")
-               if r.get("test_psnr")]
+        pts = [CurvePoint(label, int(r["stage"]), int(r["iteration"]), float(r["wall_s"]), args.metric,
+                          float(r[args.metric]))
+               for r in read_log(Path(folder) / "train_log.csv") if r.get(args.metric)]
         if not pts:
-            raise SystemExit(f"{folder}/train_log.csv: no test_psnr entries")
-        table += [CurvePoint(label, t, p) for t, p in pts]
-        ax.plot(*zip(*pts), "o-", label=label)
-    ax.set(xlabel="wall time [s]", ylabel="test PSNR [dB]", title="demo, --profile quick")
+            raise SystemExit(f"{folder}/train_log.csv: no {args.metric} entries")
+        table += pts
+        ax.plot([p.wall_s for p in pts], [p.psnr for p in pts], "o-", label=label)
+    split = "validation" if args.metric == "val_psnr" else "test"
+    ax.set(xlabel="wall time [s]", ylabel=f"{split} PSNR [dB]", title=args.title)
     ax.grid(True, alpha=0.3)
     ax.legend()
     fig.tight_layout()
     args.out.mkdir(parents=True, exist_ok=True)
-    fig.savefig(args.out / "train_speed_curve.png", dpi=120)
-    write_dataclass_csv(args.out / "train_speed_curve.csv", table)
-    print(f"wrote {args.out / 'train_speed_curve.csv'} and .png")
+    fig.savefig(args.out / f"{args.name}.png", dpi=120)
+    write_dataclass_csv(args.out / f"{args.name}.csv", table)
+    print(f"wrote {args.out / args.name}.csv and .png")
 
 
 def run_e2e(args: argparse.Namespace) -> None:
@@ -295,8 +301,12 @@ def main() -> None:
     train.add_argument("--out", type=Path, required=True)
     train.add_argument("--seed", type=int, default=0)
     train.add_argument("--threads", type=int, default=0)
-    curve = sub.add_parser("curve", help="test PSNR against wall time of finished runs")
+    curve = sub.add_parser("curve", help="test (or validation) PSNR against wall time of finished runs")
     curve.add_argument("runs", nargs="+", help="LABEL=RUN_DIR")
+    curve.add_argument("--metric", choices=["test_psnr", "val_psnr"], default="test_psnr",
+                       help="train_log.csv column to plot (tune on val_psnr, never on test_psnr)")
+    curve.add_argument("--title", default="demo, --profile quick")
+    curve.add_argument("--name", default="train_speed_curve", help="output file stem")
     curve.add_argument("--out", type=Path, default=RESULTS)
     e2e = sub.add_parser("e2e", help="train-and-evaluate, this checkout against an earlier commit, alternated")
     e2e.add_argument("dataset", type=Path)
