@@ -109,6 +109,10 @@ class Stage3Config:
     smoke_init_scale: float = 0.5
     smoke_densify: DensifyConfig = field(default_factory=lambda: DensifyConfig(opacity_reset_every=0))
     train_surface_geometry: bool = True
+    surface_densify: DensifyConfig = field(default_factory=lambda: DensifyConfig(every=0, opacity_reset_every=0))
+    """3DGS density control of the surface from the RGB views' gradients ("refining geometry": the
+    thermal-only Stage 2 surface is as coarse as the thermal images); ``every`` 0 is off. Needs
+    ``train_surface_geometry``."""
     test_every: int = 1000
 
 

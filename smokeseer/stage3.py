@@ -3,7 +3,9 @@
 Each iteration renders one RGB training frame (surface ∪ smoke, RGB opacities, smoke alpha
 from the same pass) and, when thermal is used, one thermal frame (surface ∪ smoke, thermal
 opacities); adds the switchable priors; densifies the smoke as Deformable 3DGS does. Surface
-Gaussians are static (no deformation) and are not densified here: their geometry is Stage 2's.
+Gaussians are static (no deformation); with ``stage3.surface_densify`` on they are also cloned,
+split and pruned from the RGB views' gradients (the paper's "refining geometry"), otherwise
+their count is Stage 2's.
 """
 from __future__ import annotations
 
@@ -131,6 +133,9 @@ class Stage3Problem(StageProblem):
         self.weights = loss_weights(cfg)
         self._make_optimizers()
         self.strategy = DensifyStrategy(cfg.stage3.smoke_densify, ("opacity_rgb", "opacity_thermal"), ctx.extent)
+        refine = cfg.stage3.train_surface_geometry and cfg.stage3.surface_densify.every > 0
+        self.surface_strategy = (DensifyStrategy(cfg.stage3.surface_densify, ("opacity",), ctx.extent)
+                                 if refine else None)
         rgb_idx = rgb.indices("train")
         self.rgb_views = views_of(rgb, rgb_idx, dev)
         self.rgb_imgs = torch.as_tensor(rgb.images[rgb_idx], device=dev)
@@ -217,14 +222,22 @@ class Stage3Problem(StageProblem):
                         self.deform_optimizer)
 
     def after_step(self, it: int, out: IterationOutput) -> None:
+        """Density control from the RGB render's screen-space gradients: the smoke's, and the
+        surface's when it is refined. Both accumulate before either set changes size."""
         model = self.model
-        if model.smoke is None or self.smoke_optimizer is None:
-            return
         raster, view = out.extra["raster"], out.extra["view"]
-        if raster.means2d.grad is not None:
-            ns = model.surface.n
-            self.strategy.accumulate(raster.means2d.grad[0, ns:], raster.radii[0, ns:], view.width, view.height)
-        self.strategy.step(it, model.smoke, self.smoke_optimizer, self.ctx.generator)
+        ns = model.surface.n
+        grad = raster.means2d.grad
+        smoke = model.smoke is not None and self.smoke_optimizer is not None
+        if grad is not None:
+            if self.surface_strategy is not None:
+                self.surface_strategy.accumulate(grad[0, :ns], raster.radii[0, :ns], view.width, view.height)
+            if smoke:
+                self.strategy.accumulate(grad[0, ns:], raster.radii[0, ns:], view.width, view.height)
+        if self.surface_strategy is not None:
+            self.surface_strategy.step(it, model.surface, self.surface_optimizer, self.ctx.generator)
+        if smoke:
+            self.strategy.step(it, model.smoke, self.smoke_optimizer, self.ctx.generator)
 
     def state(self) -> dict[str, Any]:
         model = self.model

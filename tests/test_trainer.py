@@ -115,6 +115,23 @@ def test_other_modes_run(splat: Path, tmp_path: Path, mode: str) -> None:
         assert not (run / "renders" / "thermal").exists()
 
 
+def test_surface_refinement_densifies_the_surface_only_when_asked(splat: Path, tmp_path: Path) -> None:
+    """With stage3.surface_densify on, Stage 3 clones/splits/prunes the surface from the RGB views'
+    gradients (the surface count leaves Stage 2's); off, the count is Stage 2's. Either way the
+    run is complete and the surface PLY matches the reported count."""
+    counts = {}
+    for name, extra in (("off", []), ("on", ["--set", "stage3.surface_densify.every=3",
+                                              "--set", "stage3.surface_densify.start=3",
+                                              "--set", "stage3.surface_densify.grad_threshold=0.0"])):
+        run = tmp_path / name
+        assert main([str(splat), "--out", str(run)] + TINY + extra) == 0
+        doc = _assert_complete(run)
+        stage2 = [int(r["n_gaussians"]) for r in _log_rows(run) if r["stage"] == "2"][-1]
+        counts[name] = (stage2, doc["stages"]["surface_gaussians"])
+    assert counts["off"][1] == counts["off"][0]
+    assert counts["on"][0] == counts["off"][0] and counts["on"][1] > counts["on"][0]
+
+
 @pytest.mark.parametrize("smoke", ["none", "opaque"])
 def test_no_smoke_and_opaque_smoke_train_without_nan(tmp_path: Path, smoke: str) -> None:
     # The opaque scene is also flagged static: that must drop the deformation network.
