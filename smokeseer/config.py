@@ -112,7 +112,8 @@ class Stage3Config:
     surface_densify: DensifyConfig = field(default_factory=lambda: DensifyConfig(every=0, opacity_reset_every=0))
     """3DGS density control of the surface from the RGB views' gradients ("refining geometry": the
     thermal-only Stage 2 surface is as coarse as the thermal images); ``every`` 0 is off. Needs
-    ``train_surface_geometry``."""
+    ``train_surface_geometry``. Off in every profile: on the standard house validation views it
+    scored 21.9 dB against 26.3 dB without (docs/method.md)."""
     test_every: int = 1000
 
 
