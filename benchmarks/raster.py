@@ -158,8 +158,6 @@ def measure_memory(backend: str, n: int, res: int, threads: int) -> Memory:
     return Memory(**json.loads(proc.stdout.strip().splitlines()[-1]))
 
 
-
-
 def write_plot(path: Path, timings: list[Timing], memory: list[Memory]) -> None:
     import matplotlib
 

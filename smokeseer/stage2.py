@@ -17,7 +17,7 @@ from smokeseer.gaussians import DensifyStrategy, GaussianSet, make_optimizer
 from smokeseer.losses import render_loss
 from smokeseer.model import View, add_rgb_sh, init_gaussians, make_view, place_deformed, render, sh_coeffs
 from smokeseer.trainloop import IterationOutput, StageProblem, StageSchedule, run_stage
-from smokeseer.trainutil import RunContext, grads_of, step_optimizers
+from smokeseer.trainutil import RunContext, grads_of, state_or_none, step_optimizers
 
 
 @dataclass
@@ -131,11 +131,9 @@ class Stage2Problem(StageProblem):
 
     def state(self) -> dict[str, Any]:
         return {"gaussians": self.g.state_dict(), "optimizer": self.optimizer.state_dict(),
-                "deform": self.deform.state_dict() if self.deform is not None else None,
-                "deform_optimizer": self.deform_optimizer.state_dict() if self.deform_optimizer is not None else None,
-                "background": self.background.state_dict() if self.background is not None else None,
-                "background_optimizer": (self.background_optimizer.state_dict()
-                                         if self.background_optimizer is not None else None)}
+                "deform": state_or_none(self.deform), "deform_optimizer": state_or_none(self.deform_optimizer),
+                "background": state_or_none(self.background),
+                "background_optimizer": state_or_none(self.background_optimizer)}
 
     def load_state(self, payload: dict[str, Any]) -> None:
         dev = self.ctx.device

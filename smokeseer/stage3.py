@@ -25,7 +25,7 @@ from smokeseer.losses import (depth_consistency, mask_alignment, monochromaticit
 from smokeseer.model import SceneModel, View, add_rgb_sh, make_smoke, place_static, render
 from smokeseer.stage2 import Stage2Result, draw_index, make_background, views_of
 from smokeseer.trainloop import IterationOutput, StageProblem, StageSchedule, run_stage
-from smokeseer.trainutil import RunContext, grads_of, step_optimizers
+from smokeseer.trainutil import RunContext, grads_of, state_or_none, step_optimizers
 
 HeldoutPsnr = Callable[[SceneModel, int], dict[str, float | None] | None]
 
@@ -241,14 +241,10 @@ class Stage3Problem(StageProblem):
 
     def state(self) -> dict[str, Any]:
         model = self.model
-
-        def saved(part: torch.nn.Module | torch.optim.Optimizer | GaussianSet | None) -> dict[str, Any] | None:
-            return part.state_dict() if part is not None else None
-
         return {"surface": model.surface.state_dict(), "surface_optimizer": self.surface_optimizer.state_dict(),
-                "smoke": saved(model.smoke), "smoke_optimizer": saved(self.smoke_optimizer),
-                "deform": saved(model.deform), "deform_optimizer": saved(self.deform_optimizer),
-                "background_optimizer": saved(self.background_optimizer),
+                "smoke": state_or_none(model.smoke), "smoke_optimizer": state_or_none(self.smoke_optimizer),
+                "deform": state_or_none(model.deform), "deform_optimizer": state_or_none(self.deform_optimizer),
+                "background_optimizer": state_or_none(self.background_optimizer),
                 **{name: bg.state_dict() for name, bg in _backgrounds(model).items()}}
 
     def load_state(self, payload: dict[str, Any]) -> None:

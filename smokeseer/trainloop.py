@@ -16,7 +16,8 @@ from typing import Any, Iterator
 import torch
 from tqdm import tqdm
 
-from smokeseer.trainutil import NaNDetected, RunContext, check_finite, load_checkpoint, save_checkpoint
+from smokeseer.raster.finite import first_non_finite
+from smokeseer.trainutil import NaNDetected, RunContext, load_checkpoint, save_checkpoint
 
 
 @dataclass
@@ -95,20 +96,11 @@ def _copy(obj: Any) -> Any:
 
 
 def guard(stage: int, it: int, named: list[tuple[str, torch.Tensor | None]]) -> None:
-    """Raise NaNDetected naming the first non-finite tensor of ``named``.
-
-    Why fused: one vectorised 2-norm per tensor (``_foreach_norm``; NaN and Inf propagate into
-    it) and a single host sync replace one ``isfinite().all()`` and sync per tensor, about ten
-    times less CPU on the demo's state (benchmarks/iteration_parts.py). A norm that overflows
-    from finite values only costs the exact per-tensor check, which then finds nothing."""
-    tensors = [t.detach() for _, t in named if t is not None and t.numel() and t.is_floating_point()]
-    if not tensors:
-        return
-    norms = torch._foreach_norm(tensors, 2)
-    if len({n.dtype for n in norms}) > 1:
-        norms = [n.double() for n in norms]
-    if not bool(torch.isfinite(torch.stack(norms)).all()):
-        check_finite(stage, it, named)
+    """Raise NaNDetected naming the first non-finite tensor of ``named`` (one fused check,
+    ``smokeseer.raster.finite``)."""
+    name = first_non_finite(named)
+    if name is not None:
+        raise NaNDetected(stage, it, name)
 
 
 @dataclass

@@ -63,6 +63,12 @@ def check_finite(stage: int, it: int, named: Iterable[tuple[str, torch.Tensor | 
             raise NaNDetected(stage, it, name)
 
 
+def state_or_none(part: Any) -> dict[str, Any] | None:
+    """``part.state_dict()`` of a module, optimiser or Gaussian set a checkpoint holds, or None
+    where the run has no such part."""
+    return part.state_dict() if part is not None else None
+
+
 def grads_of(prefix: str, params: dict[str, torch.nn.Parameter]) -> list[tuple[str, torch.Tensor | None]]:
     return [(f"{prefix}.{k}.grad", p.grad) for k, p in params.items()]
 

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from smokeseer.raster.finite import first_non_finite
 from smokeseer.raster.cpu_backend import composite_tiles, project_compiled
 from smokeseer.raster.projection import project_gaussians
 from smokeseer.raster.sh import eval_sh, num_sh_bases
@@ -35,21 +36,6 @@ class RasterOutput:
 def gsplat_available() -> bool:
     """True when the gsplat package can be imported (it needs CUDA to run)."""
     return importlib.util.find_spec("gsplat") is not None
-
-
-def _check_finite(tensors: dict[str, Tensor]) -> None:
-    """ValueError naming the first input with a NaN or Inf.
-
-    Why fused: one vectorised 2-norm over all inputs and a single host sync (NaN and Inf
-    propagate into a norm) instead of one ``isfinite().all()`` per input; only a norm that is
-    not finite pays for the exact per-tensor test (a finite input whose norm overflows passes it).
-    The inputs share one dtype (checked before)."""
-    norms = torch._foreach_norm([t.detach() for t in tensors.values()], 2)
-    if bool(torch.isfinite(torch.stack(norms)).all()):
-        return
-    for name, t in tensors.items():
-        if not bool(torch.isfinite(t).all()):
-            raise ValueError(f"{name} contains NaN or Inf")
 
 
 def _validate(
@@ -99,7 +85,9 @@ def _validate(
     for name, t in tensors.items():
         if t.dtype != means.dtype:
             raise ValueError(f"{name} has dtype {t.dtype}, expected {means.dtype} like means")
-    _check_finite(tensors)
+    bad = first_non_finite(tensors.items())
+    if bad is not None:
+        raise ValueError(f"{bad} contains NaN or Inf")
     if n > 0:
         if bool((torch.linalg.vector_norm(quats.detach(), dim=-1) == 0).any()):
             raise ValueError("quats contains a zero quaternion (no rotation defined)")

@@ -100,10 +100,7 @@ def composite_tiles(
     if subset_mask is not None:
         columns.append(subset_mask.to(opacities.dtype)[None, :, None].expand(c_count, n, 1))
     feats = torch.cat(columns, dim=-1).contiguous()
-    # Front to back by view z, ties by index; float64 depths where the projection kept them, so two
-    # Gaussians whose float32 depths round to the same value keep their true order.
-    key = proj.sort_depths if proj.sort_depths is not None else proj.depths.detach()
-    order = torch.argsort(key, dim=1, stable=True)
+    order = torch.argsort(proj.sort_key(), dim=1, stable=True)  # front to back, ties by index
     image, alpha, n_pairs = _TileComposite.apply(
         proj.means2d.contiguous(), proj.conics.contiguous(), opacities.contiguous(), feats,
         proj.radii.detach().contiguous(), order, proj.visible.contiguous(), width, height,

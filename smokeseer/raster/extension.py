@@ -3,8 +3,9 @@
 The build directory is keyed by a hash of the source and the flags, so an edited kernel is
 rebuilt and an unchanged one loads in milliseconds. The sources are copied into that directory
 and compiled from there: ninja's command line then holds no checkout path, so two checkouts of
-the same kernel share one build instead of rebuilding it each time the other one loads it. A failed build raises ``KernelBuildError``
-with the compiler's own complaint; nothing falls back to the slower torch backend.
+the same kernel share one build instead of rebuilding it each time the other one loads it. A
+failed build raises ``KernelBuildError`` with the compiler's own complaint; nothing falls back
+to the slower torch backend.
 """
 
 from __future__ import annotations

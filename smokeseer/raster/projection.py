@@ -27,6 +27,11 @@ class Projection:
     visible: Tensor  # [C, N] bool
     sort_depths: Tensor | None = None  # [C, N] float64 view z where available (sort key without float32 ties)
 
+    def sort_key(self) -> Tensor:
+        """Front-to-back sort key: the float64 depths where kept, so two Gaussians whose float32
+        depths round to the same value keep their true order."""
+        return self.sort_depths if self.sort_depths is not None else self.depths.detach()
+
 
 def quat_to_rotmat(quats: Tensor) -> Tensor:
     """(w, x, y, z) quaternions [N, 4], any non-zero norm, to rotation matrices [N, 3, 3]."""

@@ -133,7 +133,7 @@ def blended_pairs(proj: Projection, opacities: Tensor, width: int, height: int) 
     device = opacities.device
     n_rank = max(n, 1)
     fp = _footprints(proj, opacities, width, height)
-    front_to_back = torch.argsort(proj.sort_depths if proj.sort_depths is not None else proj.depths.detach(), dim=1, stable=True)
+    front_to_back = torch.argsort(proj.sort_key(), dim=1, stable=True)
     depth_rank = torch.empty_like(front_to_back).scatter_(
         1, front_to_back, torch.arange(n, device=device).expand(c_count, n).contiguous()
     ).reshape(-1)
