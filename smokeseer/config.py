@@ -114,6 +114,10 @@ class Stage3Config:
     thermal-only Stage 2 surface is as coarse as the thermal images); ``every`` 0 is off. Needs
     ``train_surface_geometry``. Off in every profile: on the standard house validation views it
     scored 21.9 dB against 26.3 dB without (docs/method.md)."""
+    surface_densify_max_smoke: float = 0.02
+    """Surface refinement counts a view's gradient for a Gaussian only where the smoke covering its
+    projected centre (the rendered smoke alpha, or the Stage 1 mask where the run has one) is at
+    most this, so RGB gradients from smoky pixels grow no surface; 1.0 counts every centre in the image."""
     test_every: int = 1000
 
 
@@ -180,6 +184,9 @@ class TrainConfig:
                              "OpenCV axes), or none to leave the offset unmodelled")
         if self.stage1 not in ("ground-truth", "estimate"):
             raise ValueError(f"stage1: {self.stage1!r} is not ground-truth or estimate")
+        if not 0.0 < self.stage3.surface_densify_max_smoke <= 1.0:
+            raise ValueError("stage3.surface_densify_max_smoke: must be in (0, 1], "
+                             f"got {self.stage3.surface_densify_max_smoke}")
         if self.validation_every < 0 or self.validation_every == 1:
             raise ValueError(f"validation_every: must be 0 (none) or at least 2, got {self.validation_every}")
         if self.deform.skip_layer >= self.deform.depth:

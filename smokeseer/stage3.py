@@ -23,6 +23,7 @@ from smokeseer.gaussians import DensifyStrategy, GaussianSet, make_optimizer
 from smokeseer.losses import (depth_consistency, mask_alignment, monochromaticity, render_loss,
                               smoke_alpha_variance, smoke_color_variance)
 from smokeseer.model import SceneModel, View, add_rgb_sh, make_smoke, place_static, render
+from smokeseer.raster.api import RasterOutput
 from smokeseer.stage2 import Stage2Result, draw_index, make_background, views_of
 from smokeseer.trainloop import IterationOutput, StageProblem, StageSchedule, run_stage
 from smokeseer.trainutil import RunContext, grads_of, state_or_none, step_optimizers
@@ -188,7 +189,7 @@ class Stage3Problem(StageProblem):
             terms["depth"] = (self._depth_term(self.th_views[j], j) if self.prior.camera == "thermal"
                               else self._depth_term(view, k))
         loss = sum(weights["render"] * v if n.startswith("render") else weights[n] * v for n, v in terms.items())
-        return IterationOutput(loss, terms, {"raster": out, "view": view, "deform_on": deform_on})
+        return IterationOutput(loss, terms, {"raster": out, "view": view, "index": k, "deform_on": deform_on})
 
     def _depth_term(self, view: View, k: int) -> torch.Tensor:
         surface = self.model.surface
@@ -231,13 +232,24 @@ class Stage3Problem(StageProblem):
         smoke = model.smoke is not None and self.smoke_optimizer is not None
         if grad is not None:
             if self.surface_strategy is not None:
-                self.surface_strategy.accumulate(grad[0, :ns], raster.radii[0, :ns], view.width, view.height)
+                clear = smoke_free_centres(raster.means2d[0, :ns], self._smoke_cover(raster, out.extra["index"]),
+                                           self.cfg.stage3.surface_densify_max_smoke)
+                radii = torch.where(clear, raster.radii[0, :ns], torch.zeros_like(raster.radii[0, :ns]))
+                self.surface_strategy.accumulate(grad[0, :ns], radii, view.width, view.height)
             if smoke:
                 self.strategy.accumulate(grad[0, ns:], raster.radii[0, ns:], view.width, view.height)
         if self.surface_strategy is not None:
             self.surface_strategy.step(it, model.surface, self.surface_optimizer, self.ctx.generator)
         if smoke:
             self.strategy.step(it, model.smoke, self.smoke_optimizer, self.ctx.generator)
+
+    def _smoke_cover(self, raster: RasterOutput, k: int) -> torch.Tensor | None:
+        """Where this RGB view has smoke: the smoke alpha of the same render pass, and the Stage 1
+        mask where the run uses one (either one calling a pixel smoky is enough)."""
+        if raster.subset_alphas is None:
+            return None
+        cover = raster.subset_alphas[0, ..., 0].detach()
+        return cover if self.masks is None else torch.maximum(cover, self.masks[k])
 
     def state(self) -> dict[str, Any]:
         model = self.model
@@ -274,6 +286,22 @@ class Stage3Problem(StageProblem):
 
     def heldout_psnr(self, it: int) -> dict[str, float | None] | None:
         return None if self.heldout_fn is None else self.heldout_fn(self.model, it)
+
+
+def smoke_free_centres(means2d: torch.Tensor, smoke_cover: torch.Tensor | None, max_smoke: float) -> torch.Tensor:
+    """True for each Gaussian whose projected centre lies on a pixel with smoke cover at most
+    ``max_smoke``: its screen-space gradient there comes from surface, not from smoke. A centre
+    outside the image does not count (how much smoke its footprint meets is not known); no smoke
+    model (``None``) makes every Gaussian clear."""
+    n = means2d.shape[0]
+    if smoke_cover is None:
+        return torch.ones(n, dtype=torch.bool, device=means2d.device)
+    h, w = smoke_cover.shape
+    px = means2d[:, 0].detach().floor()
+    py = means2d[:, 1].detach().floor()
+    inside = (px >= 0) & (px < w) & (py >= 0) & (py < h)
+    cover = smoke_cover[py.clamp(0, h - 1).long(), px.clamp(0, w - 1).long()]
+    return inside & (cover <= max_smoke)
 
 
 def train_stage3(ctx: RunContext, model: SceneModel, rgb: ModalityData, thermal: ModalityData | None,

@@ -15,11 +15,14 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
+from PIL import Image
 
 from smokeseer.cli import main
 from smokeseer.raster import read_ply
+from smokeseer.stage3 import smoke_free_centres
 from contracts.results_format import validate_run_dir
 from tests.test_smokeseer_data import write_splat_dataset
 
@@ -130,6 +133,37 @@ def test_surface_refinement_densifies_the_surface_only_when_asked(splat: Path, t
         counts[name] = (stage2, doc["stages"]["surface_gaussians"])
     assert counts["off"][1] == counts["off"][0]
     assert counts["on"][0] == counts["off"][0] and counts["on"][1] > counts["on"][0]
+
+
+def test_smoke_free_centres_gate_on_the_centre_pixel() -> None:
+    """Analytic case: smoke covers the left half of a 4x2 image; a centre at pixel x in [0, 2) is
+    smoky, in [2, 4) clear, outside the image not counted, and no smoke model means all clear."""
+    cover = torch.tensor([[0.9, 0.5, 0.0, 0.02], [0.9, 0.5, 0.0, 0.02]])
+    centres = torch.tensor([[0.5, 0.5], [1.99, 1.5], [2.0, 0.2], [3.9, 1.9], [-0.1, 0.5], [4.0, 1.0], [2.5, 2.0]])
+    assert smoke_free_centres(centres, cover, 0.02).tolist() == [False, False, True, True, False, False, False]
+    assert smoke_free_centres(centres, cover, 1.0).tolist() == [True] * 4 + [False] * 3
+    assert smoke_free_centres(centres, None, 0.02).all()
+
+
+def test_surface_refinement_grows_no_surface_where_stage1_sees_only_smoke(tmp_path: Path) -> None:
+    """When the Stage 1 masks call every pixel smoke, refinement gated on smoke-free centres has
+    no gradient to grow from, so the surface cannot gain Gaussians; counting every pixel
+    (max_smoke 1.0) the same run grows it, as the ungated refinement did."""
+    ds = write_splat_dataset(tmp_path / "ds", n_rgb=8, n_thermal=6)
+    for mask in (ds / "rgb" / "smoke_mask").glob("*.png"):
+        Image.fromarray(np.full_like(np.asarray(Image.open(mask)), 255)).save(mask)
+    refine = ["--set", "stage3.surface_densify.every=3", "--set", "stage3.surface_densify.start=3",
+              "--set", "stage3.surface_densify.grad_threshold=1e-12"]
+    counts = {}
+    for max_smoke in (0.02, 1.0):
+        run = tmp_path / f"run-{max_smoke}"
+        assert main([str(ds), "--out", str(run)] + TINY + refine
+                    + ["--set", f"stage3.surface_densify_max_smoke={max_smoke}"]) == 0
+        doc = _assert_complete(run)
+        stage2 = [int(r["n_gaussians"]) for r in _log_rows(run) if r["stage"] == "2"][-1]
+        counts[max_smoke] = (stage2, doc["stages"]["surface_gaussians"])
+    assert counts[0.02][1] <= counts[0.02][0]
+    assert counts[1.0][1] > counts[1.0][0]
 
 
 @pytest.mark.parametrize("smoke", ["none", "opaque"])
