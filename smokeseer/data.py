@@ -47,6 +47,9 @@ class ModalityData:
     masks: np.ndarray | None = None
     depth: np.ndarray | None = None
     counts_range: tuple[float, float] | None = None
+    inverse_depth: np.ndarray | None = None
+    """A depth prior the layout carries (the official ``images_depth``): inverse depth in the
+    model's units, 0 where there is none. Truth for scoring only if the layout says so."""
 
     def indices(self, split: str) -> list[int]:
         return [i for i, f in enumerate(self.frames) if f.split == split]
