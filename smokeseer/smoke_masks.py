@@ -31,8 +31,6 @@ CANDIDATES = ("dark-channel", "dark-channel-deviation", "whiteness", "colour-dev
 ESTIMATOR = "temporal-variance"
 THRESHOLD = 0.02
 PATCH_FRACTION = 1 / 32
-SMOKE_PRESENT_FRACTION = 0.01
-"""Mask coverage of the training pixels above which a scene is said to have smoke."""
 
 
 @dataclass
