@@ -23,7 +23,7 @@ import numpy as np
 
 from contracts.dataset_format import load_json
 from contracts.errors import DatasetError
-from smokeseer.data import downscale_depth, read_png
+from smokeseer.data import all_or_none, downscale_depth, read_png
 
 DEPTH_DIR = "images_depth"
 PARAMS_FILE = "depth_params.json"
@@ -98,13 +98,8 @@ def read_depth_files(root: Path, stems: list[str], size: tuple[int, int], factor
     if not folder.is_dir():
         return None
     files = [folder / f"{s}.png" for s in stems]
-    present = [p.is_file() for p in files]
-    if not any(present):
-        notes.append(f"{folder}: no depth maps for the {what} frames")
+    if not all_or_none(files, f"{what} depth map", f"{folder}: no depth maps for the {what} frames", notes):
         return None
-    if not all(present):
-        missing = files[present.index(False)]
-        raise DatasetError(f"{missing}: missing depth map ({sum(present)} of {len(files)} {what} frames have one)")
     params_path = root / "sparse" / "0" / PARAMS_FILE
     if not params_path.is_file():
         raise DatasetError(f"{params_path}: missing file ({folder} needs its per-image scale and offset)")

@@ -353,7 +353,7 @@ def test_bad_depth_files_are_named(outputs: dict[str, Path], tmp_path: Path) -> 
     with pytest.raises(DatasetError, match=r"depth map is 3x3, the image is 16x12"):
         load_scene(root)
     first.unlink()
-    with pytest.raises(DatasetError, match=r"missing depth map \(16 of 17 rgb frames have one\)"):
+    with pytest.raises(DatasetError, match=r"missing rgb depth map \(16 of 17 frames have one\)"):
         load_scene(root)
 
 
