@@ -5,8 +5,8 @@ the same colour in the neighbouring frames. Smoke moves on its own and lies in f
 surface, half transparent, so no single depth explains both layers. The test is a plane sweep
 that needs no depth and no weights, only the Stage 1 poses:
 
-- up to ``max_frames`` RGB training frames, spread in time, are each compared with their
-  ``neighbours`` nearest training frames in time;
+- every RGB frame is compared with its ``neighbours`` nearest training frames in time (held-out
+  frames are never a neighbour);
 - for each fronto-parallel plane (uniform in inverse depth, from a near plane to infinity, so
   finely that adjacent planes move the image by at most ``step_px``), the frame's pixels are
   reprojected into each neighbour, and the colour difference is taken after a Gaussian blur of
@@ -38,6 +38,9 @@ from smokeseer.cameras import camera_center, scene_bounds
 from smokeseer.data import Frame, box_downscale
 
 
+ESTIMATOR = "multiview-residual"
+
+
 @dataclass(frozen=True)
 class PresenceConfig:
     neighbours: int = 4
@@ -54,15 +57,13 @@ class PresenceConfig:
     threshold: float = 1.36
     """Residual over its expected smoke-free floor above which smoke is present. Measured on
     generated scenes with and without their smoke sources and on the splatted test scenes, with
-    frames 48-96 px wide (docs/real-captures.md): smoke-free 0.59-1.21, smoky 1.53-5.5; the
-    geometric mean of 1.21 and 1.53, a margin of x1.13 either way."""
+    frames 48-96 px wide (docs/real-captures.md): smoke-free 0.57-1.21, smoky 1.54-5.0; the
+    geometric mean of 1.21 and 1.54, a margin of x1.13 either way."""
     min_width: int = 48
     """Narrower frames are decided on, but the log says the threshold was not measured there."""
     max_width: int = 96
     """Frames wider than this are box-downscaled first: the size the threshold was measured at,
     and a bounded cost."""
-    max_frames: int = 12
-    """Reference frames, spread evenly in time; their neighbours come from all frames."""
 
 
 @dataclass
@@ -73,7 +74,9 @@ class PresenceDecision:
     median_residual: float
     noise_sigma: float
     residual: np.ndarray
-    """Per reference frame and pixel (NaN where fewer than 2 neighbours see it)."""
+    """Per frame and pixel, at the working size (NaN where fewer than 2 neighbours see it)."""
+    masks: np.ndarray
+    """Residual above the smoke-free floor, per frame at the frames' size (0/1)."""
     notes: list[str]
 
 
@@ -89,34 +92,30 @@ def _sample(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
                      for c in range(img.shape[-1])], -1)
 
 
-def _neighbours(frames: list[Frame], k: int) -> list[list[int]]:
-    order = sorted(range(len(frames)), key=lambda i: frames[i].timestamp_s)
-    rank = {i: r for r, i in enumerate(order)}
-    return [sorted((j for j in range(len(frames)) if j != i), key=lambda j: abs(rank[j] - rank[i]))[:k]
-            for i in range(len(frames))]
+def _neighbours(frames: list[Frame], pool: list[int], k: int) -> list[list[int]]:
+    """For every frame, the ``k`` frames of ``pool`` (itself excluded) nearest in time."""
+    return [sorted((j for j in pool if j != i), key=lambda j: (abs(frames[j].timestamp_s - f.timestamp_s), j))[:k]
+            for i, f in enumerate(frames)]
 
 
-def multiview_residual(images: np.ndarray, frames: list[Frame], cfg: PresenceConfig = PresenceConfig()) -> np.ndarray:
-    """Per-pixel colour residual that no single depth explains, for up to ``cfg.max_frames``
-    reference frames spread in time (R×H×W, NaN where fewer than 2 neighbours see a pixel)."""
-    if len(frames) < 3:
-        raise ValueError(f"smoke presence: needs at least 3 RGB training frames, got {len(frames)}")
-    bounds = scene_bounds(np.stack([f.viewmat for f in frames]), np.stack([f.K for f in frames]),
-                          np.array([f.width for f in frames]))
+def multiview_residual(images: np.ndarray, frames: list[Frame], pool: list[int],
+                       cfg: PresenceConfig = PresenceConfig()) -> np.ndarray:
+    """Per-pixel colour residual that no single depth explains, for every frame, against its
+    neighbours from ``pool`` (N×H×W, NaN where fewer than 2 neighbours see a pixel)."""
+    if len(pool) < 3:
+        raise ValueError(f"smoke presence: needs at least 3 RGB training frames, got {len(pool)}")
+    bounds = scene_bounds(np.stack([frames[i].viewmat for i in pool]), np.stack([frames[i].K for i in pool]),
+                          np.array([frames[i].width for i in pool]))
     centres = np.stack([camera_center(f.viewmat) for f in frames])
-    near_depth = cfg.near * float(np.linalg.norm(centres - bounds.center, axis=1).mean())
-    neighbours = _neighbours(frames, cfg.neighbours)
+    near_depth = cfg.near * float(np.linalg.norm(centres[pool] - bounds.center, axis=1).mean())
+    neighbours = _neighbours(frames, pool, cfg.neighbours)
     baseline = max(float(np.linalg.norm(centres[i] - centres[j])) for i, nb in enumerate(neighbours) for j in nb)
     focal = max(float(f.K[0, 0]) for f in frames)
     n = int(np.clip(np.ceil(focal * baseline / near_depth / cfg.step_px), 8, cfg.max_depths))
     inverse = np.linspace(1.0 / near_depth, 0.0, n)
     blurred = [_blur(np.asarray(im, dtype=np.float64), cfg.blur_px) for im in images]
-    order = sorted(range(len(frames)), key=lambda i: frames[i].timestamp_s)
-    references = sorted({order[k] for k in np.linspace(0, len(order) - 1, min(cfg.max_frames, len(order))).round()
-                         .astype(int)})
     out = []
-    for i in references:
-        f, near = frames[i], neighbours[i]
+    for f, near, image in zip(frames, neighbours, blurred):
         v, u = np.mgrid[0:f.height, 0:f.width] + 0.5
         rays = np.stack([(u - f.K[0, 2]) / f.K[0, 0], (v - f.K[1, 2]) / f.K[1, 1], np.ones_like(u)], -1)
         best = np.full((f.height, f.width), np.inf)
@@ -130,7 +129,7 @@ def multiview_residual(images: np.ndarray, frames: list[Frame], cfg: PresenceCon
                 uj, vj = g.K[0, 0] * x[..., 0] / z + g.K[0, 2], g.K[1, 1] * x[..., 1] / z + g.K[1, 2]
                 seen = np.isfinite(z) & (uj >= 0) & (uj <= g.width) & (vj >= 0) & (vj <= g.height)
                 uj, vj = np.where(seen, uj, 0.0), np.where(seen, vj, 0.0)
-                diff = np.abs(_sample(blurred[j], uj, vj) - blurred[i]).mean(-1)
+                diff = np.abs(_sample(blurred[j], uj, vj) - image).mean(-1)
                 diffs.append(np.where(seen, diff, np.nan))
             stack = np.stack(diffs)
             enough = np.isfinite(stack).sum(0) >= 2
@@ -148,8 +147,7 @@ def noise_sigma(images: np.ndarray) -> float:
     return float(np.median([np.median(np.abs(convolve(g, kernel)[1:-1, 1:-1])) / (6.0 * 0.6745) for g in grey]))
 
 
-def _working_size(images: np.ndarray, frames: list[Frame], max_width: int) -> tuple[np.ndarray, list[Frame]]:
-    factor = max(1, -(-frames[0].width // max_width))
+def _working_size(images: np.ndarray, frames: list[Frame], factor: int) -> tuple[np.ndarray, list[Frame]]:
     if factor == 1:
         return np.asarray(images), frames
     small = np.stack([box_downscale(np.asarray(im, dtype=np.float64), factor) for im in images])
@@ -161,21 +159,33 @@ def _working_size(images: np.ndarray, frames: list[Frame], max_width: int) -> tu
     return small, scaled
 
 
-def decide_smoke_presence(images: np.ndarray, frames: list[Frame],
+def _upsample(masks: np.ndarray, factor: int, height: int, width: int) -> np.ndarray:
+    """Nearest upsampling back to the frames' size; the rows and columns the box downscale
+    cropped repeat the last ones."""
+    big = masks.repeat(factor, axis=1).repeat(factor, axis=2)
+    return np.pad(big, ((0, 0), (0, height - big.shape[1]), (0, width - big.shape[2])), mode="edge")
+
+
+def decide_smoke_presence(images: np.ndarray, frames: list[Frame], train: list[int],
                           cfg: PresenceConfig = PresenceConfig()) -> PresenceDecision:
-    """Smoke is present when the median over frames of each frame's median residual exceeds
-    ``cfg.threshold`` times the smoke-free floor."""
+    """Smoke is present when the median over the training frames of each frame's median
+    residual exceeds ``cfg.threshold`` times the smoke-free floor. Masks, for every frame, are
+    the pixels whose residual exceeds that floor."""
     if cfg.blur_px <= 0:
         raise ValueError(f"smoke presence: blur_px must be > 0, got {cfg.blur_px}")
-    images, frames = _working_size(images, frames, cfg.max_width)
-    residual = multiview_residual(images, frames, cfg)
-    per_frame = [float(np.median(r[np.isfinite(r)])) for r in residual if np.isfinite(r).any()]
+    height, width = frames[0].height, frames[0].width
+    factor = max(1, -(-width // cfg.max_width))
+    images, frames = _working_size(images, frames, factor)
+    residual = multiview_residual(images, frames, train, cfg)
+    per_frame = [float(np.median(r[np.isfinite(r)])) for r in residual[train] if np.isfinite(r).any()]
     if not per_frame:
         raise ValueError("smoke presence: no pixel is seen by two neighbouring frames; the poses share no view")
     median = float(np.median(per_frame))
-    sigma = noise_sigma(images)
-    stat = median / (cfg.aliasing_floor + sigma / (np.pi * cfg.blur_px))
+    sigma = noise_sigma(images[train])
+    floor = cfg.aliasing_floor + sigma / (np.pi * cfg.blur_px)
+    stat = median / floor
     notes = [] if frames[0].width >= cfg.min_width else [
         f"smoke presence decided on frames {frames[0].width} px wide; its threshold was measured at "
         f"{cfg.min_width}-{cfg.max_width} px, so the decision is unreliable"]
-    return PresenceDecision(stat > cfg.threshold, stat, cfg.threshold, median, sigma, residual, notes)
+    masks = _upsample((np.nan_to_num(residual, nan=0.0) > floor).astype(np.float32), factor, height, width)
+    return PresenceDecision(stat > cfg.threshold, stat, cfg.threshold, median, sigma, residual, masks, notes)

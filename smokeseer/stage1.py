@@ -21,8 +21,7 @@ from smokeseer.cameras import SceneBounds, camera_center, scene_bounds
 from smokeseer.config import TrainConfig
 from smokeseer.data import ModalityData, SceneData, load_masks
 from smokeseer.registration import Sim3, register_rig
-from smokeseer.smoke_masks import ESTIMATOR, estimate_smoke_masks
-from smokeseer.smoke_presence import decide_smoke_presence
+from smokeseer.smoke_presence import ESTIMATOR, decide_smoke_presence
 
 
 @dataclass
@@ -112,17 +111,17 @@ def _choose_masks(cfg: TrainConfig, scene: SceneData, notes: list[str]) -> str:
     if cfg.stage1 != "estimate":
         return "dataset" if rgb.masks is not None else "none"
     train = rgb.indices("train")
-    presence = decide_smoke_presence(rgb.images[train], [rgb.frames[i] for i in train])
+    presence = decide_smoke_presence(rgb.images, rgb.frames, train)
     said = scene.smoke_present
     scene.smoke_present = presence.present
     scene.smoke_static = False
-    est = estimate_smoke_masks(rgb.images)
-    rgb.masks = est.masks if presence.present else np.zeros_like(est.masks)
+    rgb.masks = presence.masks if presence.present else np.zeros_like(presence.masks)
     notes.append(f"smoke presence from the data: the multi-view residual of the RGB training frames (median of the "
-                 f"per-frame medians) is {presence.statistic:.4f} against a threshold of {presence.threshold}, so smoke "
-                 f"is {'present' if presence.present else 'absent'} (the dataset said present={said})")
+                 f"per-frame medians) is {presence.statistic:.3f} times the smoke-free floor against a threshold of "
+                 f"{presence.threshold}, so smoke is {'present' if presence.present else 'absent'} "
+                 f"(the dataset said present={said})")
     notes += presence.notes
-    notes.append(f"masks: estimated from the RGB frames ({ESTIMATOR}), covering "
+    notes.append(f"masks: estimated from the RGB frames ({ESTIMATOR}: residual above the smoke-free floor), covering "
                  f"{100 * float(rgb.masks[train].mean()):.1f} % of the training pixels"
                  + ("" if presence.present else " (empty: no smoke)")
                  + "; static smoke cannot be told from a moving camera's masks, so the deformation network stays on")

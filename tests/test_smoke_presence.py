@@ -9,7 +9,7 @@ import pytest
 
 from smokeseer.config import make_config
 from smokeseer.data import load_scene
-from smokeseer.smoke_masks import estimate_smoke_masks
+from smokeseer.smoke_masks import estimate_smoke_masks, iou
 from smokeseer.smoke_presence import PresenceConfig, decide_smoke_presence, noise_sigma
 from smokeseer.stage1 import run_stage1
 from tests.test_smokeseer_data import write_splat_dataset
@@ -21,7 +21,7 @@ MARGIN = 1.1
 def _decide(path: Path):
     scene = load_scene(path)
     train = scene.rgb.indices("train")
-    return scene, decide_smoke_presence(scene.rgb.images[train], [scene.rgb.frames[i] for i in train])
+    return scene, decide_smoke_presence(scene.rgb.images, scene.rgb.frames, train)
 
 
 def test_generated_demo_with_and_without_smoke(demo_dataset: Path, demo_nosmoke_dataset: Path) -> None:
@@ -68,4 +68,16 @@ def test_noise_estimate_recovers_known_noise() -> None:
 def test_too_few_frames_is_one_clear_error(tmp_path: Path) -> None:
     scene = load_scene(write_splat_dataset(tmp_path / "two", smoke="none", n_rgb=2, n_thermal=2))
     with pytest.raises(ValueError, match="needs at least 3 RGB training frames"):
-        decide_smoke_presence(scene.rgb.images, scene.rgb.frames)
+        decide_smoke_presence(scene.rgb.images, scene.rgb.frames, scene.rgb.indices("train"))
+
+
+def test_estimated_masks_beat_calling_every_pixel_smoke(demo_dataset: Path) -> None:
+    """Masks (residual above the smoke-free floor) against the generator's masks on the demo's
+    training frames, with the trivial all-smoke mask as the reference."""
+    scene, decision = _decide(demo_dataset)
+    train = scene.rgb.indices("train")
+    truth = scene.rgb.masks[train]
+    estimated = np.mean([iou(m, t) for m, t in zip(decision.masks[train], truth)])
+    everything = np.mean([iou(np.ones_like(t), t) for t in truth])
+    assert decision.masks.shape == scene.rgb.masks.shape
+    assert estimated > everything + 0.03
