@@ -43,6 +43,8 @@ ESTIMATOR = "multiview-residual"
 
 @dataclass(frozen=True)
 class PresenceConfig:
+    """The plane sweep's settings and the decision's calibration."""
+
     neighbours: int = 4
     blur_px: float = 1.0
     near: float = 0.25
@@ -68,6 +70,8 @@ class PresenceConfig:
 
 @dataclass
 class PresenceDecision:
+    """The decision, the numbers behind it (for the log), and the masks it implies."""
+
     present: bool
     statistic: float
     threshold: float
