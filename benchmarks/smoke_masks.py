@@ -2,7 +2,8 @@
 
     python benchmarks/smoke_masks.py DATASET [DATASET ...]
 
-Each candidate (smokeseer/smoke_masks.py) is scored by IoU per frame against the dataset's
+Each candidate (smokeseer/smoke_masks.py, and the multi-view residual of
+smokeseer/smoke_presence.py that ``stage1=estimate`` uses) is scored by IoU per frame against the dataset's
 ``rgb/smoke_mask``. The candidate and threshold are chosen by the mean IoU over the
 *validation* frames (the training views of every dataset given); the *test* views are only
 scored afterwards. Writes benchmarks/results/smoke_masks.csv (every candidate, threshold,
@@ -23,9 +24,12 @@ import numpy as np  # noqa: E402
 
 from smokeseer.data import load_scene  # noqa: E402
 from smokeseer.smoke_masks import CANDIDATES, candidate_scores, iou  # noqa: E402
+from smokeseer.smoke_presence import ESTIMATOR, decide_smoke_presence  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 THRESHOLDS = np.round(np.concatenate([[0.01, 0.02, 0.03], np.arange(0.05, 0.96, 0.05)]), 3)
+ALL_CANDIDATES = CANDIDATES + (ESTIMATOR,)
+"""The multi-view residual is binary (above the smoke-free floor): the same at every threshold."""
 REFERENCE = "all-pixels"
 """The trivial mask that calls every pixel smoke: a candidate must beat it to be worth anything."""
 
@@ -41,8 +45,9 @@ def main() -> None:
         if scene.rgb.masks is None:
             raise SystemExit(f"{path}: no ground-truth smoke masks (pass smoke_alpha)")
         images = scene.rgb.images.astype(np.float64)
-        for cand in CANDIDATES:
-            scores = candidate_scores(images, cand)
+        for cand in ALL_CANDIDATES:
+            scores = (decide_smoke_presence(images, scene.rgb.frames, scene.rgb.indices("train")).masks
+                      if cand == ESTIMATOR else candidate_scores(images, cand))
             for thr in THRESHOLDS:
                 for split, name in (("train", "validation"), ("test", "test")):
                     idx = scene.rgb.indices(split)
@@ -54,7 +59,7 @@ def main() -> None:
             vals = [iou(np.ones_like(scene.rgb.masks[i]), scene.rgb.masks[i]) for i in idx]
             rows.append({"candidate": REFERENCE, "threshold": 0.0, "scene": scene.name, "split": name,
                          "frames": len(idx), "iou": float(np.mean(vals)) if vals else float("nan")})
-        print(f"{scene.name}: scored {len(CANDIDATES)} candidates; ground truth covers "
+        print(f"{scene.name}: scored {len(ALL_CANDIDATES)} candidates; ground truth covers "
               f"{100 * float(scene.rgb.masks.mean()):.1f} % of the pixels", flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
     with (args.out / "smoke_masks.csv").open("w", newline="") as fh:
@@ -66,10 +71,10 @@ def main() -> None:
         return float(np.nanmean([r["iou"] for r in rows if r["candidate"] == cand and r["threshold"] == thr
                                  and r["split"] == split]))
 
-    best = {c: max(THRESHOLDS, key=lambda t: mean_iou(c, float(t), "validation")) for c in CANDIDATES}
-    chosen = max(CANDIDATES, key=lambda c: mean_iou(c, float(best[c]), "validation"))
+    best = {c: max(THRESHOLDS, key=lambda t: mean_iou(c, float(t), "validation")) for c in ALL_CANDIDATES}
+    chosen = max(ALL_CANDIDATES, key=lambda c: mean_iou(c, float(best[c]), "validation"))
     print("candidate, best validation threshold, validation IoU, test IoU (means over scenes)")
-    for c in CANDIDATES:
+    for c in ALL_CANDIDATES:
         print(f"{c}, {best[c]}, {mean_iou(c, float(best[c]), 'validation'):.3f}, "
               f"{mean_iou(c, float(best[c]), 'test'):.3f}")
     print(f"{REFERENCE} (reference), -, {mean_iou(REFERENCE, 0.0, 'validation'):.3f}, "
@@ -85,7 +90,7 @@ def main() -> None:
         print(f"  {r['scene']:<12} {r['split']:<10} frames {r['frames']:>3}  IoU {r['iou']:.3f}  "
               f"(all-pixels {reference[(r['scene'], r['split'])]:.3f})")
     fig, ax = plt.subplots(figsize=(6, 4))
-    for c in CANDIDATES:
+    for c in ALL_CANDIDATES:
         ax.plot(THRESHOLDS, [mean_iou(c, float(t), "validation") for t in THRESHOLDS], label=c)
     ax.axhline(mean_iou(REFERENCE, 0.0, "validation"), color="k", linestyle="--", label="all pixels smoke")
     ax.set_xlabel("threshold")

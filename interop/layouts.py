@@ -19,6 +19,7 @@ from PIL import Image
 
 from interop.colmap_write import CameraRecord, ImageRecord, points3d_bin, write_model
 from interop.resample import centred_intrinsics, needs_resample, warp_to_intrinsics
+from smokeseer.official_depth import DEPTH_DIR, PARAMS_FILE, encode_inverse_depth, global_code, reciprocal_or_zero
 from smokeseer.cameras import scene_bounds
 from smokeseer.data import Frame, ModalityData, SceneData
 
@@ -42,6 +43,7 @@ class OutFrame:
     image: np.ndarray
     clean: np.ndarray | None
     mask: np.ndarray | None
+    depth: np.ndarray | None
 
 
 @dataclass
@@ -51,6 +53,9 @@ class Conversion:
     points: bool
     notes: list[str] = field(default_factory=list)
     resampled: dict[str, float] = field(default_factory=dict)
+    depth_sources: dict[str, str] = field(default_factory=dict)
+    images_depth: str | None = None
+    """What ``images_depth/`` holds ("ground-truth" or "prior"), None when it is not written."""
 
 
 def viewmat_to_c2w_gl(viewmat: np.ndarray) -> np.ndarray:
@@ -85,6 +90,7 @@ def frame_names(scene: SceneData) -> tuple[dict[str, list[str]], float]:
 
 def _prepare(mod: ModalityData, names: list[str], conv: Conversion, square: bool) -> list[OutFrame]:
     order = sorted(range(len(mod.frames)), key=lambda i: names[i])
+    depths = source_depth(mod, conv)
     out = []
     for rank, i in enumerate(order):
         f = mod.frames[i]
@@ -95,20 +101,34 @@ def _prepare(mod: ModalityData, names: list[str], conv: Conversion, square: bool
         image = mod.images[i] if mod.name == "rgb" else mod.images[i][..., 0]
         clean = None if mod.clean is None else (mod.clean[i] if mod.name == "rgb" else mod.clean[i][..., 0])
         mask = None if mod.masks is None else mod.masks[i]
+        depth = None if depths is None else depths[i]
         k = f.K
         if needs_resample(f.K, f.width, f.height, square):
             k = centred_intrinsics(f.K, f.width, f.height, square)
             image, lost = warp_to_intrinsics(image, f.K, k)
             clean = None if clean is None else warp_to_intrinsics(clean, f.K, k)[0]
             mask = None if mask is None else warp_to_intrinsics(mask, f.K, k, nearest=True)[0]
+            depth = None if depth is None else warp_to_intrinsics(depth, f.K, k, nearest=True)[0]
             conv.resampled[names[i]] = lost
-        out.append(OutFrame(names[i], f, k, split, image, clean, mask))
+        out.append(OutFrame(names[i], f, k, split, image, clean, mask, depth))
     if conv.resampled:
         worst = max(conv.resampled.values())
         conv.notes.append(f"{mod.name}: {len(conv.resampled)} frames resampled to a centred principal point"
                           f"{' and square pixels' if square else ''}; up to {100 * worst:.1f} % of a frame "
                           "fell outside the source and is black")
     return out
+
+
+def source_depth(mod: ModalityData, conv: Conversion) -> np.ndarray | None:
+    """Planar depth per frame for ``images_depth/``: the source's ground truth, else the inverse
+    depth prior it carries (an official layout read back), said in the notes."""
+    if mod.depth is not None:
+        conv.depth_sources[mod.name] = "ground-truth"
+        return mod.depth
+    if mod.inverse_depth is not None:
+        conv.depth_sources[mod.name] = "prior"
+        return reciprocal_or_zero(mod.inverse_depth)
+    return None
 
 
 def prepare(scene: SceneData, conv: Conversion) -> tuple[dict[str, list[OutFrame]], float]:
@@ -139,6 +159,7 @@ def sidecar(scene: SceneData, conv: Conversion, origin: float) -> dict[str, Any]
         "split": conv.split, "smoke": {"present": scene.smoke_present, "static": scene.smoke_static},
         "thermal_counts_range": list(scene.thermal.counts_range) if scene.thermal and scene.thermal.counts_range
         else None,
+        "images_depth": conv.images_depth,
         "notes": scene.notes + conv.notes,
     }
 
@@ -239,6 +260,34 @@ def write_colmap(scene: SceneData, frames: dict[str, list[OutFrame]], out: Path,
             image_id += 1
     xyz, rgb = _points(scene, conv)
     write_model(out / "sparse" / "0", cameras, images, xyz, rgb)
+    write_images_depth(frames, out, conv)
+
+
+def write_images_depth(frames: dict[str, list[OutFrame]], out: Path, conv: Conversion) -> None:
+    """``images_depth/NAME.png`` (16-bit inverse depth) for every image and
+    ``sparse/0/depth_params.json``, by the official reader's rules (``smokeseer.official_depth``).
+    The official reader, given ``--depths``, opens a map for every image, RGB and thermal, so
+    the maps are written only when every frame has depth."""
+    lacking = [m for m in frames if conv.depth_sources.get(m) is None]
+    if lacking:
+        conv.notes.append(f"images_depth: not written, the source has no depth for its {' and '.join(lacking)} "
+                          "frames (the official reader needs a map for every image)")
+        return
+    items = [it for m in frames.values() for it in m]
+    code = global_code([it.depth for it in items if it.depth is not None])
+    params = {}
+    for it in items:
+        assert it.depth is not None
+        _save(out / DEPTH_DIR / f"{it.name}.png", encode_inverse_depth(it.depth, code))
+        params[it.name] = code.to_dict()
+    (out / "sparse" / "0" / PARAMS_FILE).write_text(json.dumps(params, indent=1))
+    sources = set(conv.depth_sources.values())
+    conv.images_depth = "ground-truth" if sources == {"ground-truth"} else "prior"
+    what = ("the source's smoke-free ground-truth depth (a real capture would use a monocular network's "
+            "maps scaled to its SfM points)" if conv.images_depth == "ground-truth" else
+            "the source's images_depth prior, not ground truth")
+    conv.notes.append(f"images_depth: 16-bit inverse planar depth of all {len(items)} frames from {what}; "
+                      f"depth_params.json gives every image scale {code.scale:.6g}, offset 0")
 
 
 def write_nerfstudio(scene: SceneData, frames: dict[str, list[OutFrame]], out: Path, conv: Conversion) -> None:

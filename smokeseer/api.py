@@ -22,7 +22,7 @@ from contracts.results_format import RESULTS_FORMAT, RESULTS_FORMAT_VERSION
 from smokeseer.cameras import sample_in_view
 from smokeseer.config import TrainConfig, make_config
 from smokeseer.data import ModalityData, SceneData, load_scene
-from smokeseer.depth_prior import DepthPriorMaps, monocular_depth_prior, rendered_depth_prior
+from smokeseer.depth_prior import DepthPriorMaps, file_depth_prior, monocular_depth_prior, rendered_depth_prior
 from smokeseer.evaluate import heldout_psnr, score, score_validation, write_plys, write_renders
 from smokeseer.model import Placed, SceneModel, init_gaussians, render
 from smokeseer.splits import hold_out_validation
@@ -54,8 +54,39 @@ def switches_for(cfg: TrainConfig, scene: SceneData) -> Stage3Switches:
         use_smoke=smoke_seen and cfg.mode != "deformable-3dgs",
         use_deform=not scene.smoke_static,
         use_masks=masks is not None,
-        notes=dropped_term_notes(cfg, masks is not None) if cfg.mode != "deformable-3dgs" else [],
+        notes=(dropped_term_notes(cfg, masks is not None) if cfg.mode != "deformable-3dgs" else [])
+        + depth_file_notes(cfg, scene),
     )
+
+
+def depth_term_on(cfg: TrainConfig) -> bool:
+    return (cfg.depth_prior != "none" and cfg.mode not in ("no-depth", "deformable-3dgs")
+            and cfg.stage3.train_surface_geometry)
+
+
+def depth_file_notes(cfg: TrainConfig, scene: SceneData) -> list[str]:
+    """The layout's depth maps (official ``images_depth``) that this run reads but does not use,
+    and why: never a silent difference from the official code, which uses them."""
+    used = depth_camera(cfg, scene) if cfg.depth_prior == "files" and depth_term_on(cfg) else None
+    notes = []
+    for mod in (scene.rgb, scene.thermal):
+        if mod is None or mod.inverse_depth is None or mod.name == used:
+            continue
+        why = (f"depth_prior is {cfg.depth_prior} (--set depth_prior=files uses them)" if cfg.depth_prior != "files"
+               else "this run has no depth term" if used is None
+               else f"the depth term compares at the {used} camera (depth_camera)")
+        notes.append(f"images_depth: the {mod.name} frames' depth maps are read but not used: {why}")
+    return notes
+
+
+def check_depth_files(cfg: TrainConfig, scene: SceneData) -> None:
+    if cfg.depth_prior != "files" or not depth_term_on(cfg):
+        return
+    camera = depth_camera(cfg, scene)
+    mod = scene.thermal if camera == "thermal" else scene.rgb
+    if mod is None or mod.inverse_depth is None:
+        raise ValueError(f"depth_prior: files needs depth maps for the {camera} frames, and {scene.path} has none "
+                         "(the official COLMAP layout's images_depth/ with sparse/0/depth_params.json)")
 
 
 def _metrics_doc(cfg: TrainConfig, scene_name: str, dataset: Path, status: str) -> dict[str, Any]:
@@ -92,6 +123,7 @@ def prepare(dataset: Path, mode: str = "full", profile: str = "quick", seed: int
     scene = load_scene(dataset, cfg.max_width)
     hold_out_validation(scene.rgb, cfg.validation_every)
     report = run_stage1(cfg, scene)
+    check_depth_files(cfg, scene)
     return PreparedRun(cfg, dataset, scene, report, switches_for(cfg, scene), time.perf_counter() - t)
 
 
@@ -188,7 +220,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
     else:
         smoke_pts = _sample(scene.rgb, cfg.stage3.smoke_points, b, rng) if switches.use_smoke else None
         model = build_scene_model(ctx, s2, switches, smoke_pts, scene.smoke_static)
-        prior = _depth_prior(cfg, s2.gaussians, scene, dev)
+        prior = depth_prior_maps(cfg, s2.gaussians, scene, dev)
         if prior is not None:
             ctx.log_line(f"stage 3: depth term at the {prior.camera} camera ({cfg.depth_prior} prior, "
                          f"{prior.maps.shape[0]} training views)")
@@ -227,12 +259,14 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
     return doc
 
 
-def _depth_prior(cfg: TrainConfig, geometry: Any, scene: SceneData, dev: torch.device) -> DepthPriorMaps | None:
-    if cfg.depth_prior == "none" or cfg.mode == "no-depth" or not cfg.stage3.train_surface_geometry:
+def depth_prior_maps(cfg: TrainConfig, geometry: Any, scene: SceneData, dev: torch.device) -> DepthPriorMaps | None:
+    if not depth_term_on(cfg):
         return None
     camera = depth_camera(cfg, scene)
     mod = scene.thermal if camera == "thermal" else scene.rgb
     idx = mod.indices("train")
+    if cfg.depth_prior == "files":
+        return file_depth_prior(torch.as_tensor(mod.inverse_depth[idx], device=dev), camera)
     if cfg.depth_prior == "mono":
         return monocular_depth_prior(Path(cfg.mono_weights), torch.as_tensor(mod.images[idx], device=dev), camera)
     return rendered_depth_prior(geometry, views_of(mod, idx, dev), camera)

@@ -173,8 +173,8 @@ class TrainConfig:
             raise ValueError(f"background: {self.background!r} is not environment or black")
         if not 0 <= self.background_sh_degree <= 3:
             raise ValueError(f"background_sh_degree: must be in 0..3, got {self.background_sh_degree}")
-        if self.depth_prior not in ("thermal-render", "mono", "none"):
-            raise ValueError(f"depth_prior: {self.depth_prior!r} is not thermal-render, mono or none")
+        if self.depth_prior not in ("thermal-render", "mono", "files", "none"):
+            raise ValueError(f"depth_prior: {self.depth_prior!r} is not thermal-render, mono, files or none")
         if self.depth_camera not in ("thermal", "rgb"):
             raise ValueError(f"depth_camera: {self.depth_camera!r} is not thermal or rgb")
         if self.registration not in ("auto", "off", "trajectory"):

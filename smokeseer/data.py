@@ -47,6 +47,9 @@ class ModalityData:
     masks: np.ndarray | None = None
     depth: np.ndarray | None = None
     counts_range: tuple[float, float] | None = None
+    inverse_depth: np.ndarray | None = None
+    """A depth prior the layout carries (the official ``images_depth``): inverse depth in the
+    model's units, 0 where there is none. Truth for scoring only if the layout says so."""
 
     def indices(self, split: str) -> list[int]:
         return [i for i, f in enumerate(self.frames) if f.split == split]
@@ -370,16 +373,25 @@ def _load_capture(path: Path, max_width: int) -> SceneData:
         init_points=points, meta=meta, notes=notes)
 
 
-def load_masks(files: list[Path], factor: int, what: str, notes: list[str]) -> np.ndarray | None:
-    """Binary smoke masks (> half scale = smoke) for every frame, or None with a note when the
-    folder has none. Some but not all present is an error: a silent partial mask term is worse."""
-    present = [p.exists() for p in files]
+def all_or_none(files: list[Path], kind: str, none_note: str, notes: list[str]) -> bool:
+    """True when every per-frame file exists; False, noting ``none_note``, when none does. Some
+    but not all is an error naming the first missing one: a silently partial term is worse."""
+    present = [p.is_file() for p in files]
     if not any(present):
-        notes.append(f"{what}: no smoke masks; the mask term is dropped unless Stage 1 estimates masks")
-        return None
+        notes.append(none_note)
+        return False
     if not all(present):
         missing = files[present.index(False)]
-        raise DatasetError(f"{missing}: missing mask ({sum(present)} of {len(files)} frames have one)")
+        raise DatasetError(f"{missing}: missing {kind} ({sum(present)} of {len(files)} frames have one)")
+    return True
+
+
+def load_masks(files: list[Path], factor: int, what: str, notes: list[str]) -> np.ndarray | None:
+    """Binary smoke masks (> half scale = smoke) for every frame, or None with a note when the
+    folder has none."""
+    if not all_or_none(files, "mask", f"{what}: no smoke masks; the mask term is dropped unless Stage 1 "
+                       "estimates masks", notes):
+        return None
     return np.stack([box_downscale((_gray(image01(read_png(p))) > 0.5).astype(np.float64), factor)
                      for p in files]).astype(np.float32)
 

@@ -65,3 +65,9 @@ def monocular_depth_prior(weights: Path, images: Tensor, camera: str) -> DepthPr
             maps.append(pred.to(images.device))
     stacked = torch.stack(maps)
     return DepthPriorMaps(stacked, torch.isfinite(stacked) & (stacked > 0), "disparity", camera)
+
+
+def file_depth_prior(inverse: Tensor, camera: str) -> DepthPriorMaps:
+    """The dataset's own maps (the official layout's ``images_depth``), inverse depth with 0 where
+    there is none; compared as inverse depth, as the official code does."""
+    return DepthPriorMaps(inverse, inverse > 0, "disparity", camera)

@@ -27,6 +27,7 @@ from smokeseer.cameras import c2w_gl_to_viewmat, intrinsics
 from smokeseer.colmap_binary import read_cameras_bin, read_images_bin, read_points3d_bin
 from smokeseer.data import (Frame, ModalityData, SceneData, _factor, _gray, _normalise_counts, _set_times,
                             box_downscale, image01, load_masks, read_png)
+from smokeseer.official_depth import read_depth_files, reciprocal_or_zero
 
 SIDECAR = "smokeseer_interop.json"
 OFFICIAL_TEST_EVERY = 8
@@ -215,6 +216,8 @@ def _load_colmap(path: Path, max_width: int, sidecar: dict[str, Any],
         if items:
             mods[modality] = _colmap_modality(path, modality, sorted(items, key=lambda e: e[0]), max_width, notes,
                                               lo, hi, tick, origin)
+            _attach_depth(path, mods[modality], [(e[5], e[4]) for e in sorted(items, key=lambda e: e[0])],
+                          max_width, sidecar.get("images_depth") == "ground-truth", notes)
     rgb, thermal = mods["rgb"], mods["thermal"]
     assert rgb is not None
     if tick > 0:
@@ -222,6 +225,22 @@ def _load_colmap(path: Path, max_width: int, sidecar: dict[str, Any],
     pts = sparse / "points3D.bin"
     points = read_points3d_bin(pts)[0] if pts.is_file() else None
     return rgb, thermal, points
+
+
+def _attach_depth(path: Path, mod: ModalityData | None, sizes: list[tuple[int, int]], max_width: int,
+                  truth: bool, notes: list[str]) -> None:
+    """The layout's ``images_depth`` maps as the modality's depth prior; also its depth truth for
+    scoring when the sidecar says they were written from ground truth."""
+    assert mod is not None
+    if len(set(sizes)) != 1:
+        raise DatasetError(f"{path / 'images'}: {mod.name} images differ in size")
+    files = read_depth_files(path, [f.file_stem for f in mod.frames], sizes[0], _factor(sizes[0][1], max_width),
+                             mod.name, notes)
+    if files is None:
+        return
+    mod.inverse_depth = files.inverse
+    if truth:
+        mod.depth = reciprocal_or_zero(files.inverse).astype(np.float32)
 
 
 def _colmap_modality(path: Path, modality: str, items: list, max_width: int, notes: list[str],

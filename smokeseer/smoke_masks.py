@@ -1,4 +1,8 @@
-"""Smoke masks from the RGB frames alone, for captures without a segmenter (``stage1=estimate``).
+"""Single-image and temporal smoke-mask candidates, needing no weights.
+
+``stage1=estimate`` no longer uses them: its masks come from the multi-view residual of
+``smokeseer.smoke_presence``, which beat them on validation views (docs/real-captures.md). They
+stay as the reference candidates of ``benchmarks/smoke_masks.py``.
 
 The paper's Stage 1 segments smoke with GroundedSAM, whose weights cannot be had offline. These
 candidates need no weights; ``benchmarks/smoke_masks.py`` measures their IoU against the
@@ -22,17 +26,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import minimum_filter, uniform_filter
 
-# Chosen by benchmarks/smoke_masks.py on the validation (training) views of the demo and the ten
-# bench scenes (12 frames, 96x72): mean validation IoU 0.699 against 0.693 for the trivial mask that
-# calls every pixel smoke (ground truth alpha > 0.02 covers 24-100 % of the pixels of those
-# scenes). No weight-free candidate does meaningfully better than that reference; the results
-# are in benchmarks/results/smoke_masks*.csv.
+# The best of these on the validation (training) views of the demo and the ten bench scenes
+# (12 frames, 96x72; benchmarks/results/smoke_masks*.csv): mean IoU 0.699 against 0.693 for the
+# trivial mask that calls every pixel smoke (ground truth alpha > 0.02 covers 24-100 % of the
+# pixels of those scenes).
 CANDIDATES = ("dark-channel", "dark-channel-deviation", "whiteness", "colour-deviation", "temporal-variance")
 ESTIMATOR = "temporal-variance"
 THRESHOLD = 0.02
 PATCH_FRACTION = 1 / 32
-SMOKE_PRESENT_FRACTION = 0.01
-"""Mask coverage of the training pixels above which a scene is said to have smoke."""
 
 
 @dataclass

@@ -4,7 +4,8 @@ Poses come from the dataset. When a capture's RGB and thermal poses were solved 
 the thermal poses are mapped into the RGB frame by the rig registration (orientations, centres
 and the lever arm; ``registration.register_rig``), and what it found is reported. Masks come
 from the dataset, from an external segmenter's files (``mask_dir``), or are estimated from the
-images (``stage1=estimate``), which then also decides from the data whether there is smoke.
+images (``stage1=estimate``), which then also decides from the data whether there is smoke
+(``smoke_presence``: what the posed RGB frames' multi-view consistency cannot explain).
 Optional pose noise perturbs training poses for robustness studies.
 """
 from __future__ import annotations
@@ -20,7 +21,7 @@ from smokeseer.cameras import SceneBounds, camera_center, scene_bounds
 from smokeseer.config import TrainConfig
 from smokeseer.data import ModalityData, SceneData, load_masks
 from smokeseer.registration import Sim3, register_rig
-from smokeseer.smoke_masks import ESTIMATOR, SMOKE_PRESENT_FRACTION, estimate_smoke_masks
+from smokeseer.smoke_presence import ESTIMATOR, decide_smoke_presence
 
 
 @dataclass
@@ -109,17 +110,21 @@ def _choose_masks(cfg: TrainConfig, scene: SceneData, notes: list[str]) -> str:
         return f"files: {cfg.mask_dir}"
     if cfg.stage1 != "estimate":
         return "dataset" if rgb.masks is not None else "none"
-    est = estimate_smoke_masks(rgb.images)
-    rgb.masks = est.masks
     train = rgb.indices("train")
-    fraction = float(est.masks[train].mean())
-    was = (scene.smoke_present, scene.smoke_static)
-    scene.smoke_present = fraction >= SMOKE_PRESENT_FRACTION
+    presence = decide_smoke_presence(rgb.images, rgb.frames, train)
+    said = scene.smoke_present
+    scene.smoke_present = presence.present
     scene.smoke_static = False
-    notes.append(f"masks: estimated from the RGB frames ({ESTIMATOR}); smoke covers {100 * fraction:.1f} % of the "
-                 f"training pixels, so smoke is {'present' if scene.smoke_present else 'absent'} "
-                 f"(dataset said present={was[0]}); static smoke cannot be told from a moving camera's masks, "
-                 "so the deformation network stays on")
+    rgb.masks = presence.masks if presence.present else np.zeros_like(presence.masks)
+    notes.append(f"smoke presence from the data: the multi-view residual of the RGB training frames (median of the "
+                 f"per-frame medians) is {presence.statistic:.3f} times the smoke-free floor against a threshold of "
+                 f"{presence.threshold}, so smoke is {'present' if presence.present else 'absent'} "
+                 f"(the dataset said present={said})")
+    notes += presence.notes
+    notes.append(f"masks: estimated from the RGB frames ({ESTIMATOR}: residual above the smoke-free floor), covering "
+                 f"{100 * float(rgb.masks[train].mean()):.1f} % of the training pixels"
+                 + ("" if presence.present else " (empty: no smoke)")
+                 + "; static smoke cannot be told from a moving camera's masks, so the deformation network stays on")
     return f"estimated: {ESTIMATOR}"
 
 

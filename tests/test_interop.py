@@ -236,3 +236,143 @@ def test_official_layouts_without_our_sidecar(outputs: dict[str, Path], tmp_path
         data.replace(b"rgb_0000000000.png\0", b"rgb_first.png\0"))
     with pytest.raises(Exception, match="has no digits"):
         load_scene(tmp_path / "colmap")
+
+
+# ----------------------------------------------------------------------------- depth (images_depth)
+
+def official_inverse_depth(root: Path, name: str) -> tuple[np.ndarray, bool]:
+    """The official reader's depth, restated: images_depth/STEM.png read unchanged, divided by
+    2^16, then ``· scale + offset`` from sparse/0/depth_params.json; an image whose scale lies
+    outside [0.2, 5] × the median positive scale is not trusted."""
+    params = json.loads((root / "sparse" / "0" / "depth_params.json").read_text())
+    scales = np.array([p["scale"] for p in params.values()])
+    med = np.median(scales[scales > 0])
+    stem = name[: -len(name.split(".")[-1]) - 1]
+    with Image.open(root / "images_depth" / f"{stem}.png") as im:
+        assert im.mode == "I;16"
+        raw = np.asarray(im).astype(np.float64) / 2 ** 16
+    p = params[stem]
+    reliable = 0.2 * med <= p["scale"] <= 5 * med
+    return np.maximum(raw * p["scale"] + p["offset"], 0.0), reliable
+
+
+def depth_tolerance(depths: list[np.ndarray]) -> float:
+    """Relative error allowed: half a 16-bit step of inverse depth when the top code is the
+    nearest surface, d_max / (2 · 65535 · d_min), plus float32 rounding."""
+    d = np.concatenate([x[x > 0] for x in depths])
+    return float(d.max() / (2 * 65535 * d.min())) + 1e-6
+
+
+def check_official_depth(src: Path, root: Path) -> None:
+    ref = load_scene(src)
+    _, images = read_colmap_model(root / "sparse" / "0")
+    truth = {}
+    for mod in (ref.rgb, ref.thermal):
+        names = sorted(n for n, *_ in images if mod.name in n)
+        truth.update(zip(names, mod.depth))
+    assert len(truth) == len(images)
+    tol = depth_tolerance(list(truth.values()))
+    for name, depth in truth.items():
+        inv, reliable = official_inverse_depth(root, name)
+        assert reliable
+        hit = depth > 0
+        np.testing.assert_array_equal(inv > 0, hit)
+        assert np.all(np.abs(1.0 / inv[hit] - depth[hit]) <= tol * depth[hit]), name
+
+
+def test_colmap_depth_as_the_official_reader_sees_it(source: Path, outputs: dict[str, Path]) -> None:
+    check_official_depth(source, outputs["colmap"])
+    sidecar = json.loads((outputs["colmap"] / "smokeseer_interop.json").read_text())
+    assert sidecar["images_depth"] == "ground-truth"
+    assert any("images_depth" in n and "ground-truth" in n for n in sidecar["notes"])
+
+
+def test_colmap_depth_recovers_the_demo_depth(demo_dataset: Path, tmp_path: Path) -> None:
+    """The real generator's planar depth (a range of depths, sky at 0) comes back through the
+    official decoding within the quantisation bound."""
+    convert(demo_dataset, "smokeseer-colmap", tmp_path / "demo")
+    check_official_depth(demo_dataset, tmp_path / "demo")
+    back, ref = load_scene(tmp_path / "demo"), load_scene(demo_dataset)
+    tol = depth_tolerance([ref.rgb.depth, ref.thermal.depth])
+    for a, b in ((ref.rgb, back.rgb), (ref.thermal, back.thermal)):
+        hit = a.depth > 0
+        assert np.all(np.abs(b.depth[hit] - a.depth[hit]) <= tol * a.depth[hit] + 1e-6)
+
+
+def test_depth_round_trip_and_its_use_as_a_prior(source: Path, outputs: dict[str, Path]) -> None:
+    import torch
+
+    from smokeseer.api import check_depth_files, depth_file_notes, depth_prior_maps
+    from smokeseer.config import make_config
+
+    ref, back = load_scene(source), load_scene(outputs["colmap"])
+    tol = depth_tolerance([ref.rgb.depth, ref.thermal.depth])
+    for a, b in ((ref.rgb, back.rgb), (ref.thermal, back.thermal)):
+        hit = a.depth > 0
+        np.testing.assert_array_equal(b.inverse_depth > 0, hit)
+        assert np.all(np.abs(1.0 / b.inverse_depth[hit] - a.depth[hit]) <= tol * a.depth[hit])
+        np.testing.assert_allclose(b.depth, a.depth, rtol=tol, atol=1e-6)
+    # Unused maps are said, per modality and why.
+    default = depth_file_notes(make_config("full", "standard"), back)
+    assert len(default) == 2 and all("depth_prior=files" in n for n in default)
+    files = make_config("full", "standard", overrides={"depth_prior": "files"})
+    thermal_camera = depth_file_notes(files, back)
+    assert len(thermal_camera) == 1 and "rgb frames" in thermal_camera[0] and "thermal camera" in thermal_camera[0]
+    rgb_camera = depth_file_notes(make_config("full", "quick", overrides={"depth_prior": "files"}), back)
+    assert len(rgb_camera) == 1 and "thermal frames" in rgb_camera[0]
+    no_depth = depth_file_notes(make_config("no-depth", "standard", overrides={"depth_prior": "files"}), back)
+    assert len(no_depth) == 2 and all("no depth term" in n for n in no_depth)
+    # Used: the thermal training frames' inverse depth, compared as inverse depth.
+    prior = depth_prior_maps(files, None, back, torch.device("cpu"))
+    idx = back.thermal.indices("train")
+    assert prior.camera == "thermal" and prior.space == "disparity"
+    np.testing.assert_array_equal(prior.maps.numpy(), back.thermal.inverse_depth[idx])
+    check_depth_files(files, back)
+    with pytest.raises(ValueError, match="depth_prior: files needs depth maps for the thermal frames"):
+        check_depth_files(files, load_scene(outputs["blender"]))
+
+
+def test_bad_depth_files_are_named(outputs: dict[str, Path], tmp_path: Path) -> None:
+    import shutil
+
+    from contracts.errors import DatasetError
+
+    root = tmp_path / "colmap"
+    shutil.copytree(outputs["colmap"], root)
+    params = root / "sparse" / "0" / "depth_params.json"
+    good = params.read_text()
+    params.write_text(json.dumps({"rgb_0000000000": {"scale": "big", "offset": 0}}))
+    with pytest.raises(DatasetError, match=r"depth_params.json: 'rgb_0000000000'.scale: missing or not a finite"):
+        load_scene(root)
+    params.unlink()
+    with pytest.raises(DatasetError, match=r"depth_params.json: missing file"):
+        load_scene(root)
+    params.write_text(good)
+    first = sorted((root / "images_depth").glob("rgb_*.png"))[0]
+    Image.fromarray(np.zeros((3, 3), np.uint16)).save(first)
+    with pytest.raises(DatasetError, match=r"depth map is 3x3, the image is 16x12"):
+        load_scene(root)
+    first.unlink()
+    with pytest.raises(DatasetError, match=r"missing rgb depth map \(16 of 17 frames have one\)"):
+        load_scene(root)
+
+
+def test_official_depth_rules_for_unscaled_and_untrusted_maps(outputs: dict[str, Path], tmp_path: Path) -> None:
+    """Maps prepared by the official tools: a missing entry is used unscaled, a scale far from
+    the median is not trusted; both are said."""
+    import shutil
+
+    root = tmp_path / "colmap"
+    shutil.copytree(outputs["colmap"], root)
+    params_path = root / "sparse" / "0" / "depth_params.json"
+    params = json.loads(params_path.read_text())
+    names = sorted(n for n in params if n.startswith("rgb"))
+    del params[names[1]]
+    params[names[2]]["scale"] *= 10
+    params_path.write_text(json.dumps(params))
+    ref, back = load_scene(outputs["colmap"]), load_scene(root)
+    raw = np.asarray(Image.open(root / "images_depth" / f"{names[1]}.png")).astype(np.float64) / 2 ** 16
+    np.testing.assert_allclose(back.rgb.inverse_depth[1], raw, rtol=1e-6)
+    assert not back.rgb.inverse_depth[2].any()
+    np.testing.assert_array_equal(back.rgb.inverse_depth[3], ref.rgb.inverse_depth[3])
+    assert any("used unscaled" in n for n in back.notes) and any("not used" in n for n in back.notes)
