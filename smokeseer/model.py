@@ -166,6 +166,13 @@ def render(view: View, parts: list[tuple[Placed, Tensor, Tensor]], sh_degree: in
     return replace(out, colors=composite_over(out.colors, out.alphas, sky))
 
 
+def render_depth(view: View, placed: Placed, opacities: Tensor) -> RasterOutput:
+    """Normalised expected depth and alpha of one set on black, with no colour channel: the depth
+    prior and the depth term read nothing else, and every colour channel costs kernel work."""
+    return render(view, [(placed, opacities, opacities.new_zeros((opacities.shape[0], 0)))], None, None,
+                  normalize_depth=True)
+
+
 @dataclass
 class SceneModel:
     """Surface (static) + optional smoke (deformable) Gaussians, rendered per modality."""
