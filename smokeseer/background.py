@@ -12,7 +12,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from smokeseer.raster.sh import eval_sh, num_sh_bases
+from smokeseer.raster.sh import num_sh_bases, sh_basis_along, sh_sum
 
 
 def ray_directions(viewmat: Tensor, K: Tensor, width: int, height: int) -> Tensor:
@@ -36,10 +36,18 @@ class EnvironmentBackground(nn.Module):
         self.degree = degree
         self.coeffs = nn.Parameter(torch.zeros(num_sh_bases(degree), channels, device=device))
 
+    def basis(self, viewmat: Tensor, K: Tensor, width: int, height: int) -> Tensor:
+        """The SH basis [H, W, K] of one camera's pixel rays: fixed for a fixed camera, so a
+        caller that renders the same view many times can keep it (``from_basis``)."""
+        return sh_basis_along(self.degree, ray_directions(viewmat, K, width, height))
+
+    def from_basis(self, basis: Tensor) -> Tensor:
+        """The environment for a camera whose ray basis is ``basis``, [H, W, channels]."""
+        return (sh_sum(basis, self.coeffs) + 0.5).clamp_min(0.0)
+
     def forward(self, viewmat: Tensor, K: Tensor, width: int, height: int) -> Tensor:
         """The environment seen by one camera, [H, W, channels]."""
-        dirs = ray_directions(viewmat, K, width, height)
-        return (eval_sh(self.degree, self.coeffs, dirs) + 0.5).clamp_min(0.0)
+        return self.from_basis(self.basis(viewmat, K, width, height))
 
 
 def composite_over(colors: Tensor, alphas: Tensor, background: Tensor) -> Tensor:

@@ -14,7 +14,7 @@ import torch
 from torch import Tensor
 
 from smokeseer.gaussians import GaussianSet
-from smokeseer.model import View, place_static, render
+from smokeseer.model import View, place_static, render_depth
 
 
 @dataclass
@@ -36,9 +36,8 @@ def rendered_depth_prior(geometry: GaussianSet, views: list[View], camera: str) 
     with torch.no_grad():
         placed = place_static(geometry)
         opac = torch.sigmoid(geometry["opacity"])
-        cols = torch.zeros(geometry.n, 1, device=opac.device)
         for v in views:
-            out = render(v, [(placed, opac, cols)], None, None, normalize_depth=True)
+            out = render_depth(v, placed, opac)
             maps.append(out.depths[0, ..., 0])
             valid.append((out.alphas[0, ..., 0] > 0.5) & (out.depths[0, ..., 0] > 0))
     return DepthPriorMaps(torch.stack(maps), torch.stack(valid), "depth", camera)

@@ -9,7 +9,7 @@ surface-only prediction and smoke-only views all come from the same code path.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -23,13 +23,25 @@ from smokeseer.raster import RasterOutput, rasterize
 
 @dataclass
 class View:
-    """One camera as batched tensors, plus the normalised time of its frame."""
+    """One camera as batched tensors, plus the normalised time of its frame. ``sky_bases`` keeps
+    the environment's ray basis per SH degree: training renders each view hundreds of times and
+    the camera never moves (a camera whose pose requires grad is never cached)."""
 
     viewmat: Tensor
     K: Tensor
     width: int
     height: int
     time: float
+    sky_bases: dict[int, Tensor] = field(default_factory=dict, repr=False, compare=False)
+
+    def sky(self, env: EnvironmentBackground) -> Tensor:
+        """The environment ``env`` seen from this view, [H, W, channels]."""
+        if self.viewmat.requires_grad or self.K.requires_grad:
+            return env(self.viewmat[0], self.K[0], self.width, self.height)
+        basis = self.sky_bases.get(env.degree)
+        if basis is None:
+            basis = self.sky_bases[env.degree] = env.basis(self.viewmat[0], self.K[0], self.width, self.height)
+        return env.from_basis(basis)
 
 
 def make_view(viewmat: np.ndarray, K: np.ndarray, width: int, height: int, time: float,
@@ -150,8 +162,15 @@ def render(view: View, parts: list[tuple[Placed, Tensor, Tensor]], sh_degree: in
                     subset_mask=mask, render_depth=True, normalize_depth=normalize_depth)
     if env is None:
         return out
-    sky = env(view.viewmat[0], view.K[0], view.width, view.height)
+    sky = view.sky(env)
     return replace(out, colors=composite_over(out.colors, out.alphas, sky))
+
+
+def render_depth(view: View, placed: Placed, opacities: Tensor) -> RasterOutput:
+    """Normalised expected depth and alpha of one set on black, with no colour channel: the depth
+    prior and the depth term read nothing else, and every colour channel costs kernel work."""
+    return render(view, [(placed, opacities, opacities.new_zeros((opacities.shape[0], 0)))], None, None,
+                  normalize_depth=True)
 
 
 @dataclass

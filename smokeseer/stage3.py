@@ -22,7 +22,7 @@ from smokeseer.depth_prior import DepthPriorMaps
 from smokeseer.gaussians import DensifyStrategy, GaussianSet, make_optimizer
 from smokeseer.losses import (depth_consistency, mask_alignment, monochromaticity, render_loss,
                               smoke_alpha_variance, smoke_color_variance)
-from smokeseer.model import SceneModel, View, add_rgb_sh, make_smoke, place_static, render
+from smokeseer.model import SceneModel, View, add_rgb_sh, make_smoke, place_static, render_depth
 from smokeseer.raster.api import RasterOutput
 from smokeseer.stage2 import Stage2Result, draw_index, make_background, views_of
 from smokeseer.trainloop import IterationOutput, StageProblem, StageSchedule, run_stage
@@ -193,8 +193,7 @@ class Stage3Problem(StageProblem):
 
     def _depth_term(self, view: View, k: int) -> torch.Tensor:
         surface = self.model.surface
-        sout = render(view, [(place_static(surface), torch.sigmoid(surface["opacity"]),
-                              surface["means"].new_zeros((surface.n, 1)))], None, None, normalize_depth=True)
+        sout = render_depth(view, place_static(surface), torch.sigmoid(surface["opacity"]))
         d = sout.depths[0, ..., 0]
         valid = self.prior.valid[k] & (sout.alphas[0, ..., 0] > 0.5)
         if self.prior.space == "disparity":

@@ -45,6 +45,27 @@ def test_rays_project_back_to_their_pixel_centres(seed: int) -> None:
     assert torch.allclose(uv, torch.stack([u, v], dim=-1), atol=1e-9)
 
 
+def test_view_keeps_the_sky_basis_and_gives_the_same_image() -> None:
+    """A view renders its environment from a kept ray basis: same values and coefficient
+    gradients as the uncached environment, computed once per SH degree; a camera whose pose
+    requires grad is never kept (its gradient must flow)."""
+    vm, k = _camera(4)
+    env = EnvironmentBackground(3, degree=2, device=torch.device("cpu")).double()
+    with torch.no_grad():
+        env.coeffs.normal_(generator=torch.Generator().manual_seed(0))
+    view = View(vm[None], k[None], 11, 8, 0.0)
+    cached = view.sky(env)
+    assert list(view.sky_bases) == [2]
+    kept = view.sky_bases[2]
+    assert torch.equal(cached, env(vm, k, 11, 8))
+    grad_cached = torch.autograd.grad(view.sky(env).sum(), env.coeffs)[0]
+    grad_direct = torch.autograd.grad(env(vm, k, 11, 8).sum(), env.coeffs)[0]
+    assert view.sky_bases[2] is kept and torch.equal(grad_cached, grad_direct)
+    posed = View(vm[None].clone().requires_grad_(True), k[None], 11, 8, 0.0)
+    posed.sky(env).sum().backward()
+    assert not posed.sky_bases and posed.viewmat.grad is not None
+
+
 def test_sh_values_are_the_analytic_bands() -> None:
     vm, k = _camera(3)
     env = EnvironmentBackground(2, degree=1, device=torch.device("cpu")).double()

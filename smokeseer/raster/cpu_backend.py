@@ -59,9 +59,9 @@ class _TileComposite(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx: Any, means2d: Tensor, conics: Tensor, opacities: Tensor, feats: Tensor,
-                radii: Tensor, order: Tensor, visible: Tensor, width: int, height: int) -> tuple[Tensor, Tensor, Tensor]:
+                radii: Tensor, sort_keys: Tensor, visible: Tensor, width: int, height: int) -> tuple[Tensor, Tensor, Tensor]:
         image, alpha, n_pairs, *state = load_kernel().forward(
-            means2d, conics, opacities, feats, radii, order, visible, width, height)
+            means2d, conics, opacities, feats, radii, sort_keys, visible, width, height)
         ctx.save_for_backward(*state)
         ctx.shape = (means2d.shape[0], means2d.shape[1], width, height)
         ctx.mark_non_differentiable(n_pairs)
@@ -100,10 +100,9 @@ def composite_tiles(
     if subset_mask is not None:
         columns.append(subset_mask.to(opacities.dtype)[None, :, None].expand(c_count, n, 1))
     feats = torch.cat(columns, dim=-1).contiguous()
-    order = torch.argsort(proj.sort_key(), dim=1, stable=True)  # front to back, ties by index
-    image, alpha, n_pairs = _TileComposite.apply(
+    image, alpha, n_pairs = _TileComposite.apply(  # the kernel sorts front to back, ties by index
         proj.means2d.contiguous(), proj.conics.contiguous(), opacities.contiguous(), feats,
-        proj.radii.detach().contiguous(), order, proj.visible.contiguous(), width, height,
+        proj.radii.detach().contiguous(), proj.sort_key(), proj.visible.contiguous(), width, height,
     )
     flat = image.reshape(c_count * height * width, -1)
     return Composite(

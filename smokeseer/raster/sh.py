@@ -60,6 +60,21 @@ def sh_basis(degree: int, dirs: Tensor) -> Tensor:
     return torch.stack(out, dim=-1)
 
 
+def sh_basis_along(degree: int, dirs: Tensor) -> Tensor:
+    """The SH basis [..., K] along directions ``dirs`` [..., 3] that need not be unit length (they
+    are normalised; a zero direction gives the DC term only)."""
+    norm = torch.linalg.vector_norm(dirs, dim=-1, keepdim=True)
+    return sh_basis(degree, dirs / norm.clamp_min(torch.finfo(dirs.dtype).tiny ** 0.5))
+
+
+def sh_sum(basis: Tensor, coeffs: Tensor) -> Tensor:
+    """Sum SH coefficients ``coeffs`` [..., K', D] (K' >= K) weighted by ``basis`` [..., K] -> [..., D]."""
+    k = basis.shape[-1]
+    if coeffs.shape[-2] < k:
+        raise ValueError(f"coeffs has {coeffs.shape[-2]} SH bases, the basis has {k}")
+    return (basis.unsqueeze(-1) * coeffs[..., :k, :]).sum(dim=-2)
+
+
 def eval_sh(degree: int, coeffs: Tensor, dirs: Tensor) -> Tensor:
     """Sum SH coefficients ``coeffs`` [..., K, D] along directions ``dirs`` [..., 3] -> [..., D].
 
@@ -70,7 +85,4 @@ def eval_sh(degree: int, coeffs: Tensor, dirs: Tensor) -> Tensor:
     k = num_sh_bases(degree)
     if coeffs.shape[-2] < k:
         raise ValueError(f"coeffs has {coeffs.shape[-2]} SH bases, degree {degree} needs {k}")
-    norm = torch.linalg.vector_norm(dirs, dim=-1, keepdim=True)
-    unit = dirs / norm.clamp_min(torch.finfo(dirs.dtype).tiny ** 0.5)
-    basis = sh_basis(degree, unit)
-    return (basis.unsqueeze(-1) * coeffs[..., :k, :]).sum(dim=-2)
+    return sh_sum(sh_basis_along(degree, dirs), coeffs)

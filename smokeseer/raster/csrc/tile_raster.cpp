@@ -16,6 +16,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <limits>
 #include <type_traits>
 #include <utility>
 #include <vector>
@@ -78,7 +79,10 @@ inline double exp_neg(double sigma) { return std::exp(-sigma); }
 // runs on few pixels it rejects. Culling here only skips pixels that the exact test would skip.
 struct EllipseSpans {
   double mx, my, half_a, b, half_c, limit;
+  int row_lo, row_hi;  // rows that can meet the ellipse (the whole int range when not shaped)
   bool shaped;  // false: no usable bound (degenerate conic); every pixel of the rectangle is tested
+
+  EllipseSpans() = default;
 
   template <typename scalar_t>
   EllipseSpans(scalar_t mx_, scalar_t my_, scalar_t qa, scalar_t qb, scalar_t qc, scalar_t opac)
@@ -87,20 +91,21 @@ struct EllipseSpans {
     limit = s_max + 1e-3 + 1e-4 * std::abs(s_max);
     shaped = half_a > 0.0 && std::isfinite(half_a) && std::isfinite(b) && std::isfinite(half_c) &&
              std::isfinite(limit);
+    row_lo = std::numeric_limits<int>::min();
+    row_hi = std::numeric_limits<int>::max();
+    const double det = 4.0 * half_a * half_c - b * b;
+    if (!shaped || !(det > 0.0)) return;
+    const double reach = std::sqrt(4.0 * limit * half_a / det);
+    row_lo = int(std::ceil(std::max(-1e9, my - reach - 0.5)) - 1.0);
+    row_hi = int(std::floor(std::min(1e9, my + reach - 0.5)) + 1.0);
   }
 
   bool empty() const { return shaped && limit < 0.0; }
 
   // Narrow the inclusive row range [y0, y1].
   void rows(int& y0, int& y1) const {
-    if (!shaped) return;
-    const double det = 4.0 * half_a * half_c - b * b;
-    if (!(det > 0.0)) return;
-    const double reach = std::sqrt(4.0 * limit * half_a / det);
-    const double lo = std::ceil(std::max(-1e9, my - reach - 0.5)) - 1.0;
-    const double hi = std::floor(std::min(1e9, my + reach - 0.5)) + 1.0;
-    y0 = std::max(y0, int(lo));
-    y1 = std::min(y1, int(hi));
+    y0 = std::max(y0, row_lo);
+    y1 = std::min(y1, row_hi);
   }
 
   // Narrow the inclusive column range [x0, x1] on row y; false when the row misses the ellipse.
@@ -120,9 +125,59 @@ struct EllipseSpans {
   }
 };
 
+// The Gaussians of one camera with a non-empty rectangle, front to back: ascending float64 view z,
+// ties by index, as a stable argsort of the keys gives. Why not torch.argsort: its stable merge sort
+// of all N keys took ~1 ms per call, several % of a demo run. This is an LSD radix sort (8 passes
+// of 8 bits, stable, input in index order) of each key's order-preserving 64-bit image; -0.0 is
+// first folded into +0.0, which compares equal to it.
+std::vector<int32_t> depth_order(const double* key, const Rect* rect, int64_t n) {
+  std::vector<uint64_t> bits, bits_tmp;
+  std::vector<int32_t> idx, idx_tmp;
+  for (int64_t i = 0; i < n; ++i) {
+    if (rect[i].x1 < rect[i].x0 || rect[i].y1 < rect[i].y0) continue;
+    const double k = key[i] + 0.0;
+    uint64_t u;
+    std::memcpy(&u, &k, sizeof(u));
+    bits.push_back(u >> 63 ? ~u : u | (uint64_t(1) << 63));
+    idx.push_back(int32_t(i));
+  }
+  const size_t m = idx.size();
+  if (m == 0) return idx;
+  bits_tmp.resize(m);
+  idx_tmp.resize(m);
+  for (int shift = 0; shift < 64; shift += 8) {
+    size_t count[257] = {0};
+    for (size_t i = 0; i < m; ++i) ++count[((bits[i] >> shift) & 0xff) + 1];
+    if (count[((bits[0] >> shift) & 0xff) + 1] == m) continue;  // every key has this digit: identity pass
+    for (int d = 0; d < 256; ++d) count[d + 1] += count[d];
+    for (size_t i = 0; i < m; ++i) {
+      const size_t pos = count[(bits[i] >> shift) & 0xff]++;
+      bits_tmp[pos] = bits[i];
+      idx_tmp[pos] = idx[i];
+    }
+    bits.swap(bits_tmp);
+    idx.swap(idx_tmp);
+  }
+  return idx;
+}
+
+// One EllipseSpans per packed record (a log and a square root), shared by every tile entry of
+// that record instead of recomputed per entry.
+template <typename scalar_t>
+std::vector<EllipseSpans> record_spans(const scalar_t* rec, int64_t packed, int64_t stride) {
+  std::vector<EllipseSpans> spans(packed);
+  at::parallel_for(0, packed, 2048, [&](int64_t lo, int64_t hi) {
+    for (int64_t s = lo; s < hi; ++s) {
+      const scalar_t* r = rec + s * stride;
+      spans[s] = EllipseSpans(r[0], r[1], r[2], r[3], r[4], r[5]);
+    }
+  });
+  return spans;
+}
+
 template <typename scalar_t>
 Bins bin_gaussians(const torch::Tensor& means2d, const torch::Tensor& conics, const torch::Tensor& opacities,
-                   const torch::Tensor& feats, const torch::Tensor& radii, const torch::Tensor& order,
+                   const torch::Tensor& feats, const torch::Tensor& radii, const torch::Tensor& sort_keys,
                    const torch::Tensor& visible, int64_t width, int64_t height) {
   const int64_t cams = means2d.size(0), n = means2d.size(1), nf = feats.size(2);
   const int64_t tiles_x = (width + kTile - 1) / kTile, tiles_y = (height + kTile - 1) / kTile;
@@ -151,15 +206,14 @@ Bins bin_gaussians(const torch::Tensor& means2d, const torch::Tensor& conics, co
   });
 
   // Pack the Gaussians that touch a pixel, per camera front to back, and count tile entries.
-  const int64_t* ord = order.data_ptr<int64_t>();
+  const double* keys = sort_keys.data_ptr<double>();
   std::vector<int64_t> packed_src;
   std::vector<int64_t> cam_start(cams + 1, 0), tile_count(cams * tiles, 0);
   std::vector<int64_t> rec_off(1, 0);
   for (int64_t c = 0; c < cams; ++c) {
-    for (int64_t k = 0; k < n; ++k) {
-      const int64_t cg = c * n + ord[c * n + k];
+    for (const int32_t g : depth_order(keys + c * n, rect_of.data() + c * n, n)) {
+      const int64_t cg = c * n + g;
       const Rect& r = rect_of[cg];
-      if (r.x1 < r.x0 || r.y1 < r.y0) continue;
       packed_src.push_back(cg);
       const int tx0 = r.x0 / kTile, tx1 = r.x1 / kTile, ty0 = r.y0 / kTile, ty1 = r.y1 / kTile;
       rec_off.push_back(rec_off.back() + int64_t(tx1 - tx0 + 1) * (ty1 - ty0 + 1));
@@ -306,12 +360,12 @@ inline std::pair<int, int> blend_row(ForwardTile& st, const Splat<scalar_t>& sp,
 template <typename scalar_t, int NF>
 std::vector<torch::Tensor> forward_impl(const torch::Tensor& means2d, const torch::Tensor& conics,
                                         const torch::Tensor& opacities, const torch::Tensor& feats,
-                                        const torch::Tensor& radii, const torch::Tensor& order,
+                                        const torch::Tensor& radii, const torch::Tensor& sort_keys,
                                         const torch::Tensor& visible, int64_t width, int64_t height) {
   const int64_t cams = means2d.size(0), nf = feats.size(2);
   const int64_t tiles_x = (width + kTile - 1) / kTile, tiles_y = (height + kTile - 1) / kTile;
   const int64_t tiles = tiles_x * tiles_y;
-  Bins b = bin_gaussians<scalar_t>(means2d, conics, opacities, feats, radii, order, visible, width, height);
+  Bins b = bin_gaussians<scalar_t>(means2d, conics, opacities, feats, radii, sort_keys, visible, width, height);
   auto opts = means2d.options();
   torch::Tensor out = torch::empty({cams, height, width, nf}, opts);
   torch::Tensor alpha = torch::empty({cams, height, width}, opts);
@@ -329,6 +383,7 @@ std::vector<torch::Tensor> forward_impl(const torch::Tensor& means2d, const torc
   double* tf_p = t_final.data_ptr<double>();
   int32_t* last_p = last.data_ptr<int32_t>();
   int64_t* pc_p = pair_count.data_ptr<int64_t>();
+  const std::vector<EllipseSpans> spans = record_spans(rec, b.records.size(0), stride);
 
 #pragma omp parallel num_threads(num_threads())
   {
@@ -343,9 +398,9 @@ std::vector<torch::Tensor> forward_impl(const torch::Tensor& means2d, const torc
       const int64_t begin = toff[ct], count = toff[ct + 1] - begin;
       for (int64_t e = 0; e < count && active > 0; ++e) {
         const int64_t s = ent[begin + e];
-        const Splat<scalar_t> sp(rec + s * stride, rects[s], tb);
-        const EllipseSpans span(sp.mx, sp.my, sp.qa, sp.qb, sp.qc, sp.opac);
+        const EllipseSpans& span = spans[s];
         if (span.empty()) continue;
+        const Splat<scalar_t> sp(rec + s * stride, rects[s], tb);
         int ry0 = sp.y0, ry1 = sp.y1;
         span.rows(ry0, ry1);
         for (int y = ry0; y <= ry1; ++y) {
@@ -474,6 +529,7 @@ std::vector<torch::Tensor> backward_impl(int64_t cams, int64_t n, const torch::T
   const int32_t* ent = entries.data_ptr<int32_t>();
   const scalar_t* go_p = grad_out.data_ptr<scalar_t>();
   const scalar_t* ga_p = grad_alpha.data_ptr<scalar_t>();
+  const std::vector<EllipseSpans> spans = record_spans(rec, packed, stride);
 
 #pragma omp parallel num_threads(num_threads())
   {
@@ -500,10 +556,10 @@ std::vector<torch::Tensor> backward_impl(int64_t cams, int64_t n, const torch::T
       // Back to front: rebuild each pair's transmittance from the final one, as 3DGS does.
       for (int64_t e = max_stop - 1; e >= 0; --e) {
         const int64_t s = ent[begin + e];
+        const EllipseSpans& span = spans[s];
+        if (span.empty()) continue;
         const Splat<scalar_t> sp(rec + s * stride, rects[s], tb);
         double* g = partial.data() + sof[begin + e] * stride;
-        const EllipseSpans span(sp.mx, sp.my, sp.qa, sp.qb, sp.qc, sp.opac);
-        if (span.empty()) continue;
         int ry0 = sp.y0, ry1 = sp.y1;
         span.rows(ry0, ry1);
         for (int y = ry0; y <= ry1; ++y) {
@@ -563,7 +619,7 @@ auto with_feature_count(int64_t nf, Fn&& fn) {
 
 std::vector<torch::Tensor> forward(const torch::Tensor& means2d, const torch::Tensor& conics,
                                    const torch::Tensor& opacities, const torch::Tensor& feats,
-                                   const torch::Tensor& radii, const torch::Tensor& order,
+                                   const torch::Tensor& radii, const torch::Tensor& sort_keys,
                                    const torch::Tensor& visible, int64_t width, int64_t height) {
   TORCH_CHECK(means2d.device().is_cpu(), "tile rasterizer: tensors must be on the CPU");
   TORCH_CHECK(means2d.dim() == 3 && means2d.size(2) == 2, "tile rasterizer: means2d must be [C, N, 2]");
@@ -571,21 +627,22 @@ std::vector<torch::Tensor> forward(const torch::Tensor& means2d, const torch::Te
   TORCH_CHECK(conics.sizes() == torch::IntArrayRef({c, n, 3}), "tile rasterizer: conics must be [C, N, 3]");
   TORCH_CHECK(opacities.dim() == 1 && opacities.size(0) == n, "tile rasterizer: opacities must be [N]");
   TORCH_CHECK(feats.dim() == 3 && feats.size(0) == c && feats.size(1) == n, "tile rasterizer: feats must be [C, N, F]");
-  TORCH_CHECK(radii.sizes() == torch::IntArrayRef({c, n}) && order.sizes() == radii.sizes() &&
+  TORCH_CHECK(radii.sizes() == torch::IntArrayRef({c, n}) && sort_keys.sizes() == radii.sizes() &&
                   visible.sizes() == radii.sizes(),
-              "tile rasterizer: radii, order and visible must be [C, N]");
+              "tile rasterizer: radii, sort_keys and visible must be [C, N]");
   for (const auto* t : {&means2d, &conics, &opacities, &feats, &radii}) {
     TORCH_CHECK(t->is_contiguous() && t->scalar_type() == means2d.scalar_type(),
                 "tile rasterizer: float inputs must be contiguous and share one dtype");
   }
-  TORCH_CHECK(order.scalar_type() == torch::kInt64 && visible.scalar_type() == torch::kBool,
-              "tile rasterizer: order must be int64 and visible bool");
+  TORCH_CHECK(sort_keys.is_floating_point() && visible.scalar_type() == torch::kBool,
+              "tile rasterizer: sort_keys must be floating point and visible bool");
   TORCH_CHECK(width > 0 && height > 0 && width < (1 << 30) && height < (1 << 30), "tile rasterizer: bad image size");
   std::vector<torch::Tensor> result;
   AT_DISPATCH_FLOATING_TYPES(means2d.scalar_type(), "tile_raster_forward", [&] {
     result = with_feature_count(feats.size(2), [&](auto nf) {
       return forward_impl<scalar_t, decltype(nf)::value>(means2d, conics, opacities, feats, radii,
-                                                         order.contiguous(), visible.contiguous(), width, height);
+                                                         sort_keys.to(torch::kFloat64).contiguous(),
+                                                         visible.contiguous(), width, height);
     });
   });
   return result;
