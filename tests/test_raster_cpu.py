@@ -138,3 +138,16 @@ def test_failed_build_is_one_clear_error(tmp_path: Path) -> None:
     last = proc.stderr.strip().splitlines()[-1]
     assert "KernelBuildError" in last and "could not build the CPU tile rasterizer" in last, proc.stderr[-2000:]
     assert "/bin/false" in last
+
+
+def test_each_torch_installation_keeps_its_own_build(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two virtual environments (two torch installations) get two build folders: with one shared
+    folder each load from the other environment rewrote ninja's command line (its torch include
+    paths) and silently recompiled the kernel (34 s inside a timed run)."""
+    from smokeseer.raster import extension
+
+    monkeypatch.setenv("TORCH_EXTENSIONS_DIR", str(tmp_path))
+    here, _ = extension.build_directory()
+    assert extension.build_directory()[0] == here
+    monkeypatch.setattr(torch, "__file__", str(tmp_path / "other-venv" / "torch" / "__init__.py"))
+    assert extension.build_directory()[0] != here

@@ -1,7 +1,9 @@
 """Builds (once) and loads the compiled tile rasterizer with torch.utils.cpp_extension.
 
-The build directory is keyed by a hash of the source and the flags, so an edited kernel is
-rebuilt and an unchanged one loads in milliseconds. The sources are copied into that directory
+The build directory is keyed by a hash of the source, the flags and the torch installation it
+links against, so an edited kernel is rebuilt, an unchanged one loads in milliseconds, and two
+virtual environments keep one build each instead of rebuilding it whenever the other one loads
+it (ninja's command line holds the environment's torch include and library paths). The sources are copied into that directory
 and compiled from there: ninja's command line then holds no checkout path, so two checkouts of
 the same kernel share one build instead of rebuilding it each time the other one loads it. A
 failed build raises ``KernelBuildError`` with the compiler's own complaint; nothing falls back
@@ -52,10 +54,13 @@ class KernelBuildError(RuntimeError):
 def build_directory() -> tuple[Path, str]:
     """Per-source-hash cache folder and module name under torch's extensions root
     (``TORCH_EXTENSIONS_DIR`` when set, else ~/.cache/torch_extensions)."""
+    import torch
     from torch.utils.cpp_extension import get_default_build_root
 
+    torch_install = f"{torch.__version__} {Path(torch.__file__).resolve().parent}"
     digest = hashlib.sha256(b"".join(p.read_bytes() for p in SOURCES + HEADERS)
-                            + " ".join(compiler_flags() + LDFLAGS).encode()).hexdigest()[:12]
+                            + " ".join(compiler_flags() + LDFLAGS).encode()
+                            + torch_install.encode()).hexdigest()[:12]
     name = f"smokeseer_tile_raster_{digest}"
     root = Path(os.environ.get("TORCH_EXTENSIONS_DIR") or get_default_build_root())
     folder = root / name
