@@ -214,10 +214,11 @@ def _load_colmap(path: Path, max_width: int, sidecar: dict[str, Any],
     mods: dict[str, ModalityData | None] = {"rgb": None, "thermal": None}
     for modality, items in entries.items():
         if items:
-            mods[modality] = _colmap_modality(path, modality, sorted(items, key=lambda e: e[0]), max_width, notes,
-                                              lo, hi, tick, origin)
-            _attach_depth(path, mods[modality], [(e[5], e[4]) for e in sorted(items, key=lambda e: e[0])],
-                          max_width, sidecar.get("images_depth") == "ground-truth", notes)
+            ordered = sorted(items, key=lambda e: e[0])
+            mod = _colmap_modality(path, modality, ordered, max_width, notes, lo, hi, tick, origin)
+            _attach_depth(path, mod, [(e[5], e[4]) for e in ordered], max_width,
+                          sidecar.get("images_depth") == "ground-truth", notes)
+            mods[modality] = mod
     rgb, thermal = mods["rgb"], mods["thermal"]
     assert rgb is not None
     if tick > 0:
@@ -227,11 +228,10 @@ def _load_colmap(path: Path, max_width: int, sidecar: dict[str, Any],
     return rgb, thermal, points
 
 
-def _attach_depth(path: Path, mod: ModalityData | None, sizes: list[tuple[int, int]], max_width: int,
+def _attach_depth(path: Path, mod: ModalityData, sizes: list[tuple[int, int]], max_width: int,
                   truth: bool, notes: list[str]) -> None:
     """The layout's ``images_depth`` maps as the modality's depth prior; also its depth truth for
     scoring when the sidecar says they were written from ground truth."""
-    assert mod is not None
     if len(set(sizes)) != 1:
         raise DatasetError(f"{path / 'images'}: {mod.name} images differ in size")
     files = read_depth_files(path, [f.file_stem for f in mod.frames], sizes[0], _factor(sizes[0][1], max_width),
