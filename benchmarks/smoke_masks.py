@@ -8,7 +8,9 @@ smokeseer/smoke_presence.py that ``stage1=estimate`` uses) is scored by IoU per 
 *validation* frames (the training views of every dataset given); the *test* views are only
 scored afterwards. Writes benchmarks/results/smoke_masks.csv (every candidate, threshold,
 scene and split, plus the trivial all-pixels mask as a reference), smoke_masks_choice.csv (the
-chosen one per scene) and smoke_masks.png (validation IoU against threshold).
+chosen one per scene), smoke_masks.png (validation IoU against threshold) and
+smoke_presence.csv (the presence decision ``stage1=estimate`` makes per scene, beside the
+dataset's own flag).
 """
 from __future__ import annotations
 
@@ -40,14 +42,17 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=RESULTS, help="folder for the CSV and PNG")
     args = ap.parse_args()
     rows = []
+    presence: list[dict] = []
     for path in args.datasets:
         scene = load_scene(path)
         if scene.rgb.masks is None:
             raise SystemExit(f"{path}: no ground-truth smoke masks (pass smoke_alpha)")
         images = scene.rgb.images.astype(np.float64)
+        decision = decide_smoke_presence(images, scene.rgb.frames, scene.rgb.indices("train"))
+        presence.append({"scene": scene.name, "statistic": decision.statistic, "threshold": decision.threshold,
+                         "decided_present": decision.present, "dataset_present": scene.smoke_present})
         for cand in ALL_CANDIDATES:
-            scores = (decide_smoke_presence(images, scene.rgb.frames, scene.rgb.indices("train")).masks
-                      if cand == ESTIMATOR else candidate_scores(images, cand))
+            scores = decision.masks if cand == ESTIMATOR else candidate_scores(images, cand)
             for thr in THRESHOLDS:
                 for split, name in (("train", "validation"), ("test", "test")):
                     idx = scene.rgb.indices(split)
@@ -60,8 +65,14 @@ def main() -> None:
             rows.append({"candidate": REFERENCE, "threshold": 0.0, "scene": scene.name, "split": name,
                          "frames": len(idx), "iou": float(np.mean(vals)) if vals else float("nan")})
         print(f"{scene.name}: scored {len(ALL_CANDIDATES)} candidates; ground truth covers "
-              f"{100 * float(scene.rgb.masks.mean()):.1f} % of the pixels", flush=True)
+              f"{100 * float(scene.rgb.masks.mean()):.1f} % of the pixels; smoke presence statistic "
+              f"{decision.statistic:.2f} (threshold {decision.threshold}): "
+              f"{'present' if decision.present else 'absent'}, dataset says present={scene.smoke_present}", flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
+    with (args.out / "smoke_presence.csv").open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(presence[0]))
+        w.writeheader()
+        w.writerows(presence)
     with (args.out / "smoke_masks.csv").open("w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
         w.writeheader()
