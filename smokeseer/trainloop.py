@@ -145,7 +145,9 @@ def collect_every(iterations: int) -> Iterator[Any]:
 
 
 def resume(ctx: RunContext, problem: StageProblem, sched: StageSchedule) -> tuple[int, bool]:
-    """Load the stage's checkpoint if there is one for these settings: (start iteration, done)."""
+    """Load the stage's checkpoint if there is one for these settings: (start iteration, done). It
+    also puts the run's RNG back where it stood, so a resumed run draws the views and splits an
+    uninterrupted one would."""
     path = ctx.checkpoint_path(problem.stage)
     payload = load_checkpoint(path, sched.checkpoint_sha, ctx.log_line)
     if payload is None:
@@ -153,6 +155,11 @@ def resume(ctx: RunContext, problem: StageProblem, sched: StageSchedule) -> tupl
     problem.load_state(payload)
     start, done = int(payload["iteration"]), bool(payload.get("done"))
     ctx.log_line(f"{problem.name}: resumed from {path} at iteration {start}{' (finished)' if done else ''}")
+    if "rng_state" in payload:
+        ctx.generator.set_state(payload["rng_state"])
+    else:
+        ctx.log_line(f"{path.name}: holds no RNG state (written by an older version), so the view draws and "
+                     "splits from here on differ from an uninterrupted run's")
     return start, done
 
 
@@ -170,7 +177,7 @@ def run_stage(ctx: RunContext, problem: StageProblem, sched: StageSchedule) -> N
 
     def payload(it: int, finished: bool, state: dict[str, Any]) -> dict[str, Any]:
         return {"stage": problem.stage, "iteration": it, "done": finished, "config_sha256": sched.checkpoint_sha,
-                **state}
+                "rng_state": ctx.generator.get_state(), **state}
 
     total = sched.iterations
     bar = tqdm(range(start + 1, total + 1), desc=problem.name, disable=not ctx.cfg.progress, leave=False)

@@ -94,6 +94,37 @@ def test_full_run_outputs_and_resume(splat: Path, tmp_path: Path) -> None:
     assert {r["stage"] for r in new_rows} == {"3"} and int(new_rows[0]["iteration"]) == 3
 
 
+class _Interrupted(Exception):
+    """Stands for a killed process: raised inside Stage 3, caught by the test."""
+
+
+@pytest.mark.parametrize("stop_at", [1, 8])
+def test_interrupted_run_resumes_to_the_same_model(splat: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                   stop_at: int) -> None:
+    """A run stopped in Stage 3 and started again ends with the same bytes as one that never
+    stopped: at iteration 1 it restarts Stage 3 from the finished Stage 2, at 8 from the Stage 3
+    checkpoint of iteration 6. Both need the view-drawing RNG's state in the checkpoint."""
+    from smokeseer.stage3 import Stage3Problem
+
+    assert main([str(splat), "--out", str(tmp_path / "whole")] + TINY) == 0
+    forward = Stage3Problem.forward
+
+    def stopping(self: Stage3Problem, it: int):
+        if it == stop_at:
+            raise _Interrupted
+        return forward(self, it)
+
+    run = tmp_path / "stopped"
+    monkeypatch.setattr(Stage3Problem, "forward", stopping)
+    with pytest.raises(_Interrupted):
+        main([str(splat), "--out", str(run)] + TINY)
+    monkeypatch.setattr(Stage3Problem, "forward", forward)
+    assert main([str(splat), "--out", str(run)] + TINY) == 0
+    assert (run / "ply" / "surface.ply").read_bytes() == (tmp_path / "whole" / "ply" / "surface.ply").read_bytes()
+    whole = json.loads((tmp_path / "whole" / "metrics.json").read_text())["metrics"]["psnr"]
+    assert json.loads((run / "metrics.json").read_text())["metrics"]["psnr"] == whole
+
+
 def test_same_seed_gives_the_same_model(splat: Path, tmp_path: Path) -> None:
     """Seeds make a run reproducible: the same seed gives the same PLY bytes, another seed does not."""
     plys = {}
