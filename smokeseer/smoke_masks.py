@@ -21,27 +21,15 @@ synthetic ground-truth masks, picks the candidate and threshold on the validatio
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from scipy.ndimage import minimum_filter, uniform_filter
 
-# The best of these on the validation (training) views of the demo and the ten bench scenes
-# (12 frames, 96x72; benchmarks/results/smoke_masks*.csv): mean IoU 0.699 against 0.693 for the
-# trivial mask that calls every pixel smoke (ground truth alpha > 0.02 covers 24-100 % of the
-# pixels of those scenes).
+# On the validation (training) views of the demo and the ten bench scenes (12 frames, 96x72;
+# benchmarks/results/smoke_masks*.csv) the best of these, temporal variance at 0.02, reaches a
+# mean IoU of 0.693 against 0.687 for the trivial mask that calls every pixel smoke (ground
+# truth alpha > 0.02 covers 24-100 % of the pixels of those scenes); the multi-view residual 0.700.
 CANDIDATES = ("dark-channel", "dark-channel-deviation", "whiteness", "colour-deviation", "temporal-variance")
-ESTIMATOR = "temporal-variance"
-THRESHOLD = 0.02
 PATCH_FRACTION = 1 / 32
-
-
-@dataclass
-class MaskEstimate:
-    masks: np.ndarray
-    scores: np.ndarray
-    estimator: str
-    threshold: float
 
 
 def dark_channel_haze(images: np.ndarray, patch_fraction: float = PATCH_FRACTION) -> np.ndarray:
@@ -100,16 +88,6 @@ def candidate_scores(images: np.ndarray, estimator: str) -> np.ndarray:
     if estimator == "temporal-variance":
         return temporal_variance(images)
     raise ValueError(f"estimator: {estimator!r} is not one of {', '.join(CANDIDATES)}")
-
-
-def estimate_smoke_masks(images: np.ndarray, estimator: str = ESTIMATOR,
-                         threshold: float = THRESHOLD) -> MaskEstimate:
-    """Binary smoke masks (float 0/1, N×H×W) for RGB images N×H×W×3 in [0, 1]."""
-    images = np.asarray(images, dtype=np.float64)
-    if images.ndim != 4 or images.shape[-1] != 3:
-        raise ValueError(f"images: expected N×H×W×3, got {images.shape}")
-    scores = candidate_scores(images, estimator)
-    return MaskEstimate((scores > threshold).astype(np.float32), scores.astype(np.float32), estimator, threshold)
 
 
 def iou(pred: np.ndarray, truth: np.ndarray) -> float:
