@@ -12,7 +12,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation, RotationSpline, Slerp
 
 
@@ -218,6 +217,8 @@ def interpolate_poses(viewmats: np.ndarray, times: np.ndarray,
     if len(t) < 4:
         rots = Slerp(t, Rotation.from_matrix(v[:, :3, :3]))(at).as_matrix()
         return rots, np.stack([np.interp(at, t, centres[:, k]) for k in range(3)], axis=1)
+    from scipy.interpolate import CubicSpline  # here: scipy.interpolate takes ~0.1 s to import, and only registered rigs need it
+
     rots = RotationSpline(t, Rotation.from_matrix(v[:, :3, :3]))(at).as_matrix()
     return rots, CubicSpline(t, centres, axis=0)(at)
 

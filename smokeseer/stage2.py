@@ -16,6 +16,7 @@ from smokeseer.deform import DeformNetwork
 from smokeseer.gaussians import DensifyStrategy, GaussianSet, make_optimizer
 from smokeseer.losses import render_loss
 from smokeseer.model import View, add_rgb_sh, init_gaussians, make_view, place_deformed, render, sh_coeffs
+from smokeseer.optim import Adam
 from smokeseer.trainloop import IterationOutput, StageProblem, StageSchedule, run_stage
 from smokeseer.trainutil import RunContext, grads_of, state_or_none, step_optimizers
 
@@ -86,9 +87,9 @@ class Stage2Problem(StageProblem):
         self.deform = DeformNetwork(_deform_cfg(cfg, deformable), ctx.extent, dev) if deformable else None
         self.background = make_background(cfg, mod.channels, dev)
         self.optimizer = make_optimizer(self.g, stage2_lrs(cfg, self.g, ctx.extent))
-        self.deform_optimizer = (torch.optim.Adam(self.deform.parameters(), lr=cfg.deform.lr_init)
+        self.deform_optimizer = (Adam(self.deform.parameters(), lr=cfg.deform.lr_init)
                                  if self.deform else None)
-        self.background_optimizer = (torch.optim.Adam(self.background.parameters(), lr=cfg.lr.background)
+        self.background_optimizer = (Adam(self.background.parameters(), lr=cfg.lr.background)
                                      if self.background else None)
         self.strategy = DensifyStrategy(cfg.stage2.densify, ("opacity",), ctx.extent)
         idx = mod.indices("train")

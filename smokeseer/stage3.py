@@ -23,6 +23,7 @@ from smokeseer.gaussians import DensifyStrategy, GaussianSet, make_optimizer
 from smokeseer.losses import (depth_consistency, mask_alignment, monochromaticity, render_loss,
                               smoke_alpha_variance, smoke_color_variance)
 from smokeseer.model import SceneModel, View, add_rgb_sh, make_smoke, place_static, render_depth
+from smokeseer.optim import Adam
 from smokeseer.raster.api import RasterOutput
 from smokeseer.stage2 import Stage2Result, draw_index, make_background, views_of
 from smokeseer.trainloop import IterationOutput, StageProblem, StageSchedule, run_stage
@@ -154,10 +155,10 @@ class Stage3Problem(StageProblem):
         self.surface_optimizer = make_optimizer(model.surface, _surface_lrs(cfg, model.surface, self.ctx.extent))
         self.smoke_optimizer = (make_optimizer(model.smoke, _smoke_lrs(cfg, self.ctx.extent))
                                 if model.smoke is not None else None)
-        self.deform_optimizer = (torch.optim.Adam(model.deform.parameters(), lr=cfg.deform.lr_init)
+        self.deform_optimizer = (Adam(model.deform.parameters(), lr=cfg.deform.lr_init)
                                  if model.deform else None)
         bg_params = [p for bg in _backgrounds(model).values() for p in bg.parameters()]
-        self.background_optimizer = torch.optim.Adam(bg_params, lr=cfg.lr.background) if bg_params else None
+        self.background_optimizer = Adam(bg_params, lr=cfg.lr.background) if bg_params else None
 
     def forward(self, it: int) -> IterationOutput:
         cfg, model, weights = self.cfg, self.model, self.weights

@@ -13,6 +13,7 @@ from tqdm import tqdm
 
 from contracts.atomic import atomic_path
 from smokeseer.config import TrainConfig
+from smokeseer.optim import Adam
 
 
 class NaNDetected(RuntimeError):
@@ -34,9 +35,9 @@ def exp_lr(step: int, total: int, lr_init: float, lr_final: float) -> float:
 
 
 def step_optimizers(it: int, total: int, cfg: TrainConfig, extent: float,
-                    gaussian_optimizers: Sequence[torch.optim.Optimizer | None],
-                    other_optimizers: Sequence[torch.optim.Optimizer | None],
-                    deform_optimizer: torch.optim.Optimizer | None) -> None:
+                    gaussian_optimizers: Sequence[Adam | None],
+                    other_optimizers: Sequence[Adam | None],
+                    deform_optimizer: Adam | None) -> None:
     """One optimiser step of a stage: the Gaussian sets' ``means`` learning rate decays as in 3DGS
     (a group frozen at lr 0 stays frozen), every optimiser steps and clears its gradients, and the
     deformation network follows its own decay and only steps after its warm-up."""

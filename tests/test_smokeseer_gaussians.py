@@ -10,6 +10,7 @@ import torch
 from smokeseer.cameras import c2w_gl_to_viewmat, scene_bounds
 from smokeseer.config import DensifyConfig, make_config
 from smokeseer.gaussians import DensifyStrategy, GaussianSet, knn_log_scales, logit, make_optimizer
+from smokeseer.optim import Adam
 
 
 def _set(n: int, scale: float) -> GaussianSet:
@@ -21,7 +22,7 @@ def _set(n: int, scale: float) -> GaussianSet:
                         "color": torch.arange(n, dtype=torch.float32)[:, None]})
 
 
-def _with_adam_state(g: GaussianSet) -> torch.optim.Adam:
+def _with_adam_state(g: GaussianSet) -> Adam:
     opt = make_optimizer(g, {k: 0.01 for k in g.params})
     loss = sum((p ** 2).sum() for p in g.params.values())
     loss.backward()

@@ -7,7 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from contracts.source import PROJECT_ROOT, code_digest, code_fingerprint, module_closure
+import contracts.source as source
+from contracts.source import (DIGEST_CACHE_ENV, PROJECT_ROOT, code_digest, code_fingerprint, digest_cache_path,
+                              module_closure)
 
 TRAINER = "smokeseer.api"
 
@@ -70,3 +72,27 @@ def test_fingerprint_ignores_layout_but_not_values(tmp_path: Path) -> None:
 def test_unknown_entry_point_is_an_error() -> None:
     with pytest.raises(ValueError, match="no project module named 'smokeseer.nope'"):
         code_digest("smokeseer.nope")
+
+
+def test_remembered_digest_equals_the_computed_one_and_follows_edits(tree: Path, tmp_path: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    cache = tmp_path / "cache" / "digests.json"
+    monkeypatch.setenv(DIGEST_CACHE_ENV, str(cache))
+    assert digest_cache_path() == cache
+    first = code_digest(TRAINER, root=tree)
+    assert first == source._computed_digest(TRAINER, root=tree) and cache.is_file()
+    calls: list[tuple[str, ...]] = []
+    computed = source._computed_digest
+    monkeypatch.setattr(source, "_computed_digest", lambda *r, root: calls.append(r) or computed(*r, root=root))
+    assert code_digest(TRAINER, root=tree) == first and not calls
+    _edit(tree / "smokeseer" / "losses.py", "def ", "def _unused() -> None:\n    pass\n\n\ndef ")
+    edited = code_digest(TRAINER, root=tree)
+    assert calls == [(TRAINER,)] and edited != first and edited == computed(TRAINER, root=tree)
+    cache.write_text("{not json")
+    assert code_digest(TRAINER, root=tree) == edited and len(calls) == 2
+
+
+def test_empty_cache_setting_turns_the_cache_off(tree: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(DIGEST_CACHE_ENV, "")
+    assert digest_cache_path() is None
+    assert code_digest(TRAINER, root=tree) == source._computed_digest(TRAINER, root=tree)
