@@ -46,9 +46,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-SHELL_WAIT_POLICY = os.environ.get("OMP_WAIT_POLICY")
-"""The policy this script was started with, before importing smokeseer sets its default: the
-end-to-end runs get the shell's environment, so each side sets (or not) its own policy."""
+OPENMP_WAIT = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")
+SHELL_OPENMP_WAIT = {k: os.environ[k] for k in OPENMP_WAIT if k in os.environ}
+"""The OpenMP wait settings this script was started with, before importing smokeseer sets its
+default: the end-to-end runs get the shell's, so each side sets (or not) its own."""
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
@@ -242,10 +243,8 @@ def run_e2e(args: argparse.Namespace) -> None:
                     cmd += ["--iterations-stage2", str(args.iterations), "--iterations-stage3", str(args.iterations)]
                 before = resource.getrusage(resource.RUSAGE_CHILDREN)
                 load0, wall0 = os.getloadavg()[0], time.perf_counter()
-                env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
-                if SHELL_WAIT_POLICY is not None:
-                    env["OMP_WAIT_POLICY"] = SHELL_WAIT_POLICY
-                done = subprocess.run(cmd, cwd=root, env={**env, "PYTHONPATH": str(root)},
+                env = {k: v for k, v in os.environ.items() if k not in OPENMP_WAIT}
+                done = subprocess.run(cmd, cwd=root, env={**env, **SHELL_OPENMP_WAIT, "PYTHONPATH": str(root)},
                                       capture_output=True, text=True)
                 wall = time.perf_counter() - wall0
                 if done.returncode != 0:

@@ -1,4 +1,4 @@
-"""The OpenMP wait policy the package sets before torch loads libgomp (smokeseer/__init__.py)."""
+"""The OpenMP spin count the package sets before torch loads libgomp (smokeseer/__init__.py)."""
 from __future__ import annotations
 
 import os
@@ -8,7 +8,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
-# Records the policy in the environment at the moment anything first imports torch (when torch's
+# Records the spin count in the environment at the moment anything first imports torch (when torch's
 # libgomp is loaded and reads it), then imports the train-and-evaluate CLI the way its script does.
 PROBE = """
 import importlib.abc, os, sys
@@ -16,7 +16,7 @@ seen = []
 class Probe(importlib.abc.MetaPathFinder):
     def find_spec(self, name, path=None, target=None):
         if name == "torch" and not seen:
-            seen.append(os.environ.get("OMP_WAIT_POLICY", "unset"))
+            seen.append(os.environ.get("GOMP_SPINCOUNT", "unset"))
         return None
 sys.meta_path.insert(0, Probe())
 import smokeseer.cli
@@ -26,14 +26,15 @@ print(seen[0])
 """
 
 
-def _policy_when_torch_loads(env: dict[str, str]) -> str:
+def _spin_count_when_torch_loads(env: dict[str, str]) -> str:
     done = subprocess.run([sys.executable, "-c", PROBE], cwd=ROOT, env=env, capture_output=True, text=True,
                           check=True)
     return done.stdout.strip()
 
 
-def test_cli_import_sets_passive_before_torch_unless_told_otherwise() -> None:
-    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+def test_cli_import_bounds_the_spin_before_torch_unless_told_otherwise() -> None:
+    env = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")}
     env["PYTHONPATH"] = str(ROOT)
-    assert _policy_when_torch_loads(env) == "PASSIVE"
-    assert _policy_when_torch_loads({**env, "OMP_WAIT_POLICY": "ACTIVE"}) == "ACTIVE"
+    assert _spin_count_when_torch_loads(env) == "10000"
+    assert _spin_count_when_torch_loads({**env, "GOMP_SPINCOUNT": "5"}) == "5"
+    assert _spin_count_when_torch_loads({**env, "OMP_WAIT_POLICY": "PASSIVE"}) == "unset"
