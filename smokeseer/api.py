@@ -28,7 +28,7 @@ from smokeseer.model import Placed, SceneModel, init_gaussians, render
 from smokeseer.splits import hold_out_validation
 from smokeseer.stage1 import Stage1Report, run_stage1
 from smokeseer.stage2 import train_stage2, views_of
-from smokeseer.stage3 import Stage3Switches, build_scene_model, dropped_term_notes, train_stage3
+from smokeseer.stage3 import Stage3Switches, build_scene_model, depth_term_on, dropped_term_notes, train_stage3
 from smokeseer.trainutil import RunContext, RunLog
 
 
@@ -57,11 +57,6 @@ def switches_for(cfg: TrainConfig, scene: SceneData) -> Stage3Switches:
         notes=(dropped_term_notes(cfg, masks is not None) if cfg.mode != "deformable-3dgs" else [])
         + depth_file_notes(cfg, scene),
     )
-
-
-def depth_term_on(cfg: TrainConfig) -> bool:
-    return (cfg.depth_prior != "none" and cfg.mode not in ("no-depth", "deformable-3dgs")
-            and cfg.stage3.train_surface_geometry)
 
 
 def depth_file_notes(cfg: TrainConfig, scene: SceneData) -> list[str]:

@@ -54,11 +54,16 @@ def loss_weights(cfg: TrainConfig) -> dict[str, float]:
            "no-depth": "depth", "no-mask": "mask"}.get(cfg.mode)
     if off:
         weights[off] = 0.0
-    if cfg.depth_prior == "none":
-        weights["depth"] = 0.0
-    if not cfg.stage3.train_surface_geometry:
+    if not depth_term_on(cfg):
         weights["depth"] = 0.0
     return weights
+
+
+def depth_term_on(cfg: TrainConfig) -> bool:
+    """Whether the run has a depth term at all: a prior, a mode that keeps it, and a surface whose
+    geometry trains (a frozen surface depth would give the term no gradient)."""
+    return (cfg.depth_prior != "none" and cfg.mode not in ("no-depth", "deformable-3dgs")
+            and cfg.stage3.train_surface_geometry)
 
 
 def dropped_term_notes(cfg: TrainConfig, has_masks: bool) -> list[str]:
