@@ -123,17 +123,21 @@ def multiview_residual(images: np.ndarray, frames: list[Frame], pool: list[int],
         v, u = np.mgrid[0:f.height, 0:f.width] + 0.5
         rays = np.stack([(u - f.K[0, 2]) / f.K[0, 0], (v - f.K[1, 2]) / f.K[1, 1], np.ones_like(u)], -1)
         best = np.full((f.height, f.width), np.inf)
+        # Per neighbour, the rays turned into its frame and the baseline: the same for every plane.
+        moves = []
+        for j in near:
+            g = frames[j]
+            rot = g.viewmat[:3, :3] @ f.viewmat[:3, :3].T
+            moves.append((g, blurred[j], rays @ rot.T, g.viewmat[:3, 3] - rot @ f.viewmat[:3, 3]))
         for q in inverse:
             diffs = []
-            for j in near:
-                g = frames[j]
-                rot = g.viewmat[:3, :3] @ f.viewmat[:3, :3].T
-                x = rays @ rot.T + q * (g.viewmat[:3, 3] - rot @ f.viewmat[:3, 3])
+            for g, neighbour_image, turned, shift in moves:
+                x = turned + q * shift
                 z = np.where(x[..., 2] > 1e-9, x[..., 2], np.nan)
                 uj, vj = g.K[0, 0] * x[..., 0] / z + g.K[0, 2], g.K[1, 1] * x[..., 1] / z + g.K[1, 2]
                 seen = np.isfinite(z) & (uj >= 0) & (uj <= g.width) & (vj >= 0) & (vj <= g.height)
                 uj, vj = np.where(seen, uj, 0.0), np.where(seen, vj, 0.0)
-                diff = np.abs(_sample(blurred[j], uj, vj) - image).mean(-1)
+                diff = np.abs(_sample(neighbour_image, uj, vj) - image).mean(-1)
                 diffs.append(np.where(seen, diff, np.nan))
             stack = np.stack(diffs)
             enough = np.isfinite(stack).sum(0) >= 2
