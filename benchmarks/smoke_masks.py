@@ -15,7 +15,6 @@ dataset's own flag).
 from __future__ import annotations
 
 import argparse
-import csv
 from pathlib import Path
 
 import matplotlib
@@ -24,6 +23,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from contracts.atomic import write_rows_csv  # noqa: E402
 from smokeseer.data import load_scene  # noqa: E402
 from smokeseer.smoke_masks import CANDIDATES, candidate_scores, iou  # noqa: E402
 from smokeseer.smoke_presence import ESTIMATOR, decide_smoke_presence  # noqa: E402
@@ -69,14 +69,8 @@ def main() -> None:
               f"{decision.statistic:.2f} (threshold {decision.threshold}): "
               f"{'present' if decision.present else 'absent'}, dataset says present={scene.smoke_present}", flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
-    with (args.out / "smoke_presence.csv").open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(presence[0]))
-        w.writeheader()
-        w.writerows(presence)
-    with (args.out / "smoke_masks.csv").open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_rows_csv(args.out / "smoke_presence.csv", presence)
+    write_rows_csv(args.out / "smoke_masks.csv", rows)
 
     def mean_iou(cand: str, thr: float, split: str) -> float:
         return float(np.nanmean([r["iou"] for r in rows if r["candidate"] == cand and r["threshold"] == thr
@@ -92,10 +86,7 @@ def main() -> None:
           f"{mean_iou(REFERENCE, 0.0, 'test'):.3f}")
     print(f"chosen by validation: {chosen} at {best[chosen]}")
     per_scene = [r for r in rows if r["candidate"] == chosen and r["threshold"] == best[chosen]]
-    with (args.out / "smoke_masks_choice.csv").open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(per_scene[0]))
-        w.writeheader()
-        w.writerows(per_scene)
+    write_rows_csv(args.out / "smoke_masks_choice.csv", per_scene)
     reference = {(r["scene"], r["split"]): r["iou"] for r in rows if r["candidate"] == REFERENCE}
     for r in per_scene:
         print(f"  {r['scene']:<12} {r['split']:<10} frames {r['frames']:>3}  IoU {r['iou']:.3f}  "

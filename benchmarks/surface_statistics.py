@@ -15,7 +15,6 @@ row). Analysis only: it reads test renders and picks nothing.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import sys
 from pathlib import Path
@@ -31,6 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from contracts.atomic import write_rows_csv  # noqa: E402
 from contracts.metrics import psnr  # noqa: E402
 from smokeseer.data import load_scene  # noqa: E402
 
@@ -84,10 +84,7 @@ def main() -> None:
         rows += r
         strips += s
     args.out.mkdir(parents=True, exist_ok=True)
-    with (args.out / f"{args.name}.csv").open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_rows_csv(args.out / f"{args.name}.csv", rows)
     for r in rows:
         print(f"{r['label']:<22} {r['scene']:<11} {r['view']:<8} surface {r['psnr_surface']:5.2f} dB "
               f"(input {r['psnr_input']:5.2f}); luminance truth/input/surface {r['luminance_truth']:.2f}/"
@@ -95,12 +92,12 @@ def main() -> None:
               f"{r['contrast_input']:.3f}/{r['contrast_surface']:.3f}; composite vs input "
               f"{r['psnr_composite_vs_input']:.2f} dB")
     fig, axes = plt.subplots(len(strips), 4, figsize=(8, 1.6 * len(strips)), squeeze=False)
-    for row_axes, (title, images) in zip(axes, strips):
+    for row, (row_axes, (title, images)) in enumerate(zip(axes, strips)):
         for ax, img, col in zip(row_axes, images, ("smoky input", "clean truth", "surface", "smoke layer")):
             ax.imshow(np.clip(img, 0.0, 1.0))
             ax.set_xticks([])
             ax.set_yticks([])
-            if ax is axes[0][list(row_axes).index(ax)]:
+            if row == 0:
                 ax.set_title(col, fontsize=8)
         row_axes[0].set_ylabel(title, fontsize=6)
     fig.tight_layout()

@@ -22,7 +22,7 @@ from PIL import Image
 
 from smokeseer.cli import main
 from smokeseer.raster import read_ply
-from smokeseer.stage3 import smoke_free_centres
+from smokeseer.stage3 import Stage3Problem, smoke_free_centres
 from contracts.results_format import validate_run_dir
 from tests.test_smokeseer_data import write_splat_dataset
 
@@ -104,8 +104,6 @@ def test_interrupted_run_resumes_to_the_same_model(splat: Path, tmp_path: Path, 
     """A run stopped in Stage 3 and started again ends with the same bytes as one that never
     stopped: at iteration 1 it restarts Stage 3 from the finished Stage 2, at 8 from the Stage 3
     checkpoint of iteration 6. Both need the view-drawing RNG's state in the checkpoint."""
-    from smokeseer.stage3 import Stage3Problem
-
     assert main([str(splat), "--out", str(tmp_path / "whole")] + TINY) == 0
     forward = Stage3Problem.forward
 
