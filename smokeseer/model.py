@@ -139,9 +139,10 @@ def smoke_sh(smoke: GaussianSet, k: int) -> Tensor:
 
 def render(view: View, parts: list[tuple[Placed, Tensor, Tensor]], sh_degree: int | None,
            background: Tensor | EnvironmentBackground | None, subset: int | None = None,
-           normalize_depth: bool = True) -> RasterOutput:
+           normalize_depth: bool = True, rest_alone: bool = False) -> RasterOutput:
     """Rasterize several placed sets in one pass. Each part is (placed, opacity, colour); with
-    ``subset`` = k, the k-th part's accumulated alpha is returned in the same pass. The
+    ``subset`` = k, the k-th part's accumulated alpha is returned in the same pass, and with
+    ``rest_alone`` also the depth and alpha of the other parts rendered without it. The
     background is a constant colour, a learned environment, or None (black)."""
     means = torch.cat([p.means for p, _, _ in parts])
     quats = torch.cat([p.quats for p, _, _ in parts])
@@ -159,7 +160,8 @@ def render(view: View, parts: list[tuple[Placed, Tensor, Tensor]], sh_degree: in
         mask = torch.cat(flags)
     out = rasterize(means, quats, scales, opac, cols, view.viewmat, view.K, view.width, view.height,
                     sh_degree=sh_degree, log_scales=True, backgrounds=flat,
-                    subset_mask=mask, render_depth=True, normalize_depth=normalize_depth)
+                    subset_mask=mask, render_depth=True, normalize_depth=normalize_depth,
+                    render_rest_alone=rest_alone)
     if env is None:
         return out
     sky = view.sky(env)
@@ -171,6 +173,21 @@ def render_depth(view: View, placed: Placed, opacities: Tensor) -> RasterOutput:
     prior and the depth term read nothing else, and every colour channel costs kernel work."""
     return render(view, [(placed, opacities, opacities.new_zeros((opacities.shape[0], 0)))], None, None,
                   normalize_depth=True)
+
+
+def with_surface_depth(out: RasterOutput, wanted: bool, surface: bool, smoke: bool) -> RasterOutput:
+    """The surface's own depth and alpha as ``rest_depths``/``rest_alphas``, as ``render_depth``
+    of the surface alone would give them: taken from the same pass as the image (the surface
+    composited without the smoke), or the pass's own depth where the render has no smoke.
+
+    Why one pass: a separate surface render cost a sixth of a demo Stage 3 iteration. One
+    consequence: the depth term's screen-space gradient now joins the pass's ``means2d`` gradient,
+    the statistic surface densification reads (as where depth is rendered in the image pass)."""
+    if not wanted:
+        return out
+    if not surface:
+        raise ValueError("surface_depth: the render has no surface")
+    return out if smoke else replace(out, rest_depths=out.depths, rest_alphas=out.alphas)
 
 
 @dataclass
@@ -204,10 +221,10 @@ class SceneModel:
                 torch.sigmoid(self.smoke["opacity_thermal"]) * tw)
 
     def render_rgb(self, view: View, surface: bool = True, smoke: bool = True, degree: int | None = None,
-                   deform_active: bool = True) -> RasterOutput:
+                   deform_active: bool = True, surface_depth: bool = False) -> RasterOutput:
         """RGB = surface ∪ smoke with RGB opacities; with both, smoke alpha comes from the same pass.
         The environment is drawn behind any render that includes the surface (a smoke-only
-        view is shown on black)."""
+        view is shown on black). ``surface_depth``: see ``with_surface_depth``."""
         degree = self.sh_degree if degree is None else degree
         k = self.surface["sh_dc"].shape[1] + self.surface["sh_rest"].shape[1]
         parts = []
@@ -220,11 +237,14 @@ class SceneModel:
         subset = len(parts) - 1 if use_smoke else None
         if not parts:
             raise ValueError("render_rgb: nothing to render (no surface and no smoke)")
-        return render(view, parts, degree, self.background_rgb if surface else None, subset=subset)
+        out = render(view, parts, degree, self.background_rgb if surface else None, subset=subset,
+                     rest_alone=surface_depth and surface and use_smoke)
+        return with_surface_depth(out, surface_depth, surface, use_smoke)
 
     def render_thermal(self, view: View, surface: bool = True, smoke: bool = True,
-                       deform_active: bool = True) -> RasterOutput:
-        """Thermal = surface ∪ smoke with thermal opacities and 1-channel thermal colours."""
+                       deform_active: bool = True, surface_depth: bool = False) -> RasterOutput:
+        """Thermal = surface ∪ smoke with thermal opacities and 1-channel thermal colours.
+        ``surface_depth``: see ``with_surface_depth``."""
         parts = []
         if surface:
             parts.append((self.surface_at(view.time), torch.sigmoid(self.surface["opacity"]),
@@ -233,5 +253,6 @@ class SceneModel:
         if use_smoke:
             placed, _, o_th = self.smoke_at(view.time, deform_active)
             parts.append((placed, o_th, torch.sigmoid(self.smoke["thermal"])))
-        return render(view, parts, None, self.background_thermal if surface else None,
-                      subset=len(parts) - 1 if use_smoke else None)
+        out = render(view, parts, None, self.background_thermal if surface else None,
+                     subset=len(parts) - 1 if use_smoke else None, rest_alone=surface_depth and surface and use_smoke)
+        return with_surface_depth(out, surface_depth, surface, use_smoke)

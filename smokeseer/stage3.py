@@ -22,7 +22,7 @@ from smokeseer.depth_prior import DepthPriorMaps
 from smokeseer.gaussians import DensifyStrategy, GaussianSet, make_optimizer
 from smokeseer.losses import (depth_consistency, mask_alignment, monochromaticity, render_loss,
                               smoke_alpha_variance, smoke_color_variance)
-from smokeseer.model import SceneModel, View, add_rgb_sh, make_smoke, place_static, render_depth
+from smokeseer.model import SceneModel, add_rgb_sh, make_smoke
 from smokeseer.optim import Adam
 from smokeseer.raster.api import RasterOutput
 from smokeseer.stage2 import Stage2Result, draw_index, make_background, views_of
@@ -169,15 +169,22 @@ class Stage3Problem(StageProblem):
         cfg, model, weights = self.cfg, self.model, self.weights
         deform_on = it > cfg.deform.warmup_iterations
         degree = min(cfg.sh_degree, (it - 1) // max(cfg.sh_increase_every, 1))
+        depth_on = self.prior is not None and weights["depth"] > 0
+        depth_on_thermal = depth_on and self.prior.camera == "thermal"
         k = draw_index(self.ctx, len(self.rgb_views))
         view = self.rgb_views[k]
-        out = model.render_rgb(view, degree=degree, deform_active=deform_on)
+        out = model.render_rgb(view, degree=degree, deform_active=deform_on,
+                               surface_depth=depth_on and not depth_on_thermal)
         terms: dict[str, torch.Tensor] = {"render_rgb": render_loss(out.colors[0], self.rgb_imgs[k], cfg.loss.dssim)}
-        j = -1
+        depth_source = (out, k)
         if self.th_imgs is not None:
             j = draw_index(self.ctx, len(self.th_views))
-            tout = model.render_thermal(self.th_views[j], deform_active=deform_on)
+            tout = model.render_thermal(self.th_views[j], deform_active=deform_on, surface_depth=depth_on_thermal)
             terms["render_thermal"] = render_loss(tout.colors[0], self.th_imgs[j], cfg.loss.dssim)
+            if depth_on_thermal:
+                depth_source = (tout, j)
+        elif depth_on_thermal:
+            raise ValueError("stage 3: the depth prior is on the thermal camera but this run has no thermal images")
         if model.smoke is not None:
             o_rgb = torch.sigmoid(model.smoke["opacity_rgb"])
             col = torch.sigmoid(model.smoke["color"])
@@ -191,17 +198,16 @@ class Stage3Problem(StageProblem):
                 terms["mask"] = mask_alignment(out.subset_alphas[0, ..., 0], self.masks[k])
             if self.th_imgs is not None and weights["thermal_smoke_opacity"] > 0:
                 terms["thermal_smoke_opacity"] = torch.sigmoid(model.smoke["opacity_thermal"]).mean()
-        if self.prior is not None and weights["depth"] > 0:
-            terms["depth"] = (self._depth_term(self.th_views[j], j) if self.prior.camera == "thermal"
-                              else self._depth_term(view, k))
+        if depth_on:
+            terms["depth"] = self._depth_term(*depth_source)
         loss = sum(weights["render"] * v if n.startswith("render") else weights[n] * v for n, v in terms.items())
         return IterationOutput(loss, terms, {"raster": out, "view": view, "index": k, "deform_on": deform_on})
 
-    def _depth_term(self, view: View, k: int) -> torch.Tensor:
-        surface = self.model.surface
-        sout = render_depth(view, place_static(surface), torch.sigmoid(surface["opacity"]))
-        d = sout.depths[0, ..., 0]
-        valid = self.prior.valid[k] & (sout.alphas[0, ..., 0] > 0.5)
+    def _depth_term(self, raster: RasterOutput, k: int) -> torch.Tensor:
+        """The surface's own depth (from the same pass, see ``model.with_surface_depth``) against
+        the prior of view ``k`` of the prior's camera."""
+        d = raster.rest_depths[0, ..., 0]
+        valid = self.prior.valid[k] & (raster.rest_alphas[0, ..., 0] > 0.5)
         if self.prior.space == "disparity":
             d = 1.0 / d.clamp_min(1e-3)
         return depth_consistency(d, self.prior.maps[k], valid)

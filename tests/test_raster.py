@@ -258,6 +258,55 @@ def test_depth_normalization_and_subset_alpha() -> None:
     assert torch.all(out.subset_alphas <= alone.alphas + 1e-12)  # occlusion only removes weight
 
 
+def smoke_in_front(seed: int, n: int):
+    """A random scene whose masked ("smoke") half sits nearer the cameras with high opacity, so the
+    joint composite stops early at many pixels while the unmasked half alone does not."""
+    means, quats, scales, opac, colors, vm, ks, w, h = random_scene(seed, n)
+    mask = torch.arange(n) % 2 == 0
+    means = means.clone()
+    means[mask, 2] -= 1.5
+    scales = torch.where(mask[:, None], 3 * scales, scales)
+    opac = torch.where(mask, 0.6 + 0.39 * opac, opac)
+    return means, quats, scales, opac, colors, vm, ks, w, h, mask
+
+
+def test_rest_alone_is_a_separate_render_from_the_same_pass() -> None:
+    means, quats, scales, opac, colors, vm, ks, w, h, mask = smoke_in_front(16, 300)
+    params = [t.clone().requires_grad_(True) for t in (means, quats, scales, opac)]
+    joint = rasterize(*params, colors, vm, ks, w, h, subset_mask=mask, normalize_depth=True, render_rest_alone=True)
+    plain = rasterize(means, quats, scales, opac, colors, vm, ks, w, h, subset_mask=mask, normalize_depth=True)
+    for name in ("colors", "alphas", "depths", "subset_alphas"):
+        assert torch.equal(getattr(joint, name), getattr(plain, name)), name  # the flag changes nothing else
+    stopped = joint.alphas > 1 - 1e-3
+    assert bool((stopped & (joint.rest_alphas < 0.9)).any())  # pixels where the joint walk ends first
+    weights = torch.rand(2, h, w, 8, generator=torch.Generator().manual_seed(1), dtype=F64)
+    (weighted_loss(joint, weights[..., :6])
+     + (torch.cat([joint.rest_depths, joint.rest_alphas], -1) * weights[..., 6:]).sum()).backward()
+
+    ref_params = [t.clone().requires_grad_(True) for t in (means, quats, scales, opac)]
+    ref_joint = rasterize(*ref_params, colors, vm, ks, w, h, subset_mask=mask, normalize_depth=True)
+    keep = ~mask
+    alone = rasterize(*(p[keep] for p in ref_params), colors[keep], vm, ks, w, h, normalize_depth=True)
+    torch.testing.assert_close(joint.rest_depths, alone.depths, rtol=0, atol=1e-12)
+    torch.testing.assert_close(joint.rest_alphas, alone.alphas, rtol=0, atol=1e-12)
+    (weighted_loss(ref_joint, weights[..., :6])
+     + (torch.cat([alone.depths, alone.alphas], -1) * weights[..., 6:]).sum()).backward()
+    for got, want in zip(params, ref_params):
+        torch.testing.assert_close(got.grad, want.grad, rtol=1e-9, atol=1e-12)
+
+
+def test_rest_alone_gradients_match_central_finite_differences() -> None:
+    means, quats, scales, opac, colors, vm, ks, w, h, mask = smoke_in_front(17, 12)
+    weights = torch.rand(2, h, w, 2, generator=torch.Generator().manual_seed(2), dtype=F64)
+
+    def loss(m, q, s, o):
+        out = rasterize(m, q, s, o, colors, vm, ks, w, h, subset_mask=mask, normalize_depth=False,
+                        render_rest_alone=True)
+        return (torch.cat([out.rest_depths, out.rest_alphas], -1) * weights).sum()
+
+    assert central_fd_check(loss, [means, quats, scales, opac]) < 1e-5
+
+
 def test_cameras_are_independent_and_backgrounds_broadcast() -> None:
     means, quats, scales, opac, colors, vm, ks, w, h = random_scene(15, 150, c=3)
     bg = torch.rand(3, 3, dtype=F64)
@@ -313,6 +362,11 @@ def test_shape_and_backend_errors() -> None:
         rasterize(means, quats, scales, opac, colors, vm, ks, w, h, sh_degree=1)
     with pytest.raises(ValueError, match="subset_mask"):
         rasterize(means, quats, scales, opac, colors, vm, ks, w, h, subset_mask=torch.ones(8))
+    with pytest.raises(ValueError, match="render_rest_alone needs a subset_mask"):
+        rasterize(means, quats, scales, opac, colors, vm, ks, w, h, render_rest_alone=True)
+    with pytest.raises(ValueError, match="render_rest_alone needs a subset_mask and render_depth"):
+        rasterize(means, quats, scales, opac, colors, vm, ks, w, h, subset_mask=torch.ones(8, dtype=torch.bool),
+                  render_depth=False, render_rest_alone=True)
     with pytest.raises(ValueError, match="backend"):
         rasterize(means, quats, scales, opac, colors, vm, ks, w, h, backend="cuda-magic")
     if not torch.cuda.is_available():

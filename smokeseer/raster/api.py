@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from torch import Tensor
@@ -31,6 +31,15 @@ class RasterOutput:
     radii: Tensor  # [C, N] int32, 0 where culled
     visible: Tensor  # [C, N] bool
     n_pairs: int = -1  # blended (Gaussian, pixel) pairs (cpu and torch backends; -1 from gsplat)
+    rest_depths: Tensor | None = None  # [C, H, W, 1] depth of the Gaussians outside subset_mask alone
+    rest_alphas: Tensor | None = None  # [C, H, W, 1] their alpha, composited without the subset
+
+
+def normalised_depth(depths: Tensor, alphas: Tensor) -> Tensor:
+    """Alpha-weighted depth divided by alpha: the expected depth of what the pixel sees, 0 where
+    almost nothing is seen (alpha below DEPTH_ALPHA_EPS)."""
+    ok = alphas > DEPTH_ALPHA_EPS
+    return torch.where(ok, depths / torch.where(ok, alphas, torch.ones_like(alphas)), torch.zeros_like(depths))
 
 
 def gsplat_available() -> bool:
@@ -42,7 +51,7 @@ def _validate(
     means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor,
     viewmats: Tensor, Ks: Tensor, width: int, height: int, sh_degree: int | None,
     log_scales: bool, backgrounds: Tensor | None, near_plane: float, far_plane: float,
-    subset_mask: Tensor | None,
+    subset_mask: Tensor | None, render_depth: bool, render_rest_alone: bool,
 ) -> None:
     """Reject malformed input with a ValueError that names the offending argument."""
     if means.dim() != 2 or means.shape[1] != 3:
@@ -78,6 +87,8 @@ def _validate(
         raise ValueError(f"backgrounds must be [{d}] or [{c}, {d}], got {tuple(backgrounds.shape)}")
     if subset_mask is not None and (subset_mask.dtype != torch.bool or tuple(subset_mask.shape) != (n,)):
         raise ValueError(f"subset_mask must be a bool [N] tensor, got {subset_mask.dtype} {tuple(subset_mask.shape)}")
+    if render_rest_alone and (subset_mask is None or not render_depth):
+        raise ValueError("render_rest_alone needs a subset_mask and render_depth=True")
     tensors = {"means": means, "quats": quats, "scales": scales, "opacities": opacities,
                "colors": colors, "viewmats": viewmats, "Ks": Ks}
     if backgrounds is not None:
@@ -140,6 +151,7 @@ def rasterize(
     subset_mask: Tensor | None = None,
     render_depth: bool = True,
     normalize_depth: bool = False,
+    render_rest_alone: bool = False,
     backend: str = "auto",
 ) -> RasterOutput:
     """Render N Gaussians into C cameras with 3DGS semantics, differentiably.
@@ -149,21 +161,34 @@ def rasterize(
     Gaussian that would take its transmittance below 1e-4. Cameras use OpenCV axes and pixel
     centres at +0.5. ``subset_alphas`` is the accumulated alpha of the masked Gaussians inside
     this same joint composite (their blending weights summed), not a separate render.
+    ``render_rest_alone`` adds ``rest_depths`` and ``rest_alphas``: the depth (normalised as
+    ``depths`` is) and alpha of the Gaussians outside ``subset_mask`` composited as if the subset
+    were absent, i.e. what a separate render of them gives (the surface seen through no smoke).
+    The cpu backend takes them from the same pass.
     """
     _validate(means, quats, scales, opacities, colors, viewmats, Ks, width, height, sh_degree,
-              log_scales, backgrounds, near_plane, far_plane, subset_mask)
+              log_scales, backgrounds, near_plane, far_plane, subset_mask, render_depth, render_rest_alone)
     width, height = int(width), int(height)
     lin_scales = torch.exp(scales) if log_scales else scales
     chosen = _resolve_backend(backend, means.device)
     if chosen == "gsplat":
         from smokeseer.raster.gsplat_backend import rasterize_gsplat
 
-        return rasterize_gsplat(
-            means, quats, lin_scales, opacities, view_colors(colors, means, viewmats, sh_degree),
-            viewmats, Ks, width, height, backgrounds=backgrounds, near_plane=near_plane,
-            far_plane=far_plane, subset_mask=subset_mask, render_depth=render_depth,
-            normalize_depth=normalize_depth,
+        view_cols = view_colors(colors, means, viewmats, sh_degree)
+        out = rasterize_gsplat(
+            means, quats, lin_scales, opacities, view_cols, viewmats, Ks, width, height,
+            backgrounds=backgrounds, near_plane=near_plane, far_plane=far_plane,
+            subset_mask=subset_mask, render_depth=render_depth, normalize_depth=normalize_depth,
         )
+        if not render_rest_alone:
+            return out
+        keep = ~subset_mask
+        rest = rasterize_gsplat(
+            means[keep], quats[keep], lin_scales[keep], opacities[keep], view_cols[..., keep, :1],
+            viewmats, Ks, width, height, backgrounds=None, near_plane=near_plane, far_plane=far_plane,
+            subset_mask=None, render_depth=True, normalize_depth=normalize_depth,
+        )
+        return replace(out, rest_depths=rest.depths, rest_alphas=rest.alphas)
 
     c = viewmats.shape[0]
     # The compiled projection has no gradient for Ks; differentiable intrinsics take the torch one
@@ -174,19 +199,22 @@ def rasterize(
         proj.means2d.retain_grad()
     comp = (composite_tiles if chosen == "cpu" else composite)(
         proj, opacities, view_colors(colors, means, viewmats, sh_degree), width, height,
-        render_depth=render_depth, subset_mask=subset_mask,
+        render_depth=render_depth, subset_mask=subset_mask, rest_alone=render_rest_alone,
     )
     alphas = comp.alphas.reshape(c, height, width, 1)
     img = comp.colors.reshape(c, height, width, -1)
     if backgrounds is not None:
         bg = backgrounds.reshape(-1, 1, 1, img.shape[-1]) if backgrounds.dim() == 2 else backgrounds
         img = img + (1.0 - alphas) * bg
-    depths = None
-    if render_depth:
-        depths = comp.depths.reshape(c, height, width, 1)
+    depths = comp.depths.reshape(c, height, width, 1) if render_depth else None
+    if render_depth and normalize_depth:
+        depths = normalised_depth(depths, alphas)
+    rest_depths = rest_alphas = None
+    if render_rest_alone:
+        rest_alphas = comp.rest_alphas.reshape(c, height, width, 1)
+        rest_depths = comp.rest_depths.reshape(c, height, width, 1)
         if normalize_depth:
-            ok = alphas > DEPTH_ALPHA_EPS
-            depths = torch.where(ok, depths / torch.where(ok, alphas, torch.ones_like(alphas)), torch.zeros_like(depths))
+            rest_depths = normalised_depth(rest_depths, rest_alphas)
     subset = comp.subset_alphas.reshape(c, height, width, 1) if subset_mask is not None else None
     return RasterOutput(
         colors=img,
@@ -197,4 +225,6 @@ def rasterize(
         radii=proj.radii.clamp_max(RADIUS_INT_MAX).to(torch.int32),
         visible=proj.visible,
         n_pairs=comp.n_pairs,
+        rest_depths=rest_depths,
+        rest_alphas=rest_alphas,
     )

@@ -55,25 +55,32 @@ def project_compiled(means: Tensor, quats: Tensor, scales: Tensor, viewmats: Ten
 
 
 class _TileComposite(torch.autograd.Function):
-    """(means2d, conics, opacities, feats) -> (feature image [C,H,W,F], alpha [C,H,W], pairs)."""
+    """(means2d, conics, opacities, feats) -> (feature image [C,H,W,F], alpha [C,H,W], pairs,
+    alone feature [C*H*W], alone alpha [C*H*W]). With ``alone`` >= 0 the last feature is the
+    subset flag, and the Gaussians outside the subset are also composited on their own, in the same
+    walk over the tile lists, carrying feature ``alone`` (empty outputs otherwise)."""
 
     @staticmethod
     def forward(ctx: Any, means2d: Tensor, conics: Tensor, opacities: Tensor, feats: Tensor,
-                radii: Tensor, sort_keys: Tensor, visible: Tensor, width: int, height: int) -> tuple[Tensor, Tensor, Tensor]:
-        image, alpha, n_pairs, *state = load_kernel().forward(
-            means2d, conics, opacities, feats, radii, sort_keys, visible, width, height)
-        ctx.save_for_backward(*state)
-        ctx.shape = (means2d.shape[0], means2d.shape[1], width, height)
+                radii: Tensor, sort_keys: Tensor, visible: Tensor, width: int, height: int,
+                alone: int) -> tuple[Tensor, ...]:
+        image, alpha, n_pairs, image2, alpha2, t_final, last, t_final2, last2, *bins = load_kernel().forward(
+            means2d, conics, opacities, feats, radii, sort_keys, visible, width, height, alone)
+        ctx.save_for_backward(t_final, last, *bins, t_final2, last2)
+        ctx.shape = (means2d.shape[0], means2d.shape[1], width, height, alone)
         ctx.mark_non_differentiable(n_pairs)
-        return image, alpha, n_pairs
+        return image, alpha, n_pairs, image2, alpha2
 
     @staticmethod
     @once_differentiable
-    def backward(ctx: Any, grad_image: Tensor, grad_alpha: Tensor, _grad_pairs: Tensor) -> tuple:
-        cams, n, width, height = ctx.shape
+    def backward(ctx: Any, grad_image: Tensor, grad_alpha: Tensor, _grad_pairs: Tensor, grad_image2: Tensor,
+                 grad_alpha2: Tensor) -> tuple:
+        cams, n, width, height, alone = ctx.shape
+        *state, t_final2, last2 = ctx.saved_tensors
         g_means2d, g_conics, g_opac, g_feats = load_kernel().backward(
-            cams, n, *ctx.saved_tensors, grad_image.contiguous(), grad_alpha.contiguous(), width, height)
-        return g_means2d, g_conics, g_opac.sum(0), g_feats, None, None, None, None, None
+            cams, n, *state, grad_image.contiguous(), grad_alpha.contiguous(), t_final2, last2,
+            grad_image2.contiguous(), grad_alpha2.contiguous(), alone, width, height)
+        return g_means2d, g_conics, g_opac.sum(0), g_feats, None, None, None, None, None, None
 
 
 def composite_tiles(
@@ -85,10 +92,12 @@ def composite_tiles(
     *,
     render_depth: bool,
     subset_mask: Tensor | None,
+    rest_alone: bool = False,
 ) -> Composite:
     """Front-to-back compositing with the compiled kernel; same contract as ``torch_backend.composite``.
 
-    ``colors`` is [N, D] (shared by all cameras) or [C, N, D] (per camera, e.g. from SH).
+    ``colors`` is [N, D] (shared by all cameras) or [C, N, D] (per camera, e.g. from SH). The
+    rest-alone depth and alpha come from the same kernel call (a second transmittance per pixel).
     """
     if opacities.device.type != "cpu":
         raise ValueError(f"backend='cpu' needs CPU tensors, got {opacities.device}")
@@ -100,9 +109,10 @@ def composite_tiles(
     if subset_mask is not None:
         columns.append(subset_mask.to(opacities.dtype)[None, :, None].expand(c_count, n, 1))
     feats = torch.cat(columns, dim=-1).contiguous()
-    image, alpha, n_pairs = _TileComposite.apply(  # the kernel sorts front to back, ties by index
+    image, alpha, n_pairs, rest_depth, rest_alpha = _TileComposite.apply(  # front to back, ties by index
         proj.means2d.contiguous(), proj.conics.contiguous(), opacities.contiguous(), feats,
         proj.radii.detach().contiguous(), proj.sort_key(), proj.visible.contiguous(), width, height,
+        d if rest_alone else -1,
     )
     flat = image.reshape(c_count * height * width, -1)
     return Composite(
@@ -111,4 +121,6 @@ def composite_tiles(
         depths=flat[:, d] if render_depth else None,
         subset_alphas=flat[:, -1] if subset_mask is not None else None,
         n_pairs=int(n_pairs),
+        rest_depths=rest_depth if rest_alone else None,
+        rest_alphas=rest_alpha if rest_alone else None,
     )

@@ -27,7 +27,7 @@ def rasterize_gsplat(
     """Render with ``gsplat.rasterization``; ``colors`` are plain [N, D] or per-camera [C, N, D]."""
     import gsplat
 
-    from smokeseer.raster.api import DEPTH_ALPHA_EPS, RasterOutput
+    from smokeseer.raster.api import RasterOutput, normalised_depth
 
     c = viewmats.shape[0]
     d = colors.shape[-1]
@@ -49,8 +49,7 @@ def rasterize_gsplat(
     if render_depth:
         depths = render[..., -1:]
         if normalize_depth:
-            ok = alphas > DEPTH_ALPHA_EPS
-            depths = torch.where(ok, depths / torch.where(ok, alphas, torch.ones_like(alphas)), torch.zeros_like(depths))
+            depths = normalised_depth(depths, alphas)
     means2d = meta["means2d"]
     if means2d.requires_grad:
         means2d.retain_grad()

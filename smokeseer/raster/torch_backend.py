@@ -38,6 +38,8 @@ class Composite:
     depths: Tensor | None  # [C*H*W] sum of w * z
     subset_alphas: Tensor | None  # [C*H*W] sum of w over the subset
     n_pairs: int  # blended (Gaussian, pixel) pairs
+    rest_depths: Tensor | None = None  # [C*H*W] sum of w * z of the non-subset Gaussians alone
+    rest_alphas: Tensor | None = None  # [C*H*W] their sum of w, composited without the subset
 
 
 @dataclass
@@ -176,10 +178,13 @@ def composite(
     *,
     render_depth: bool,
     subset_mask: Tensor | None,
+    rest_alone: bool = False,
 ) -> Composite:
     """Front-to-back alpha compositing of projected Gaussians, differentiable through autograd.
 
-    ``colors`` is [N, D] (shared by all cameras) or [C, N, D] (per camera, e.g. from SH).
+    ``colors`` is [N, D] (shared by all cameras) or [C, N, D] (per camera, e.g. from SH). With
+    ``rest_alone``, the Gaussians outside ``subset_mask`` are composited once more on their own
+    (the readable reference for the compiled kernel's second stream).
     """
     c_count, n = proj.depths.shape
     d = colors.shape[-1]
@@ -209,10 +214,27 @@ def composite(
     vals = (alpha * trans)[:, None] * vals
     total = torch.zeros(c_count * height * width, vals.shape[1], dtype=dtype, device=device)
     total = total.index_add(0, pix, vals)
+    rest = _rest_alone(proj, opacities, width, height, subset_mask) if rest_alone else None
     return Composite(
         colors=total[:, :d],
         alphas=total[:, d],
         depths=total[:, d + 1] if render_depth else None,
         subset_alphas=total[:, -1] if subset_mask is not None else None,
         n_pairs=int(pix.numel()),
+        rest_depths=rest.depths if rest is not None else None,
+        rest_alphas=rest.alphas if rest is not None else None,
     )
+
+
+def _rest_alone(proj: Projection, opacities: Tensor, width: int, height: int, subset_mask: Tensor | None) -> Composite:
+    """Depth and alpha of the Gaussians outside ``subset_mask``, composited without the others."""
+    if subset_mask is None:
+        raise ValueError("rest_alone needs a subset_mask")
+    keep = ~subset_mask
+    rest = Projection(
+        means2d=proj.means2d[:, keep], conics=proj.conics[:, keep], depths=proj.depths[:, keep],
+        radii=proj.radii[:, keep], visible=proj.visible[:, keep],
+        sort_depths=proj.sort_depths[:, keep] if proj.sort_depths is not None else None,
+    )
+    no_colour = opacities.new_zeros((int(keep.sum()), 0))
+    return composite(rest, opacities[keep], no_colour, width, height, render_depth=True, subset_mask=None)

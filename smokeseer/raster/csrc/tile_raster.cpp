@@ -4,6 +4,12 @@
 // composites and back-propagates. Every pixel is owned by one tile and every tile by one task,
 // and per-Gaussian gradients are summed over per-(tile, Gaussian) partials in a fixed order, so
 // the bytes of every output depend neither on thread scheduling nor on the thread count.
+//
+// A second stream, optional: the Gaussians outside a subset (flag = last feature, 0) composited on
+// their own, with their own transmittance and early stop, in the same walk over each tile's list.
+// It gives the surface's depth and alpha as a separate render of the surface would, while the
+// first stream composites surface and smoke together; binning, the ellipse spans and the record
+// reads are shared. A pixel stops walking when both its streams have stopped.
 
 #include <torch/extension.h>
 
@@ -309,22 +315,25 @@ inline int64_t feature_count(int64_t nf) {
 }
 
 // Per-tile pixel state of the forward pass, structure of arrays over the 16x16 pixels.
-// `trans` holds the transmittance; a pixel that stopped stores its final T negated.
+// `trans` holds the transmittance; a pixel that stopped stores its final T negated. A stream that
+// is off starts stopped (T = -1), so it never blends and never keeps a pixel open.
 struct ForwardTile {
   std::vector<double> trans, acc, weight;
   std::vector<int32_t> stop;
   explicit ForwardTile(int64_t nf) : trans(kTilePixels), acc(kTilePixels * nf), weight(kTile), stop(kTilePixels) {}
-  void reset() {
-    std::fill(trans.begin(), trans.end(), 1.0);
+  void reset(bool on = true) {
+    std::fill(trans.begin(), trans.end(), on ? 1.0 : -1.0);
     std::fill(acc.begin(), acc.end(), 0.0);
     std::fill(stop.begin(), stop.end(), 0);
   }
 };
 
 // Blend entry `e` (record `sp`) into one row of the tile: returns (pairs blended, pixels stopped).
+// A pixel counts as stopped when this stream ends there and the other stream (`other`, the same
+// row of its transmittance) has already ended, so each pixel is counted once, by its last stream.
 template <typename scalar_t, int NF>
 inline std::pair<int, int> blend_row(ForwardTile& st, const Splat<scalar_t>& sp, int64_t nf_rt, int row_base,
-                                     int y, int cx0, int cx1, int32_t e) {
+                                     int y, int cx0, int cx1, int32_t e, const double* other) {
   const int64_t nf = feature_count<NF>(nf_rt);
   const scalar_t dy = sp.my - (scalar_t(y) + scalar_t(0.5));
   const scalar_t row_term = scalar_t(0.5) * sp.qc * dy * dy;
@@ -346,7 +355,7 @@ inline std::pair<int, int> blend_row(ForwardTile& st, const Splat<scalar_t>& sp,
     trans[x] = blend ? t_next : (ends ? -t : t);
     stop[x] = blend ? e + 1 : stop[x];
     blended += blend ? 1 : 0;
-    stopped += ends ? 1 : 0;
+    stopped += (ends && other[x] < 0.0) ? 1 : 0;
   }
   for (int64_t k = 0; k < nf; ++k) {
     double* acc = st.acc.data() + k * kTilePixels + row_base;
@@ -357,14 +366,23 @@ inline std::pair<int, int> blend_row(ForwardTile& st, const Splat<scalar_t>& sp,
   return {blended, stopped};
 }
 
+// A record of the second stream: the Gaussians outside the subset (flag, the last feature, 0),
+// composited on their own with one feature, `alone`.
+template <typename scalar_t>
+inline bool outside_subset(const scalar_t* rec, int64_t stride) {
+  return rec[stride - 1] == scalar_t(0);
+}
+
 template <typename scalar_t, int NF>
 std::vector<torch::Tensor> forward_impl(const torch::Tensor& means2d, const torch::Tensor& conics,
                                         const torch::Tensor& opacities, const torch::Tensor& feats,
                                         const torch::Tensor& radii, const torch::Tensor& sort_keys,
-                                        const torch::Tensor& visible, int64_t width, int64_t height) {
+                                        const torch::Tensor& visible, int64_t width, int64_t height,
+                                        int64_t alone) {
   const int64_t cams = means2d.size(0), nf = feats.size(2);
   const int64_t tiles_x = (width + kTile - 1) / kTile, tiles_y = (height + kTile - 1) / kTile;
   const int64_t tiles = tiles_x * tiles_y;
+  const bool second = alone >= 0;
   Bins b = bin_gaussians<scalar_t>(means2d, conics, opacities, feats, radii, sort_keys, visible, width, height);
   auto opts = means2d.options();
   torch::Tensor out = torch::empty({cams, height, width, nf}, opts);
@@ -372,6 +390,11 @@ std::vector<torch::Tensor> forward_impl(const torch::Tensor& means2d, const torc
   torch::Tensor t_final = torch::empty({cams, height, width}, opts.dtype(torch::kFloat64));
   torch::Tensor last = torch::empty({cams, height, width}, opts.dtype(torch::kInt32));
   torch::Tensor pair_count = torch::zeros({cams * tiles}, opts.dtype(torch::kInt64));
+  const int64_t second_pixels = second ? cams * height * width : 0;
+  torch::Tensor out2 = torch::empty({second_pixels}, opts);
+  torch::Tensor alpha2 = torch::empty({second_pixels}, opts);
+  torch::Tensor t_final2 = torch::empty({second_pixels}, opts.dtype(torch::kFloat64));
+  torch::Tensor last2 = torch::empty({second_pixels}, opts.dtype(torch::kInt32));
 
   const int64_t stride = 6 + nf;
   const scalar_t* rec = b.records.data_ptr<scalar_t>();
@@ -383,17 +406,22 @@ std::vector<torch::Tensor> forward_impl(const torch::Tensor& means2d, const torc
   double* tf_p = t_final.data_ptr<double>();
   int32_t* last_p = last.data_ptr<int32_t>();
   int64_t* pc_p = pair_count.data_ptr<int64_t>();
+  scalar_t* out2_p = out2.data_ptr<scalar_t>();
+  scalar_t* alpha2_p = alpha2.data_ptr<scalar_t>();
+  double* tf2_p = t_final2.data_ptr<double>();
+  int32_t* last2_p = last2.data_ptr<int32_t>();
   const std::vector<EllipseSpans> spans = record_spans(rec, b.records.size(0), stride);
 
 #pragma omp parallel num_threads(num_threads())
   {
-    ForwardTile st(nf);
+    ForwardTile st(nf), st2(1);
 #pragma omp for schedule(dynamic, 1)
     for (int64_t ct = 0; ct < cams * tiles; ++ct) {
       const int64_t c = ct / tiles;
       const TileBox tb = tile_box(ct % tiles, tiles_x, width, height);
       int active = (tb.x1 - tb.x0 + 1) * (tb.y1 - tb.y0 + 1);
       st.reset();
+      st2.reset(second);
       int64_t pairs = 0;
       const int64_t begin = toff[ct], count = toff[ct + 1] - begin;
       for (int64_t e = 0; e < count && active > 0; ++e) {
@@ -401,16 +429,23 @@ std::vector<torch::Tensor> forward_impl(const torch::Tensor& means2d, const torc
         const EllipseSpans& span = spans[s];
         if (span.empty()) continue;
         const Splat<scalar_t> sp(rec + s * stride, rects[s], tb);
+        const bool in_second = second && outside_subset(rec + s * stride, stride);
+        Splat<scalar_t> sp2 = sp;
+        sp2.feats += alone;
         int ry0 = sp.y0, ry1 = sp.y1;
         span.rows(ry0, ry1);
         for (int y = ry0; y <= ry1; ++y) {
           int cx0 = sp.x0, cx1 = sp.x1;
           if (!span.columns(y, cx0, cx1)) continue;
           const int row_base = (y - tb.y0) * kTile - tb.x0;
-          const auto [blended, stopped] =
-              blend_row<scalar_t, NF>(st, sp, nf, row_base, y, cx0, cx1, int32_t(e));
+          const auto [blended, stopped] = blend_row<scalar_t, NF>(st, sp, nf, row_base, y, cx0, cx1, int32_t(e),
+                                                                  st2.trans.data() + row_base);
           pairs += blended;
           active -= stopped;
+          if (in_second) {
+            active -= blend_row<scalar_t, 1>(st2, sp2, 1, row_base, y, cx0, cx1, int32_t(e),
+                                             st.trans.data() + row_base).second;
+          }
         }
       }
       pc_p[ct] = pairs;
@@ -423,12 +458,19 @@ std::vector<torch::Tensor> forward_impl(const torch::Tensor& means2d, const torc
           alpha_p[pix] = scalar_t(1.0 - t);
           tf_p[pix] = t;
           last_p[pix] = st.stop[p];
+          if (second) {
+            const double t2 = std::abs(st2.trans[p]);
+            out2_p[pix] = scalar_t(st2.acc[p]);
+            alpha2_p[pix] = scalar_t(1.0 - t2);
+            tf2_p[pix] = t2;
+            last2_p[pix] = st2.stop[p];
+          }
         }
       }
     }
   }
-  return {out, alpha, pair_count.sum(), t_final, last, b.records, b.rects, b.source, b.tile_offsets, b.entries,
-          b.record_offsets, b.slot_of};
+  return {out, alpha, pair_count.sum(), out2, alpha2, t_final, last, t_final2, last2, b.records, b.rects, b.source,
+          b.tile_offsets, b.entries, b.record_offsets, b.slot_of};
 }
 
 // Per-tile pixel state of the backward pass (structure of arrays over the 16x16 pixels).
@@ -440,11 +482,11 @@ struct BackwardTile {
         g_out(kTilePixels * nf), weight(kTile), stop(kTilePixels) {}
 };
 
-// Adds one entry's gradient sums over one row to `g` (means2d 2, conic 3, opacity 1, features),
-// stepping each pixel's transmittance and behind-colour back past this entry.
+// Adds one entry's gradient sums over one row to `g` (means2d 2, conic 3, opacity 1) and to
+// `g_feat` (its features), stepping each pixel's transmittance and behind-colour back past this entry.
 template <typename scalar_t, int NF>
 inline void unblend_row(BackwardTile& st, const Splat<scalar_t>& sp, int64_t nf_rt, int row_base, int y, int cx0,
-                        int cx1, int32_t e, double* g) {
+                        int cx1, int32_t e, double* g, double* g_feat) {
   const int64_t nf = feature_count<NF>(nf_rt);
   const scalar_t dy = sp.my - (scalar_t(y) + scalar_t(0.5));
   const scalar_t row_term = scalar_t(0.5) * sp.qc * dy * dy;
@@ -500,7 +542,7 @@ inline void unblend_row(BackwardTile& st, const Splat<scalar_t>& sp, int64_t nf_
       sum += weight[x - cx0] * gk[x];
       bk[x] += weight[x - cx0] * fk;
     }
-    g[6 + k] += sum;
+    g_feat[k] += sum;
   }
 }
 
@@ -511,8 +553,11 @@ std::vector<torch::Tensor> backward_impl(int64_t cams, int64_t n, const torch::T
                                          const torch::Tensor& tile_offsets, const torch::Tensor& entries,
                                          const torch::Tensor& record_offsets, const torch::Tensor& slot_of,
                                          const torch::Tensor& grad_out, const torch::Tensor& grad_alpha,
-                                         int64_t width, int64_t height) {
+                                         const torch::Tensor& t_final2, const torch::Tensor& last2,
+                                         const torch::Tensor& grad_out2, const torch::Tensor& grad_alpha2,
+                                         int64_t alone, int64_t width, int64_t height) {
   const int64_t stride = records.size(1), nf = stride - 6;
+  const bool second = alone >= 0;
   const int64_t tiles_x = (width + kTile - 1) / kTile, tiles_y = (height + kTile - 1) / kTile;
   const int64_t tiles = tiles_x * tiles_y;
   const int64_t total = entries.size(0), packed = records.size(0);
@@ -529,19 +574,25 @@ std::vector<torch::Tensor> backward_impl(int64_t cams, int64_t n, const torch::T
   const int32_t* ent = entries.data_ptr<int32_t>();
   const scalar_t* go_p = grad_out.data_ptr<scalar_t>();
   const scalar_t* ga_p = grad_alpha.data_ptr<scalar_t>();
+  const double* tf2_p = t_final2.data_ptr<double>();
+  const int32_t* last2_p = last2.data_ptr<int32_t>();
+  const scalar_t* go2_p = grad_out2.data_ptr<scalar_t>();
+  const scalar_t* ga2_p = grad_alpha2.data_ptr<scalar_t>();
   const std::vector<EllipseSpans> spans = record_spans(rec, packed, stride);
 
 #pragma omp parallel num_threads(num_threads())
   {
-    BackwardTile st(nf);
+    BackwardTile st(nf), st2(1);
 #pragma omp for schedule(dynamic, 1)
     for (int64_t ct = 0; ct < cams * tiles; ++ct) {
       const int64_t c = ct / tiles;
       const TileBox tb = tile_box(ct % tiles, tiles_x, width, height);
       const int64_t begin = toff[ct];
-      int32_t max_stop = 0;
+      int32_t max_stop = 0, max_stop2 = 0;
       std::fill(st.behind.begin(), st.behind.end(), 0.0);
       std::fill(st.stop.begin(), st.stop.end(), 0);
+      std::fill(st2.behind.begin(), st2.behind.end(), 0.0);
+      std::fill(st2.stop.begin(), st2.stop.end(), 0);
       for (int y = tb.y0; y <= tb.y1; ++y) {
         for (int x = tb.x0; x <= tb.x1; ++x) {
           const int p = (y - tb.y0) * kTile + (x - tb.x0);
@@ -551,21 +602,38 @@ std::vector<torch::Tensor> backward_impl(int64_t cams, int64_t n, const torch::T
           st.g_alpha_out[p] = double(ga_p[pix]);
           for (int64_t k = 0; k < nf; ++k) st.g_out[k * kTilePixels + p] = double(go_p[pix * nf + k]);
           max_stop = std::max(max_stop, st.stop[p]);
+          if (second) {
+            st2.trans[p] = st2.t_end[p] = tf2_p[pix];
+            st2.stop[p] = last2_p[pix];
+            st2.g_alpha_out[p] = double(ga2_p[pix]);
+            st2.g_out[p] = double(go2_p[pix]);
+            max_stop2 = std::max(max_stop2, st2.stop[p]);
+          }
         }
       }
-      // Back to front: rebuild each pair's transmittance from the final one, as 3DGS does.
-      for (int64_t e = max_stop - 1; e >= 0; --e) {
+      // Back to front: rebuild each pair's transmittance from the final one, as 3DGS does; a
+      // record outside the subset also steps the second stream back.
+      for (int64_t e = std::max(max_stop, max_stop2) - 1; e >= 0; --e) {
         const int64_t s = ent[begin + e];
         const EllipseSpans& span = spans[s];
         if (span.empty()) continue;
+        const bool first_open = e < max_stop;
+        const bool second_open = e < max_stop2 && outside_subset(rec + s * stride, stride);
+        if (!first_open && !second_open) continue;
         const Splat<scalar_t> sp(rec + s * stride, rects[s], tb);
+        Splat<scalar_t> sp2 = sp;
+        sp2.feats += alone;
         double* g = partial.data() + sof[begin + e] * stride;
         int ry0 = sp.y0, ry1 = sp.y1;
         span.rows(ry0, ry1);
         for (int y = ry0; y <= ry1; ++y) {
           int cx0 = sp.x0, cx1 = sp.x1;
           if (!span.columns(y, cx0, cx1)) continue;
-          unblend_row<scalar_t, NF>(st, sp, nf, (y - tb.y0) * kTile - tb.x0, y, cx0, cx1, int32_t(e), g);
+          const int row_base = (y - tb.y0) * kTile - tb.x0;
+          if (first_open) unblend_row<scalar_t, NF>(st, sp, nf, row_base, y, cx0, cx1, int32_t(e), g, g + 6);
+          if (second_open) {
+            unblend_row<scalar_t, 1>(st2, sp2, 1, row_base, y, cx0, cx1, int32_t(e), g, g + 6 + alone);
+          }
         }
       }
     }
@@ -620,7 +688,7 @@ auto with_feature_count(int64_t nf, Fn&& fn) {
 std::vector<torch::Tensor> forward(const torch::Tensor& means2d, const torch::Tensor& conics,
                                    const torch::Tensor& opacities, const torch::Tensor& feats,
                                    const torch::Tensor& radii, const torch::Tensor& sort_keys,
-                                   const torch::Tensor& visible, int64_t width, int64_t height) {
+                                   const torch::Tensor& visible, int64_t width, int64_t height, int64_t alone) {
   TORCH_CHECK(means2d.device().is_cpu(), "tile rasterizer: tensors must be on the CPU");
   TORCH_CHECK(means2d.dim() == 3 && means2d.size(2) == 2, "tile rasterizer: means2d must be [C, N, 2]");
   const auto c = means2d.size(0), n = means2d.size(1);
@@ -637,12 +705,14 @@ std::vector<torch::Tensor> forward(const torch::Tensor& means2d, const torch::Te
   TORCH_CHECK(sort_keys.is_floating_point() && visible.scalar_type() == torch::kBool,
               "tile rasterizer: sort_keys must be floating point and visible bool");
   TORCH_CHECK(width > 0 && height > 0 && width < (1 << 30) && height < (1 << 30), "tile rasterizer: bad image size");
+  TORCH_CHECK(alone < 0 || alone + 1 < feats.size(2),
+              "tile rasterizer: the alone feature must precede the subset flag (the last feature)");
   std::vector<torch::Tensor> result;
   AT_DISPATCH_FLOATING_TYPES(means2d.scalar_type(), "tile_raster_forward", [&] {
     result = with_feature_count(feats.size(2), [&](auto nf) {
       return forward_impl<scalar_t, decltype(nf)::value>(means2d, conics, opacities, feats, radii,
                                                          sort_keys.to(torch::kFloat64).contiguous(),
-                                                         visible.contiguous(), width, height);
+                                                         visible.contiguous(), width, height, alone);
     });
   });
   return result;
@@ -653,15 +723,18 @@ std::vector<torch::Tensor> backward(int64_t cams, int64_t n, const torch::Tensor
                                     const torch::Tensor& source, const torch::Tensor& tile_offsets,
                                     const torch::Tensor& entries, const torch::Tensor& record_offsets,
                                     const torch::Tensor& slot_of, const torch::Tensor& grad_out,
-                                    const torch::Tensor& grad_alpha, int64_t width, int64_t height) {
+                                    const torch::Tensor& grad_alpha, const torch::Tensor& t_final2,
+                                    const torch::Tensor& last2, const torch::Tensor& grad_out2,
+                                    const torch::Tensor& grad_alpha2, int64_t alone, int64_t width, int64_t height) {
   TORCH_CHECK(records.dim() == 2 && records.size(1) >= 6, "tile rasterizer: records must be [S, 6 + F]");
   std::vector<torch::Tensor> result;
   AT_DISPATCH_FLOATING_TYPES(records.scalar_type(), "tile_raster_backward", [&] {
     result = with_feature_count(records.size(1) - 6, [&](auto nf) {
       return backward_impl<scalar_t, decltype(nf)::value>(
           cams, n, t_final, last, records, rects, source, tile_offsets, entries, record_offsets, slot_of,
-          grad_out.to(records.scalar_type()).contiguous(), grad_alpha.to(records.scalar_type()).contiguous(), width,
-          height);
+          grad_out.to(records.scalar_type()).contiguous(), grad_alpha.to(records.scalar_type()).contiguous(),
+          t_final2, last2, grad_out2.to(records.scalar_type()).contiguous(),
+          grad_alpha2.to(records.scalar_type()).contiguous(), alone, width, height);
     });
   });
   return result;
@@ -671,7 +744,9 @@ std::vector<torch::Tensor> backward(int64_t cams, int64_t n, const torch::Tensor
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.doc() = "Tile-based CPU Gaussian compositing with an analytic backward (3DGS semantics)";
-  m.def("forward", &forward, "Bin and composite projected Gaussians; returns images and saved state");
+  m.def("forward", &forward,
+        "Bin and composite projected Gaussians (and, with alone >= 0, the Gaussians outside the subset on their "
+        "own); returns images and saved state");
   m.def("backward", &backward, "Gradients w.r.t. means2d, conics, per-camera opacities and features");
   m.def("project_forward", &smokeseer::project_forward, "EWA projection: means2d, conics, depths, radii, visible");
   m.def("project_backward", &smokeseer::project_backward, "Gradients of the projection w.r.t. its inputs");
