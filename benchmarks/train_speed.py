@@ -237,7 +237,7 @@ def run_e2e(args: argparse.Namespace) -> None:
         for repeat in range(args.repeats):
             for side, commit, root in sides:
                 out = args.keep / f"{side}_{repeat}"
-                cmd = [sys.executable, "-m", "smokeseer.cli", str(args.dataset), "--out", str(out),
+                cmd = [sys.executable, "-m", "smokeseer.cli", str(args.dataset.resolve()), "--out", str(out.resolve()),
                        "--profile", "quick", "--no-progress"]
                 if args.iterations:
                     cmd += ["--iterations-stage2", str(args.iterations), "--iterations-stage3", str(args.iterations)]
