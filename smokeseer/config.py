@@ -70,6 +70,10 @@ class DensifyConfig:
     prune_opacity: float = 0.005
     screen_size_threshold: float = 20.0
     max_gaussians: int = 1_000_000
+    min_opacity: float = 0.0
+    """Gaussians below this opacity are neither cloned nor split (0 = 3DGS: any). Why: a faint
+    Gaussian's screen-space gradient says its pixels want more, not that it is the surface; on
+    the standard house, clones of faint Stage-2 Gaussians in the air made a veil."""
 
 
 @dataclass
@@ -187,6 +191,10 @@ class TrainConfig:
         if not 0.0 < self.stage3.surface_densify_max_smoke <= 1.0:
             raise ValueError("stage3.surface_densify_max_smoke: must be in (0, 1], "
                              f"got {self.stage3.surface_densify_max_smoke}")
+        for name, densify in (("stage2.densify", self.stage2.densify), ("stage3.smoke_densify", self.stage3.smoke_densify),
+                              ("stage3.surface_densify", self.stage3.surface_densify)):
+            if not 0.0 <= densify.min_opacity < 1.0:
+                raise ValueError(f"{name}.min_opacity: must be in [0, 1), got {densify.min_opacity}")
         if self.validation_every < 0 or self.validation_every == 1:
             raise ValueError(f"validation_every: must be 0 (none) or at least 2, got {self.validation_every}")
         if self.deform.skip_layer >= self.deform.depth:

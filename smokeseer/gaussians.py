@@ -184,6 +184,8 @@ class DensifyStrategy:
         grads = self.state.grad_accum / self.state.count.clamp_min(1.0)
         max_scale = gset["log_scales"].detach().exp().max(-1).values
         hot = grads >= c.grad_threshold
+        if c.min_opacity > 0:
+            hot &= self._opacity(gset) >= c.min_opacity
         room = max(c.max_gaussians - gset.n, 0)
         small = hot & (max_scale <= c.percent_dense * self.extent)
         large = hot & ~small
