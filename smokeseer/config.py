@@ -122,6 +122,11 @@ class Stage3Config:
     """Surface refinement counts a view's gradient for a Gaussian only where the smoke covering its
     projected centre (the rendered smoke alpha, or the Stage 1 mask where the run has one) is at
     most this, so RGB gradients from smoky pixels grow no surface; 1.0 counts every centre in the image."""
+    surface_update_max_smoke: float = 1.0
+    """A surface Gaussian whose projected centre lies inside this iteration's RGB view on smoke cover
+    above this (rendered smoke alpha, or the Stage 1 mask where the run has one) gets no gradient
+    from the iteration (Adam's momentum still moves it): its colour and shape are learnt where it
+    is seen without smoke, as the official code does with its masks. 1.0: every view counts."""
     test_every: int = 1000
 
 
@@ -191,6 +196,9 @@ class TrainConfig:
         if not 0.0 < self.stage3.surface_densify_max_smoke <= 1.0:
             raise ValueError("stage3.surface_densify_max_smoke: must be in (0, 1], "
                              f"got {self.stage3.surface_densify_max_smoke}")
+        if not 0.0 <= self.stage3.surface_update_max_smoke <= 1.0:
+            raise ValueError("stage3.surface_update_max_smoke: must be in [0, 1], "
+                             f"got {self.stage3.surface_update_max_smoke}")
         for name, densify in (("stage2.densify", self.stage2.densify), ("stage3.smoke_densify", self.stage3.smoke_densify),
                               ("stage3.surface_densify", self.stage3.surface_densify)):
             if not 0.0 <= densify.min_opacity < 1.0:

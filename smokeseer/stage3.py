@@ -150,6 +150,7 @@ class Stage3Problem(StageProblem):
                       if switches.use_masks and rgb.masks is not None and model.smoke is not None else None)
         self.th_views: list = []
         self.th_imgs = None
+        self._held_surface: torch.Tensor | None = None
         if switches.use_thermal and thermal is not None:
             th_idx = thermal.indices("train")
             self.th_views = views_of(thermal, th_idx, dev)
@@ -201,7 +202,20 @@ class Stage3Problem(StageProblem):
         if depth_on:
             terms["depth"] = self._depth_term(*depth_source)
         loss = sum(weights["render"] * v if n.startswith("render") else weights[n] * v for n, v in terms.items())
+        self._held_surface = self._surface_under_smoke(out, k)
         return IterationOutput(loss, terms, {"raster": out, "view": view, "index": k, "deform_on": deform_on})
+
+    def _surface_under_smoke(self, raster: RasterOutput, k: int) -> torch.Tensor | None:
+        """Surface Gaussians this iteration does not update (``stage3.surface_update_max_smoke``):
+        centre inside the RGB view on smoke cover above the threshold. None when every one updates."""
+        limit = self.cfg.stage3.surface_update_max_smoke
+        cover = self._smoke_cover(raster, k) if limit < 1.0 else None
+        if cover is None:
+            return None
+        centres = raster.means2d[0, :self.model.surface.n].detach()
+        h, w = cover.shape
+        inside = (centres[:, 0] >= 0) & (centres[:, 0] < w) & (centres[:, 1] >= 0) & (centres[:, 1] < h)
+        return inside & ~smoke_free_centres(centres, cover, limit)
 
     def _depth_term(self, raster: RasterOutput, k: int) -> torch.Tensor:
         """The surface's own depth (from the same pass, see ``model.with_surface_depth``) against
@@ -229,6 +243,11 @@ class Stage3Problem(StageProblem):
         return named
 
     def optimizer_step(self, it: int) -> None:
+        if self._held_surface is not None:
+            keep = (~self._held_surface).to(self.model.surface["means"].dtype)
+            for p in self.model.surface.params.values():
+                if p.grad is not None:
+                    p.grad.mul_(keep.view(-1, *([1] * (p.dim() - 1))))
         step_optimizers(it, self.cfg.stage3.iterations, self.cfg, self.ctx.extent,
                         [self.surface_optimizer, self.smoke_optimizer], [self.background_optimizer],
                         self.deform_optimizer)
