@@ -195,6 +195,25 @@ def test_surface_refinement_grows_no_surface_where_stage1_sees_only_smoke(tmp_pa
     assert counts[1.0][1] > counts[1.0][0]
 
 
+@pytest.mark.slow
+def test_surface_under_smoke_gets_no_update_when_asked(tmp_path: Path) -> None:
+    """With every Stage 1 mask pixel smoke, stage3.surface_update_max_smoke < 1 leaves a surface
+    Gaussian's colour at its Stage 3 start value (grey: zero gradient from the first iteration on,
+    so Adam never moves it) unless its centre was outside an RGB view that reached it (76 % stay
+    grey here); the default updates every one."""
+    ds = write_splat_dataset(tmp_path / "ds", n_rgb=8, n_thermal=6)
+    for mask in (ds / "rgb" / "smoke_mask").glob("*.png"):
+        Image.fromarray(np.full_like(np.asarray(Image.open(mask)), 255)).save(mask)
+    grey = {}
+    for limit in (0.5, 1.0):
+        run = tmp_path / f"run-{limit}"
+        assert main([str(ds), "--out", str(run)] + TINY + ["--set", f"stage3.surface_update_max_smoke={limit}"]) == 0
+        sh_dc = read_ply(run / "ply" / "surface.ply").sh[:, 0]
+        grey[limit] = float(np.mean(np.all(np.abs(sh_dc) < 1e-7, axis=-1)))  # SH DC of 0.5 grey is 0
+    assert grey[0.5] > 0.6, grey
+    assert grey[1.0] < 0.05, grey
+
+
 @pytest.mark.parametrize("smoke", ["none", "opaque"])
 def test_no_smoke_and_opaque_smoke_train_without_nan(tmp_path: Path, smoke: str) -> None:
     # The opaque scene is also flagged static: that must drop the deformation network.
