@@ -74,6 +74,20 @@ def test_gradient_threshold_uses_ndc_units() -> None:
         assert s.step(1, g, opt, torch.Generator())["cloned"] == expect
 
 
+def test_min_opacity_keeps_faint_gaussians_from_densifying() -> None:
+    """Two equally hot small Gaussians, one faint (0.1) and one opaque (0.95): with min_opacity 0.5
+    only the opaque one is cloned; with the 3DGS default (0) both are."""
+    for min_opacity, expect in ((0.5, 1), (0.0, 2)):
+        cfg = DensifyConfig(start=1, stop=10, every=1, grad_threshold=1e-3, opacity_reset_every=0,
+                            min_opacity=min_opacity)
+        g = _set(2, scale=0.001)
+        g.params["opacity"].data[:] = torch.tensor([logit(0.1), logit(0.95)])
+        opt = _with_adam_state(g)
+        strat = DensifyStrategy(cfg, ("opacity",), 1.0)
+        strat.accumulate(torch.tensor([[1.0, 0.0], [1.0, 0.0]]), torch.tensor([3, 3]), width=2, height=2)
+        assert strat.step(1, g, opt, torch.Generator())["cloned"] == expect
+
+
 def test_opacity_reset_caps_at_one_percent() -> None:
     g = _set(3, 0.01)
     opt = _with_adam_state(g)
