@@ -142,8 +142,14 @@ def render(view: View, parts: list[tuple[Placed, Tensor, Tensor]], sh_degree: in
            normalize_depth: bool = True, rest_alone: bool = False) -> RasterOutput:
     """Rasterize several placed sets in one pass. Each part is (placed, opacity, colour); with
     ``subset`` = k, the k-th part's accumulated alpha is returned in the same pass, and with
-    ``rest_alone`` also the depth and alpha of the other parts rendered without it. The
-    background is a constant colour, a learned environment, or None (black)."""
+    ``rest_alone`` also the depth and alpha of the other parts rendered without it
+    (``rest_depths``/``rest_alphas``; without a subset, the render's own). The background is a
+    constant colour, a learned environment, or None (black).
+
+    Why ``rest_alone``: Stage 3's depth term needs the surface's depth without the smoke in front,
+    and a separate surface render cost a sixth of a demo iteration. One consequence: the depth
+    term's screen-space gradient joins the pass's ``means2d`` gradient, the statistic surface
+    densification reads (as where depth is rendered in the image pass)."""
     means = torch.cat([p.means for p, _, _ in parts])
     quats = torch.cat([p.quats for p, _, _ in parts])
     scales = torch.cat([p.log_scales for p, _, _ in parts])
@@ -161,7 +167,9 @@ def render(view: View, parts: list[tuple[Placed, Tensor, Tensor]], sh_degree: in
     out = rasterize(means, quats, scales, opac, cols, view.viewmat, view.K, view.width, view.height,
                     sh_degree=sh_degree, log_scales=True, backgrounds=flat,
                     subset_mask=mask, render_depth=True, normalize_depth=normalize_depth,
-                    render_rest_alone=rest_alone)
+                    render_rest_alone=rest_alone and mask is not None)
+    if rest_alone and mask is None:
+        out = replace(out, rest_depths=out.depths, rest_alphas=out.alphas)
     if env is None:
         return out
     sky = view.sky(env)
@@ -173,21 +181,6 @@ def render_depth(view: View, placed: Placed, opacities: Tensor) -> RasterOutput:
     prior and the depth term read nothing else, and every colour channel costs kernel work."""
     return render(view, [(placed, opacities, opacities.new_zeros((opacities.shape[0], 0)))], None, None,
                   normalize_depth=True)
-
-
-def with_surface_depth(out: RasterOutput, wanted: bool, surface: bool, smoke: bool) -> RasterOutput:
-    """The surface's own depth and alpha as ``rest_depths``/``rest_alphas``, as ``render_depth``
-    of the surface alone would give them: taken from the same pass as the image (the surface
-    composited without the smoke), or the pass's own depth where the render has no smoke.
-
-    Why one pass: a separate surface render cost a sixth of a demo Stage 3 iteration. One
-    consequence: the depth term's screen-space gradient now joins the pass's ``means2d`` gradient,
-    the statistic surface densification reads (as where depth is rendered in the image pass)."""
-    if not wanted:
-        return out
-    if not surface:
-        raise ValueError("surface_depth: the render has no surface")
-    return out if smoke else replace(out, rest_depths=out.depths, rest_alphas=out.alphas)
 
 
 @dataclass
@@ -224,7 +217,10 @@ class SceneModel:
                    deform_active: bool = True, surface_depth: bool = False) -> RasterOutput:
         """RGB = surface ∪ smoke with RGB opacities; with both, smoke alpha comes from the same pass.
         The environment is drawn behind any render that includes the surface (a smoke-only
-        view is shown on black). ``surface_depth``: see ``with_surface_depth``."""
+        view is shown on black). ``surface_depth``: the surface's own depth and alpha as
+        ``rest_depths``/``rest_alphas``, from the same pass (see ``render``)."""
+        if surface_depth and not surface:
+            raise ValueError("render_rgb: surface_depth needs the surface in the render")
         degree = self.sh_degree if degree is None else degree
         k = self.surface["sh_dc"].shape[1] + self.surface["sh_rest"].shape[1]
         parts = []
@@ -237,14 +233,15 @@ class SceneModel:
         subset = len(parts) - 1 if use_smoke else None
         if not parts:
             raise ValueError("render_rgb: nothing to render (no surface and no smoke)")
-        out = render(view, parts, degree, self.background_rgb if surface else None, subset=subset,
-                     rest_alone=surface_depth and surface and use_smoke)
-        return with_surface_depth(out, surface_depth, surface, use_smoke)
+        return render(view, parts, degree, self.background_rgb if surface else None, subset=subset,
+                      rest_alone=surface_depth)
 
     def render_thermal(self, view: View, surface: bool = True, smoke: bool = True,
                        deform_active: bool = True, surface_depth: bool = False) -> RasterOutput:
         """Thermal = surface ∪ smoke with thermal opacities and 1-channel thermal colours.
-        ``surface_depth``: see ``with_surface_depth``."""
+        ``surface_depth``: as for ``render_rgb``."""
+        if surface_depth and not surface:
+            raise ValueError("render_thermal: surface_depth needs the surface in the render")
         parts = []
         if surface:
             parts.append((self.surface_at(view.time), torch.sigmoid(self.surface["opacity"]),
@@ -253,6 +250,5 @@ class SceneModel:
         if use_smoke:
             placed, _, o_th = self.smoke_at(view.time, deform_active)
             parts.append((placed, o_th, torch.sigmoid(self.smoke["thermal"])))
-        out = render(view, parts, None, self.background_thermal if surface else None,
-                     subset=len(parts) - 1 if use_smoke else None, rest_alone=surface_depth and surface and use_smoke)
-        return with_surface_depth(out, surface_depth, surface, use_smoke)
+        return render(view, parts, None, self.background_thermal if surface else None,
+                      subset=len(parts) - 1 if use_smoke else None, rest_alone=surface_depth)

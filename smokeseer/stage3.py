@@ -155,6 +155,10 @@ class Stage3Problem(StageProblem):
             th_idx = thermal.indices("train")
             self.th_views = views_of(thermal, th_idx, dev)
             self.th_imgs = torch.as_tensor(thermal.images[th_idx], device=dev)
+        self.depth_on = prior is not None and self.weights["depth"] > 0
+        self.depth_on_thermal = self.depth_on and prior.camera == "thermal"
+        if self.depth_on_thermal and self.th_imgs is None:
+            raise ValueError("stage 3: the depth prior is on the thermal camera but this run has no thermal images")
 
     def _make_optimizers(self) -> None:
         cfg, model = self.cfg, self.model
@@ -170,22 +174,19 @@ class Stage3Problem(StageProblem):
         cfg, model, weights = self.cfg, self.model, self.weights
         deform_on = it > cfg.deform.warmup_iterations
         degree = min(cfg.sh_degree, (it - 1) // max(cfg.sh_increase_every, 1))
-        depth_on = self.prior is not None and weights["depth"] > 0
-        depth_on_thermal = depth_on and self.prior.camera == "thermal"
         k = draw_index(self.ctx, len(self.rgb_views))
         view = self.rgb_views[k]
         out = model.render_rgb(view, degree=degree, deform_active=deform_on,
-                               surface_depth=depth_on and not depth_on_thermal)
+                               surface_depth=self.depth_on and not self.depth_on_thermal)
         terms: dict[str, torch.Tensor] = {"render_rgb": render_loss(out.colors[0], self.rgb_imgs[k], cfg.loss.dssim)}
         depth_source = (out, k)
         if self.th_imgs is not None:
             j = draw_index(self.ctx, len(self.th_views))
-            tout = model.render_thermal(self.th_views[j], deform_active=deform_on, surface_depth=depth_on_thermal)
+            tout = model.render_thermal(self.th_views[j], deform_active=deform_on,
+                                        surface_depth=self.depth_on_thermal)
             terms["render_thermal"] = render_loss(tout.colors[0], self.th_imgs[j], cfg.loss.dssim)
-            if depth_on_thermal:
+            if self.depth_on_thermal:
                 depth_source = (tout, j)
-        elif depth_on_thermal:
-            raise ValueError("stage 3: the depth prior is on the thermal camera but this run has no thermal images")
         if model.smoke is not None:
             o_rgb = torch.sigmoid(model.smoke["opacity_rgb"])
             col = torch.sigmoid(model.smoke["color"])
@@ -199,7 +200,7 @@ class Stage3Problem(StageProblem):
                 terms["mask"] = mask_alignment(out.subset_alphas[0, ..., 0], self.masks[k])
             if self.th_imgs is not None and weights["thermal_smoke_opacity"] > 0:
                 terms["thermal_smoke_opacity"] = torch.sigmoid(model.smoke["opacity_thermal"]).mean()
-        if depth_on:
+        if self.depth_on:
             terms["depth"] = self._depth_term(*depth_source)
         loss = sum(weights["render"] * v if n.startswith("render") else weights[n] * v for n, v in terms.items())
         self._held_surface = self._surface_under_smoke(out, k)
@@ -212,13 +213,11 @@ class Stage3Problem(StageProblem):
         cover = self._smoke_cover(raster, k) if limit < 1.0 else None
         if cover is None:
             return None
-        centres = raster.means2d[0, :self.model.surface.n].detach()
-        h, w = cover.shape
-        inside = (centres[:, 0] >= 0) & (centres[:, 0] < w) & (centres[:, 1] >= 0) & (centres[:, 1] < h)
-        return inside & ~smoke_free_centres(centres, cover, limit)
+        inside, centre_smoke = centre_cover(raster.means2d[0, :self.model.surface.n], cover)
+        return inside & (centre_smoke > limit)
 
     def _depth_term(self, raster: RasterOutput, k: int) -> torch.Tensor:
-        """The surface's own depth (from the same pass, see ``model.with_surface_depth``) against
+        """The surface's own depth (from the same pass, see ``model.render``) against
         the prior of view ``k`` of the prior's camera."""
         d = raster.rest_depths[0, ..., 0]
         valid = self.prior.valid[k] & (raster.rest_alphas[0, ..., 0] > 0.5)
@@ -323,15 +322,20 @@ def smoke_free_centres(means2d: torch.Tensor, smoke_cover: torch.Tensor | None, 
     ``max_smoke``: its screen-space gradient there comes from surface, not from smoke. A centre
     outside the image does not count (how much smoke its footprint meets is not known); no smoke
     model (``None``) makes every Gaussian clear."""
-    n = means2d.shape[0]
     if smoke_cover is None:
-        return torch.ones(n, dtype=torch.bool, device=means2d.device)
+        return torch.ones(means2d.shape[0], dtype=torch.bool, device=means2d.device)
+    inside, cover = centre_cover(means2d, smoke_cover)
+    return inside & (cover <= max_smoke)
+
+
+def centre_cover(means2d: torch.Tensor, smoke_cover: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(whether each projected centre lies in the image, the smoke cover of its pixel; clamped to
+    the border for centres outside)."""
     h, w = smoke_cover.shape
     px = means2d[:, 0].detach().floor()
     py = means2d[:, 1].detach().floor()
     inside = (px >= 0) & (px < w) & (py >= 0) & (py < h)
-    cover = smoke_cover[py.clamp(0, h - 1).long(), px.clamp(0, w - 1).long()]
-    return inside & (cover <= max_smoke)
+    return inside, smoke_cover[py.clamp(0, h - 1).long(), px.clamp(0, w - 1).long()]
 
 
 def train_stage3(ctx: RunContext, model: SceneModel, rgb: ModalityData, thermal: ModalityData | None,
