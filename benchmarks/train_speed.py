@@ -37,6 +37,7 @@ import argparse
 import cProfile
 import csv
 import io
+import json
 import os
 import pstats
 import sys
@@ -193,6 +194,17 @@ def run_profile(args: argparse.Namespace) -> None:
     print(f"wrote {args.out / 'train_speed.csv'} and train_speed_profile_*.txt")
 
 
+def run_description(folder: Path) -> str:
+    """'SCENE, --profile P' from a finished run's metrics.json (a running one has only its config)."""
+    metrics, config = folder / "metrics.json", folder / "config.json"
+    if metrics.is_file():
+        m = json.loads(metrics.read_text())
+        return f"{m['scene']}, --profile {m['profile']}"
+    if config.is_file():
+        return f"{folder.name}, --profile {json.loads(config.read_text())['profile']}"
+    return folder.name
+
+
 def run_curve(args: argparse.Namespace) -> None:
     import matplotlib
 
@@ -200,9 +212,11 @@ def run_curve(args: argparse.Namespace) -> None:
     import matplotlib.pyplot as plt
 
     table = []
+    described: set[str] = set()
     fig, ax = plt.subplots(figsize=(6.5, 4.2))
     for spec in args.runs:
         label, _, folder = spec.partition("=")
+        described.add(run_description(Path(folder)))
         pts = [CurvePoint(label, int(r["stage"]), int(r["iteration"]), float(r["wall_s"]), args.metric,
                           float(r[args.metric]))
                for r in read_log(Path(folder) / "train_log.csv") if r.get(args.metric)]
@@ -211,7 +225,8 @@ def run_curve(args: argparse.Namespace) -> None:
         table += pts
         ax.plot([p.wall_s for p in pts], [p.psnr for p in pts], "o-", label=label)
     split = "validation" if args.metric == "val_psnr" else "test"
-    ax.set(xlabel="wall time [s]", ylabel=f"{split} PSNR [dB]", title=args.title)
+    title = args.title or (described.pop() if len(described) == 1 else "; ".join(sorted(described)))
+    ax.set(xlabel="wall time [s]", ylabel=f"{split} PSNR [dB]", title=title)
     ax.grid(True, alpha=0.3)
     ax.legend()
     fig.tight_layout()
@@ -222,7 +237,6 @@ def run_curve(args: argparse.Namespace) -> None:
 
 
 def run_e2e(args: argparse.Namespace) -> None:
-    import json
     import resource
     import subprocess
 
@@ -265,7 +279,6 @@ def run_e2e(args: argparse.Namespace) -> None:
 
 
 def run_parity(args: argparse.Namespace) -> None:
-    import json
     import statistics
 
     rows = []
@@ -310,7 +323,7 @@ def main() -> None:
     curve.add_argument("runs", nargs="+", help="LABEL=RUN_DIR")
     curve.add_argument("--metric", choices=["test_psnr", "val_psnr"], default="test_psnr",
                        help="train_log.csv column to plot (tune on val_psnr, never on test_psnr)")
-    curve.add_argument("--title", default="demo, --profile quick")
+    curve.add_argument("--title", help="plot title (default: the runs' dataset folder and profile)")
     curve.add_argument("--name", default="train_speed_curve", help="output file stem")
     curve.add_argument("--out", type=Path, default=RESULTS)
     e2e = sub.add_parser("e2e", help="train-and-evaluate, this checkout against an earlier commit, alternated")

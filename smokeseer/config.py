@@ -40,6 +40,11 @@ class LossWeights:
     mask: float = 0.5
     thermal_smoke_opacity: float = 0.01
     dssim: float = 0.2
+    mask_alpha_floor: float = 0.4
+    """Inside the mask, smoke alpha at or above this counts as full smoke (the public code's 0.4;
+    1 is the paper's plain L1). It sets how much of a dense smoke's darkening the surface may
+    absorb: at 0.4 a pixel whose smoke is 0.8 opaque can be explained by half that smoke over a
+    darker surface (benchmarks/results/standard/README.md, the dense excavator)."""
 
 
 @dataclass
@@ -74,6 +79,11 @@ class DensifyConfig:
     """Gaussians below this opacity are neither cloned nor split (0 = 3DGS: any). Why: a faint
     Gaussian's screen-space gradient says its pixels want more, not that it is the surface; on
     the standard house, clones of faint Stage-2 Gaussians in the air made a veil."""
+    prune_big_after: int = -1
+    """From this iteration on, densification also prunes oversized Gaussians (screen radius over
+    ``screen_size_threshold``, largest axis over a tenth of the scene extent); -1 = 3DGS: after
+    the first opacity reset, so never without resets. Why separate: a refinement without resets
+    otherwise keeps growing metre-sized surface Gaussians that veil the views."""
 
 
 @dataclass
@@ -203,6 +213,11 @@ class TrainConfig:
                               ("stage3.surface_densify", self.stage3.surface_densify)):
             if not 0.0 <= densify.min_opacity < 1.0:
                 raise ValueError(f"{name}.min_opacity: must be in [0, 1), got {densify.min_opacity}")
+            if densify.prune_big_after < -1:
+                raise ValueError(f"{name}.prune_big_after: must be -1 (after the first reset) or an iteration, "
+                                 f"got {densify.prune_big_after}")
+        if not 0.0 < self.loss.mask_alpha_floor <= 1.0:
+            raise ValueError(f"loss.mask_alpha_floor: must be in (0, 1], got {self.loss.mask_alpha_floor}")
         if self.validation_every < 0 or self.validation_every == 1:
             raise ValueError(f"validation_every: must be 0 (none) or at least 2, got {self.validation_every}")
         if self.deform.skip_layer >= self.deform.depth:

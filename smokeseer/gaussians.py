@@ -159,12 +159,17 @@ class DensifyStrategy:
         if c.every <= 0 or it < c.start or it > c.stop:
             return report
         if it % c.every == 0 and self.state is not None and self.state.count.numel() == gset.n:
-            report = self._densify_and_prune(gset, opt, generator, prune_big=bool(
-                c.opacity_reset_every and it > c.opacity_reset_every))
+            report = self._densify_and_prune(gset, opt, generator, prune_big=self._prunes_big(it))
             self.reset(gset.n, gset["means"].device)
         if c.opacity_reset_every and it % c.opacity_reset_every == 0:
             self.reset_opacity(gset, opt)
         return report
+
+    def _prunes_big(self, it: int) -> bool:
+        c = self.cfg
+        if c.prune_big_after >= 0:
+            return it > c.prune_big_after
+        return bool(c.opacity_reset_every) and it > c.opacity_reset_every
 
     def reset_opacity(self, gset: GaussianSet, opt: Adam) -> None:
         """3DGS: clamp opacities to ≤ 0.01 so floaters must earn their opacity back."""

@@ -91,12 +91,9 @@ def depth_consistency(depth: Tensor, prior: Tensor, valid: Tensor) -> Tensor:
     return (depth[valid] - (s * prior[valid] + b)).abs().mean()
 
 
-MASK_ALPHA_FLOOR = 0.4
-
-
-def mask_alignment(smoke_alpha: Tensor, mask: Tensor, floor: float = MASK_ALPHA_FLOOR) -> Tensor:
+def mask_alignment(smoke_alpha: Tensor, mask: Tensor, floor: float) -> Tensor:
     """L1 between the accumulated smoke alpha and the smoke mask, where smoke alpha at or above
-    ``floor`` counts as 1 inside the mask (the public code's threshold, 0.4).
+    ``floor`` counts as 1 inside the mask (``loss.mask_alpha_floor``; the public code's threshold is 0.4).
 
     Why: a mask says where smoke is, not how dense it is. A plain L1 drives smoke alpha to 1 in
     every masked pixel; where the mask covers the whole frame (the chair and brick_toy bench

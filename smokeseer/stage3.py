@@ -197,7 +197,8 @@ class Stage3Problem(StageProblem):
             if weights["mono"] > 0:
                 terms["mono"] = monochromaticity(col)
             if self.masks is not None and weights["mask"] > 0:
-                terms["mask"] = mask_alignment(out.subset_alphas[0, ..., 0], self.masks[k])
+                terms["mask"] = mask_alignment(out.subset_alphas[0, ..., 0], self.masks[k],
+                                               cfg.loss.mask_alpha_floor)
             if self.th_imgs is not None and weights["thermal_smoke_opacity"] > 0:
                 terms["thermal_smoke_opacity"] = torch.sigmoid(model.smoke["opacity_thermal"]).mean()
         if self.depth_on:

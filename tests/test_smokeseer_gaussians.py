@@ -88,6 +88,22 @@ def test_min_opacity_keeps_faint_gaussians_from_densifying() -> None:
         assert strat.step(1, g, opt, torch.Generator())["cloned"] == expect
 
 
+def test_prune_big_after_prunes_oversized_without_resets() -> None:
+    """Three cold Gaussians: one small, one wider than a tenth of the extent, one with a 30 px
+    screen radius. Without resets 3DGS never prunes them; prune_big_after=0 prunes both big ones
+    from the first step; prune_big_after=5 waits until after iteration 5."""
+    for after, it, expect in ((-1, 1, 0), (0, 1, 2), (5, 5, 0), (5, 6, 2)):
+        cfg = DensifyConfig(start=1, stop=10, every=1, grad_threshold=1e-3, opacity_reset_every=0,
+                            prune_big_after=after)
+        g = _set(3, scale=0.01)
+        g.params["log_scales"].data[1] = math.log(0.2)
+        opt = _with_adam_state(g)
+        strat = DensifyStrategy(cfg, ("opacity",), scene_extent=1.0)
+        strat.accumulate(torch.zeros(3, 2), torch.tensor([2, 2, 30]), width=100, height=100)
+        assert strat.step(it, g, opt, torch.Generator())["pruned"] == expect
+        assert g.n == 3 - expect
+
+
 def test_opacity_reset_caps_at_one_percent() -> None:
     g = _set(3, 0.01)
     opt = _with_adam_state(g)
@@ -142,3 +158,7 @@ def test_config_profiles_overrides_and_errors() -> None:
         make_config(overrides={"stage3.nope": 1})
     with pytest.raises(ValueError, match="stage2.iterations"):
         make_config(overrides={"stage2.iterations": -1})
+    with pytest.raises(ValueError, match="loss.mask_alpha_floor"):
+        make_config(overrides={"loss.mask_alpha_floor": 0.0})
+    with pytest.raises(ValueError, match="stage3.surface_densify.prune_big_after"):
+        make_config(overrides={"stage3.surface_densify.prune_big_after": -2})

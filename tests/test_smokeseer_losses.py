@@ -62,10 +62,10 @@ def test_smoke_priors_analytic_values() -> None:
     assert float(monochromaticity(tinted)) == pytest.approx(np.var([0.0, 0.5, 1.0]))
     assert float(smoke_alpha_variance(torch.tensor([0.1, 0.3]))) == pytest.approx(0.01)
     assert float(smoke_alpha_variance(torch.tensor([0.7]))) == 0.0
-    assert float(mask_alignment(torch.tensor([0.2, 1.0]), torch.tensor([0.0, 1.0]))) == pytest.approx(0.1)
+    assert float(mask_alignment(torch.tensor([0.2, 1.0]), torch.tensor([0.0, 1.0]), floor=0.4)) == pytest.approx(0.1)
     # Inside the mask, alpha at or above the floor is enough; below it, the gap to 1 counts.
     a = torch.tensor([0.5, 0.1, 0.3], requires_grad=True)
-    loss = mask_alignment(a, torch.tensor([1.0, 1.0, 0.0]))
+    loss = mask_alignment(a, torch.tensor([1.0, 1.0, 0.0]), floor=0.4)
     assert float(loss) == pytest.approx((0.0 + 0.9 + 0.3) / 3)
     loss.backward()
     assert a.grad.tolist() == pytest.approx([0.0, -1 / 3, 1 / 3])

@@ -214,6 +214,26 @@ def test_surface_under_smoke_gets_no_update_when_asked(tmp_path: Path) -> None:
     assert grey[1.0] < 0.05, grey
 
 
+def test_mask_alpha_floor_reaches_the_mask_term(splat: Path, tmp_path: Path,
+                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    """loss.mask_alpha_floor is the floor Stage 3's mask term uses (default 0.4, the public code's)."""
+    import smokeseer.stage3 as stage3
+
+    seen: list[float] = []
+    term = stage3.mask_alignment
+
+    def recording(alpha: torch.Tensor, mask: torch.Tensor, floor: float) -> torch.Tensor:
+        seen.append(floor)
+        return term(alpha, mask, floor)
+
+    monkeypatch.setattr(stage3, "mask_alignment", recording)
+    for floor in (None, 0.9):
+        seen.clear()
+        extra = [] if floor is None else ["--set", f"loss.mask_alpha_floor={floor}"]
+        assert main([str(splat), "--out", str(tmp_path / f"run-{floor}")] + TINY + extra) == 0
+        assert seen and set(seen) == {0.4 if floor is None else floor}
+
+
 @pytest.mark.parametrize("smoke", ["none", "opaque"])
 def test_no_smoke_and_opaque_smoke_train_without_nan(tmp_path: Path, smoke: str) -> None:
     # The opaque scene is also flagged static: that must drop the deformation network.
