@@ -29,6 +29,9 @@ from smokeseer.stage2 import Stage2Result, draw_index, make_background, views_of
 from smokeseer.trainloop import IterationOutput, StageProblem, StageSchedule, run_stage
 from smokeseer.trainutil import RunContext, grads_of, state_or_none, step_optimizers
 
+SMOKE_COVER_MIN = 0.02
+"""Smoke cover above which a pixel counts as smoky (the datasets' mask threshold)."""
+
 HeldoutPsnr = Callable[[SceneModel, int], dict[str, float | None] | None]
 
 
@@ -222,9 +225,12 @@ class Stage3Problem(StageProblem):
         the prior of view ``k`` of the prior's camera."""
         d = raster.rest_depths[0, ..., 0]
         valid = self.prior.valid[k] & (raster.rest_alphas[0, ..., 0] > 0.5)
+        if self.cfg.loss.depth_smoke_only:
+            cover = self._smoke_cover(raster, k)
+            valid = valid & (cover > SMOKE_COVER_MIN) if cover is not None else torch.zeros_like(valid)
         if self.prior.space == "disparity":
             d = 1.0 / d.clamp_min(1e-3)
-        return depth_consistency(d, self.prior.maps[k], valid)
+        return depth_consistency(d, self.prior.maps[k], valid, self.cfg.loss.depth_relative)
 
     def named_gradients(self) -> list[tuple[str, torch.Tensor | None]]:
         model = self.model

@@ -45,6 +45,21 @@ def test_scale_shift_alignment_recovers_known_affine(s: float, b: float, seed: i
     assert float(depth_consistency(depth, prior, valid)) == pytest.approx(0.0, abs=1e-8)
 
 
+def test_relative_depth_term_is_scale_free() -> None:
+    """Scaling a scene by c scales the metric term by c and leaves the relative one unchanged; the
+    relative one is the metric one over the aligned prior's mean depth (here the prior itself)."""
+    rng = np.random.default_rng(3)
+    prior = torch.tensor(rng.uniform(2.0, 6.0, (8, 9)))
+    depth = prior + torch.tensor(rng.normal(0.0, 0.3, (8, 9)))
+    valid = torch.ones(8, 9, dtype=torch.bool)
+    metric, rel = depth_consistency(depth, prior, valid), depth_consistency(depth, prior, valid, relative=True)
+    s, b = align_scale_shift(depth, prior, valid)
+    assert float(rel) == pytest.approx(float(metric) / float((s * prior + b).mean()), rel=1e-9)
+    for c in (0.1, 10.0):
+        assert float(depth_consistency(c * depth, c * prior, valid)) == pytest.approx(c * float(metric), rel=1e-9)
+        assert float(depth_consistency(c * depth, c * prior, valid, relative=True)) == pytest.approx(float(rel), rel=1e-9)
+
+
 def test_alignment_is_stable_on_constant_prior_and_empty_mask() -> None:
     depth = torch.full((4, 4), 2.0, requires_grad=True)
     prior = torch.ones(4, 4)

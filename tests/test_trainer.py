@@ -234,6 +234,29 @@ def test_mask_alpha_floor_reaches_the_mask_term(splat: Path, tmp_path: Path,
         assert seen and set(seen) == {0.4 if floor is None else floor}
 
 
+@pytest.mark.slow
+def test_depth_term_on_smoky_pixels_only(splat: Path, tmp_path: Path) -> None:
+    """loss.depth_smoke_only keeps the depth term where the smoke covers the RGB view: with every
+    mask pixel smoke it is the unrestricted term, value for value; on a smoke-free scene it is 0
+    while the unrestricted term is not."""
+    full_masks = tmp_path / "all-smoke"
+    shutil.copytree(splat, full_masks)
+    for mask in (full_masks / "rgb" / "smoke_mask").glob("*.png"):
+        Image.fromarray(np.full_like(np.asarray(Image.open(mask)), 255)).save(mask)
+    clear = write_splat_dataset(tmp_path / "clear", smoke="none", n_rgb=8, n_thermal=6)
+    depth = {}
+    for name, ds in (("smoke", full_masks), ("clear", clear)):
+        for only in (False, True):
+            run = tmp_path / f"run-{name}-{only}"
+            # Stage 2 long enough to cover pixels with alpha > 0.5, where the prior is defined.
+            assert main([str(ds), "--out", str(run)] + TINY + ["--iterations-stage2", "200",
+                                                               "--set", "depth_camera=rgb",
+                                                               "--set", f"loss.depth_smoke_only={only}"]) == 0
+            depth[name, only] = [float(r["depth"]) for r in _log_rows(run) if r["stage"] == "3"]
+    assert depth["smoke", True] == depth["smoke", False]
+    assert max(depth["clear", False]) > 0 and max(depth["clear", True]) == 0.0
+
+
 @pytest.mark.parametrize("smoke", ["none", "opaque"])
 def test_no_smoke_and_opaque_smoke_train_without_nan(tmp_path: Path, smoke: str) -> None:
     # The opaque scene is also flagged static: that must drop the deformation network.
