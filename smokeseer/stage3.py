@@ -78,6 +78,9 @@ def dropped_term_notes(cfg: TrainConfig, has_masks: bool) -> list[str]:
         why = ("depth_prior is none" if cfg.depth_prior == "none" else
                "stage3.train_surface_geometry is false, so the surface depth is frozen and the term has no gradient")
         notes.append(f"depth term dropped: {why}")
+    if w["depth"] > 0 and cfg.loss.depth_smoke_only and not has_masks:
+        notes.append("depth term only where the rendered smoke alpha exceeds 0.02 (loss.depth_smoke_only): "
+                     "the dataset has no smoke masks")
     if not has_masks and cfg.mode != "rgb-only":
         notes.append("mask term dropped: the dataset has no smoke masks"
                      + (", so this no-mask run trains exactly like full" if cfg.mode == "no-mask" else ""))
