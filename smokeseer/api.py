@@ -54,6 +54,7 @@ def switches_for(cfg: TrainConfig, scene: SceneData) -> Stage3Switches:
         use_smoke=smoke_seen and cfg.mode != "deformable-3dgs",
         use_deform=not scene.smoke_static,
         use_masks=masks is not None,
+        smoke_threshold=scene.mask_threshold,
         notes=(dropped_term_notes(cfg, masks is not None) if cfg.mode != "deformable-3dgs" else [])
         + depth_file_notes(cfg, scene),
     )

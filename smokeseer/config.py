@@ -46,7 +46,7 @@ class LossWeights:
     scene's size; on the standard house (extent 13 m) the metric term rivals the RGB loss."""
     depth_smoke_only: bool = False
     """Depth term only on pixels the smoke covers (Stage 1 mask, or the rendered smoke alpha above
-    0.02 without masks), where the paper means it to act; elsewhere the RGB decides the surface.
+    the dataset's mask threshold), where the paper means it to act; elsewhere the RGB decides.
     Needs the depth term at the RGB camera, whose frames the masks belong to."""
     mask_alpha_floor: float = 0.4
     """Inside the mask, smoke alpha at or above this counts as full smoke (the public code's 0.4;
@@ -225,7 +225,7 @@ class TrainConfig:
                 raise ValueError(f"{name}.prune_big_after: must be -1 (after the first reset) or an iteration, "
                                  f"got {densify.prune_big_after}")
         if self.loss.depth_smoke_only and self.depth_camera != "rgb":
-            raise ValueError("loss.depth_smoke_only: needs depth_camera=rgb (the smoke masks are the RGB frames')")
+            raise ValueError("loss.depth_smoke_only: needs depth_camera=rgb (the smoke masks belong to the RGB frames)")
         if not 0.0 < self.loss.mask_alpha_floor <= 1.0:
             raise ValueError(f"loss.mask_alpha_floor: must be in (0, 1], got {self.loss.mask_alpha_floor}")
         if self.validation_every < 0 or self.validation_every == 1:

@@ -29,9 +29,6 @@ from smokeseer.stage2 import Stage2Result, draw_index, make_background, views_of
 from smokeseer.trainloop import IterationOutput, StageProblem, StageSchedule, run_stage
 from smokeseer.trainutil import RunContext, grads_of, state_or_none, step_optimizers
 
-SMOKE_COVER_MIN = 0.02
-"""Smoke cover above which a pixel counts as smoky (the datasets' mask threshold)."""
-
 HeldoutPsnr = Callable[[SceneModel, int], dict[str, float | None] | None]
 
 
@@ -44,6 +41,8 @@ class Stage3Switches:
     use_smoke: bool
     use_deform: bool
     use_masks: bool
+    smoke_threshold: float
+    """Rendered smoke alpha above this counts as smoke: the dataset's mask threshold."""
     notes: list[str] = field(default_factory=list)
 
 
@@ -79,8 +78,8 @@ def dropped_term_notes(cfg: TrainConfig, has_masks: bool) -> list[str]:
                "stage3.train_surface_geometry is false, so the surface depth is frozen and the term has no gradient")
         notes.append(f"depth term dropped: {why}")
     if w["depth"] > 0 and cfg.loss.depth_smoke_only and not has_masks:
-        notes.append("depth term only where the rendered smoke alpha exceeds 0.02 (loss.depth_smoke_only): "
-                     "the dataset has no smoke masks")
+        notes.append("depth term only where the rendered smoke alpha exceeds the dataset's mask threshold "
+                     "(loss.depth_smoke_only): the dataset has no smoke masks")
     if not has_masks and cfg.mode != "rgb-only":
         notes.append("mask term dropped: the dataset has no smoke masks"
                      + (", so this no-mask run trains exactly like full" if cfg.mode == "no-mask" else ""))
@@ -144,6 +143,7 @@ class Stage3Problem(StageProblem):
         cfg, dev = ctx.cfg, ctx.device
         self.ctx, self.cfg, self.model, self.prior, self.heldout_fn = ctx, cfg, model, prior, heldout_psnr
         self.weights = loss_weights(cfg)
+        self.smoke_threshold = switches.smoke_threshold
         self._make_optimizers()
         self.strategy = DensifyStrategy(cfg.stage3.smoke_densify, ("opacity_rgb", "opacity_thermal"), ctx.extent)
         refine = cfg.stage3.train_surface_geometry and cfg.stage3.surface_densify.every > 0
@@ -230,7 +230,7 @@ class Stage3Problem(StageProblem):
         valid = self.prior.valid[k] & (raster.rest_alphas[0, ..., 0] > 0.5)
         if self.cfg.loss.depth_smoke_only:
             cover = self._smoke_cover(raster, k)
-            valid = valid & (cover > SMOKE_COVER_MIN) if cover is not None else torch.zeros_like(valid)
+            valid = valid & (cover > self.smoke_threshold) if cover is not None else torch.zeros_like(valid)
         if self.prior.space == "disparity":
             d = 1.0 / d.clamp_min(1e-3)
         return depth_consistency(d, self.prior.maps[k], valid, self.cfg.loss.depth_relative)
