@@ -35,7 +35,8 @@ from contracts.results_format import ResultsFormatError, read_metrics
 from contracts.source import code_digest
 from eval.dehaze import dehaze_dataset, get_dehazer
 from eval.runs import ABLATIONS, METHODS, VARIANTS, RunResult, RunSpec, config_hash
-from smokeseer.config import LPIPS_NETS, PROFILES
+from smokeseer.config import LPIPS_NETS, PROFILES, make_config
+from smokeseer.stage3 import depth_term_on
 
 log = logging.getLogger("regenerate-tables")
 
@@ -68,6 +69,15 @@ def default_workers() -> int:
     return max(1, (os.cpu_count() or 1) // 2)
 
 
+def default_ablations(profile: str, train_overrides: dict[str, Any]) -> list[str]:
+    """Table 2's rows: each prior switched off, and for the depth term the row that differs from
+    this profile's Full: "w/o depth" where Full has the term, "with depth (Stage-2 prior)" where it
+    has none (the standard profile: docs/method.md), so no row repeats Full's run."""
+    has_depth = depth_term_on(make_config("full", profile, overrides=train_overrides))
+    skip = "stage2-depth" if has_depth else "no-depth"
+    return [key for key in ABLATIONS if key != skip]
+
+
 @dataclass
 class HarnessConfig:
     """Every setting of one `regenerate-tables` invocation (all of it goes in report.md)."""
@@ -75,7 +85,8 @@ class HarnessConfig:
     out: Path
     scenes: list[str]
     methods: list[str] = field(default_factory=lambda: list(METHODS))
-    ablations: list[str] = field(default_factory=lambda: list(ABLATIONS))
+    ablations: list[str] | None = None
+    """None: ``default_ablations`` of the profile and overrides."""
     seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
     profile: str = "quick"
     train_overrides: dict[str, Any] = field(default_factory=dict)
@@ -88,6 +99,10 @@ class HarnessConfig:
     lpips_net: str = "alex"
     lpips_weights: str | None = None
     lpips_heads: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.ablations is None:
+            self.ablations = default_ablations(self.profile, self.train_overrides)
 
     def validate(self) -> None:
         if not self.scenes:

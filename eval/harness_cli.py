@@ -62,7 +62,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--methods", type=_list, default=list(METHODS), help=f"comma list of {', '.join(METHODS)}")
     p.add_argument("--ablations", action=argparse.BooleanOptionalAction, default=True,
                    help="also run Table 2's ablations")
-    p.add_argument("--ablation-list", type=_list, default=list(ABLATIONS), help=f"subset of {', '.join(ABLATIONS)}")
+    p.add_argument("--ablation-list", type=_list, default=None,
+                   help=f"subset of {', '.join(ABLATIONS)} (default: every prior off, and the depth row that "
+                        "differs from the profile's Full: w/o depth, or with depth where Full has none)")
     p.add_argument("--seeds", default="3", help="count N (seeds 0..N-1) or comma list (default 3)")
     p.add_argument("--profile", choices=("quick", "standard", "paper"), default="quick",
                    help="training profile of every run (quick: minutes on a CPU; standard: the benchmark scale, 5-10 min a "

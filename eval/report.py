@@ -25,13 +25,17 @@ def _version(pkg: str) -> str:
         return "not installed"
 
 
+def _variant(key: str, label: bool) -> str:
+    v = VARIANTS[key]
+    return (f"{key} ({v.label + ', ' if label else ''}trainer mode `{v.mode}`"
+            + "".join(f", `{o}={val}`" for o, val in v.overrides.items()) + ")")
+
+
 def _settings(cfg: "HarnessConfig", backend: str) -> list[tuple[str, Any]]:
     return [
         ("scenes", ", ".join(cfg.scenes)),
-        ("methods", ", ".join(f"{k} ({VARIANTS[k].label}, trainer mode `{VARIANTS[k].mode}`"
-                              + "".join(f", `{o}={v}`" for o, v in VARIANTS[k].overrides.items()) + ")"
-                              for k in cfg.methods) or "none"),
-        ("ablations", ", ".join(f"{k} (mode `{VARIANTS[k].mode}`)" for k in cfg.ablations) or "none"),
+        ("methods", ", ".join(_variant(k, label=True) for k in cfg.methods) or "none"),
+        ("ablations", ", ".join(_variant(k, label=False) for k in cfg.ablations) or "none"),
         ("seeds", ", ".join(map(str, cfg.seeds))),
         ("training profile", cfg.profile),
         ("training overrides", cfg.train_overrides or "none"),

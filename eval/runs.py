@@ -52,6 +52,10 @@ ABLATIONS: dict[str, Variant] = {
         Variant("no-mono", "w/o mono", "no-mono", "ablations", {"psnr": 19.78}),
         Variant("no-depth", "w/o depth", "no-depth", "ablations", {"psnr": 19.88}),
         Variant("no-mask", "w/o mask", "no-mask", "ablations", {"psnr": 19.82}),
+        Variant("stage2-depth", "with depth (Stage-2 prior)", "full", "ablations", {},
+                note="Full plus the paper's depth term against Stage 2's thermal depth render (the weight-free "
+                     "prior we have); Table 2's depth row where the profile's Full has no depth term",
+                overrides={"depth_prior": "thermal-render"}),
     )
 }
 

@@ -24,6 +24,7 @@ MODES: tuple[str, ...] = (
     "deformable-3dgs",
 )
 PROFILES: tuple[str, ...] = ("quick", "standard", "paper")
+DEPTH_PIXELS: tuple[str, ...] = ("all", "smoky", "smoke-weighted")
 LPIPS_NETS: tuple[str, ...] = ("alex", "vgg")
 
 
@@ -44,10 +45,12 @@ class LossWeights:
     """Depth term as a relative error (L1 over the aligned prior's mean depth) instead of metres
     (or the prior's inverse-depth units). Why: a weight on an error in metres grows with the
     scene's size; on the standard house (extent 13 m) the metric term rivals the RGB loss."""
-    depth_smoke_only: bool = False
-    """Depth term only on pixels the smoke covers (Stage 1 mask, or the rendered smoke alpha above
-    the dataset's mask threshold), where the paper means it to act; elsewhere the RGB decides.
-    Needs the depth term at the RGB camera, whose frames the masks belong to."""
+    depth_pixels: str = "all"
+    """Which pixels the depth term counts (needs the depth term at the RGB camera, the camera of
+    the smoke render and masks, unless "all"): "all"; "smoky", those the smoke covers (Stage 1
+    mask, or the rendered smoke alpha above the dataset's mask threshold); "smoke-weighted", every
+    pixel weighted by the smoke alpha the same RGB pass renders there. Why: the paper means the term
+    to keep the surface in place where smoke hides it; where the RGB sees the surface it decides."""
     mask_alpha_floor: float = 0.4
     """Inside the mask, smoke alpha at or above this counts as full smoke (the public code's 0.4;
     1 is the paper's plain L1). It sets how much of a dense smoke's darkening the surface may
@@ -134,8 +137,9 @@ class Stage3Config:
     surface_densify: DensifyConfig = field(default_factory=lambda: DensifyConfig(every=0, opacity_reset_every=0))
     """3DGS density control of the surface from the RGB views' gradients ("refining geometry": the
     thermal-only Stage 2 surface is as coarse as the thermal images); ``every`` 0 is off. Needs
-    ``train_surface_geometry``. Off in every profile: on the standard house validation views it
-    scored 21.9 dB ungated and 22.5 dB gated, against 26.2 dB without (docs/method.md)."""
+    ``train_surface_geometry``. On in the standard profile, which has no depth term: with the
+    depth term it collapsed (standard house validation: 22.5 dB gated against 26.2 dB without),
+    without it it holds (28.35 dB against 28.30; docs/method.md)."""
     surface_densify_max_smoke: float = 0.02
     """Surface refinement counts a view's gradient for a Gaussian only where the smoke covering its
     projected centre (the rendered smoke alpha, or the Stage 1 mask where the run has one) is at
@@ -224,8 +228,11 @@ class TrainConfig:
             if densify.prune_big_after < -1:
                 raise ValueError(f"{name}.prune_big_after: must be -1 (after the first reset) or an iteration, "
                                  f"got {densify.prune_big_after}")
-        if self.loss.depth_smoke_only and self.depth_camera != "rgb":
-            raise ValueError("loss.depth_smoke_only: needs depth_camera=rgb (the smoke masks belong to the RGB frames)")
+        if self.loss.depth_pixels not in DEPTH_PIXELS:
+            raise ValueError(f"loss.depth_pixels: must be one of {', '.join(DEPTH_PIXELS)}, got {self.loss.depth_pixels!r}")
+        if self.loss.depth_pixels != "all" and self.depth_camera != "rgb":
+            raise ValueError(f"loss.depth_pixels: {self.loss.depth_pixels!r} needs depth_camera=rgb "
+                             "(the smoke render and masks belong to the RGB frames)")
         if not 0.0 < self.loss.mask_alpha_floor <= 1.0:
             raise ValueError(f"loss.mask_alpha_floor: must be in (0, 1], got {self.loss.mask_alpha_floor}")
         if self.validation_every < 0 or self.validation_every == 1:
@@ -284,10 +291,13 @@ def _quick() -> TrainConfig:
 
 
 def _standard() -> TrainConfig:
-    """The benchmark's scale on one CPU core with the compiled rasterizer (5-10 min a run on a
-    `standard` dataset: 60 frames, 200x150 RGB, 80x60 thermal): full resolution, 3000 + 3000
-    iterations with the 3DGS schedules scaled to them, and a validation split for every choice.
-    No opacity reset, for the quick profile's reason: too few iterations after it to regrow."""
+    """The benchmark's scale on one CPU core with the compiled rasterizer (a `standard` dataset:
+    60 frames, 200x150 RGB, 80x60 thermal): full resolution, 3000 + 3000 iterations with the
+    3DGS schedules scaled to them, and a validation split for every choice. No opacity reset, for
+    the quick profile's reason: too few iterations after it to regrow. The surface is refined
+    (gated on smoke-free centres) and there is no depth term: on the validation views of house,
+    forest and a dense excavator, the weight-free depth prior we have (Stage 2's render, in four
+    forms) cost 0.3-5 dB and made refinement collapse (docs/method.md)."""
     s2 = Stage2Config(
         iterations=3000,
         init_points=5000,
@@ -299,11 +309,13 @@ def _standard() -> TrainConfig:
         smoke_points=2000,
         smoke_densify=DensifyConfig(start=300, stop=2400, every=100, opacity_reset_every=0,
                                     max_gaussians=10_000),
+        surface_densify=DensifyConfig(start=300, stop=2400, every=100, opacity_reset_every=0,
+                                      max_gaussians=80_000),
         test_every=250,
     )
     deform = DeformConfig(depth=6, width=128, skip_layer=3, warmup_iterations=500, predict_rotation_scale=True)
     return TrainConfig(profile="standard", max_width=0, sh_degree=2, sh_increase_every=800,
-                       stage2=s2, stage3=s3, deform=deform, checkpoint_every=500)
+                       stage2=s2, stage3=s3, deform=deform, checkpoint_every=500, depth_prior="none")
 
 
 def _paper() -> TrainConfig:

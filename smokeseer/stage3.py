@@ -62,9 +62,9 @@ def loss_weights(cfg: TrainConfig) -> dict[str, float]:
 
 
 def depth_term_on(cfg: TrainConfig) -> bool:
-    """Whether the run has a depth term at all: a prior, a mode that keeps it, and a surface whose
-    geometry trains (a frozen surface depth would give the term no gradient)."""
-    return (cfg.depth_prior != "none" and cfg.mode not in ("no-depth", "deformable-3dgs")
+    """Whether the run has a depth term at all: a weight, a prior, a mode that keeps it, and a surface
+    whose geometry trains (a frozen surface depth would give the term no gradient)."""
+    return (cfg.loss.depth > 0 and cfg.depth_prior != "none" and cfg.mode not in ("no-depth", "deformable-3dgs")
             and cfg.stage3.train_surface_geometry)
 
 
@@ -77,9 +77,9 @@ def dropped_term_notes(cfg: TrainConfig, has_masks: bool) -> list[str]:
         why = ("depth_prior is none" if cfg.depth_prior == "none" else
                "stage3.train_surface_geometry is false, so the surface depth is frozen and the term has no gradient")
         notes.append(f"depth term dropped: {why}")
-    if w["depth"] > 0 and cfg.loss.depth_smoke_only and not has_masks:
+    if w["depth"] > 0 and cfg.loss.depth_pixels == "smoky" and not has_masks:
         notes.append("depth term only where the rendered smoke alpha exceeds the dataset's mask threshold "
-                     "(loss.depth_smoke_only): the dataset has no smoke masks")
+                     "(loss.depth_pixels=smoky): the dataset has no smoke masks")
     if not has_masks and cfg.mode != "rgb-only":
         notes.append("mask term dropped: the dataset has no smoke masks"
                      + (", so this no-mask run trains exactly like full" if cfg.mode == "no-mask" else ""))
@@ -228,12 +228,16 @@ class Stage3Problem(StageProblem):
         the prior of view ``k`` of the prior's camera."""
         d = raster.rest_depths[0, ..., 0]
         valid = self.prior.valid[k] & (raster.rest_alphas[0, ..., 0] > 0.5)
-        if self.cfg.loss.depth_smoke_only:
+        pixels, weight = self.cfg.loss.depth_pixels, None
+        if pixels == "smoky":
             cover = self._smoke_cover(raster, k)
             valid = valid & (cover > self.smoke_threshold) if cover is not None else torch.zeros_like(valid)
+        elif pixels == "smoke-weighted":
+            weight = (raster.subset_alphas[0, ..., 0].detach() if raster.subset_alphas is not None
+                      else torch.zeros_like(d))
         if self.prior.space == "disparity":
             d = 1.0 / d.clamp_min(1e-3)
-        return depth_consistency(d, self.prior.maps[k], valid, self.cfg.loss.depth_relative)
+        return depth_consistency(d, self.prior.maps[k], valid, self.cfg.loss.depth_relative, weight)
 
     def named_gradients(self) -> list[tuple[str, torch.Tensor | None]]:
         model = self.model

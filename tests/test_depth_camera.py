@@ -10,6 +10,8 @@ import pytest
 
 from smokeseer.api import depth_camera, prepare
 from smokeseer.cli import main
+from smokeseer.config import make_config
+from smokeseer.stage3 import depth_term_on
 from tests.test_smokeseer_data import write_splat_dataset
 from tests.test_trainer import TINY
 
@@ -46,3 +48,13 @@ def test_rgb_only_has_no_thermal_camera_and_says_so(splat: Path, tmp_path: Path)
 def test_unknown_camera_is_refused(splat: Path) -> None:
     with pytest.raises(ValueError, match="depth_camera"):
         prepare(splat, overrides={"depth_camera": "lidar"})
+
+
+def test_which_runs_have_a_depth_term() -> None:
+    """With loss.depth=0 the prior is not rendered and the log does not announce a depth term; the
+    standard profile has none unless a prior is named (docs/method.md), the quick profile has one."""
+    assert depth_term_on(make_config("full", "quick"))
+    assert not depth_term_on(make_config("full", "quick", overrides={"loss.depth": 0.0}))
+    assert not depth_term_on(make_config("no-depth", "quick"))
+    assert not depth_term_on(make_config("full", "standard"))
+    assert depth_term_on(make_config("full", "standard", overrides={"depth_prior": "thermal-render"}))

@@ -315,3 +315,21 @@ def test_estimated_stage1_variant_trains_full_with_stage1_estimate_and_its_own_c
     assert specs["full"].overrides == {"stage3.iterations": 5}
     assert specs["full"].hash() != specs["full-estimated"].hash()
     assert specs["full-estimated"].run_dir(tmp_path) != specs["full"].run_dir(tmp_path)
+
+
+def test_table2_depth_row_differs_from_full() -> None:
+    """Table 2's depth row is the one that differs from the profile's Full: "w/o depth" where Full
+    has the depth term (quick), "with depth (Stage-2 prior)" where it has none (standard), and that
+    row's run does have the term; the user's overrides decide as well."""
+    from eval.runs import VARIANTS
+    from smokeseer.config import make_config
+    from smokeseer.stage3 import depth_term_on
+
+    quick, standard = harness.default_ablations("quick", {}), harness.default_ablations("standard", {})
+    assert "no-depth" in quick and "stage2-depth" not in quick
+    assert "stage2-depth" in standard and "no-depth" not in standard
+    assert set(quick) - {"no-depth"} == set(standard) - {"stage2-depth"}
+    assert depth_term_on(make_config("full", "standard", overrides=VARIANTS["stage2-depth"].overrides))
+    assert "no-depth" in harness.default_ablations("standard", {"depth_prior": "thermal-render"})
+    cfg = HarnessConfig(out=Path("unused"), scenes=["demo"], profile="standard")
+    assert cfg.ablations == standard

@@ -162,3 +162,7 @@ def test_config_profiles_overrides_and_errors() -> None:
         make_config(overrides={"loss.mask_alpha_floor": 0.0})
     with pytest.raises(ValueError, match="stage3.surface_densify.prune_big_after"):
         make_config(overrides={"stage3.surface_densify.prune_big_after": -2})
+    with pytest.raises(ValueError, match="loss.depth_pixels: must be one of"):
+        make_config(overrides={"loss.depth_pixels": "smokey"})
+    with pytest.raises(ValueError, match="loss.depth_pixels: 'smoke-weighted' needs depth_camera=rgb"):
+        make_config(profile="standard", overrides={"loss.depth_pixels": "smoke-weighted"})

@@ -60,6 +60,23 @@ def test_relative_depth_term_is_scale_free() -> None:
         assert float(depth_consistency(c * depth, c * prior, valid, relative=True)) == pytest.approx(float(rel), rel=1e-9)
 
 
+def test_pixel_weights_scale_each_pixels_error() -> None:
+    """Weighted depth term against a hand sum: the alignment is the unweighted one, each pixel's
+    L1 residual counts times its weight, and the mean is over all valid pixels; weights 1 give the
+    unweighted term and weights 0 give 0."""
+    rng = np.random.default_rng(5)
+    prior = torch.tensor(rng.uniform(1.0, 4.0, (6, 7)))
+    depth = 0.5 * prior + 0.3 + torch.tensor(rng.normal(0.0, 0.2, (6, 7)))
+    valid = torch.tensor(rng.random((6, 7)) > 0.2)
+    weight = torch.tensor(rng.random((6, 7)))
+    s, b = align_scale_shift(depth, prior, valid)
+    by_hand = float((weight * (depth - (s * prior + b)).abs())[valid].sum() / valid.sum())
+    assert float(depth_consistency(depth, prior, valid, pixel_weight=weight)) == pytest.approx(by_hand, rel=1e-12)
+    plain = float(depth_consistency(depth, prior, valid))
+    assert float(depth_consistency(depth, prior, valid, pixel_weight=torch.ones_like(depth))) == pytest.approx(plain)
+    assert float(depth_consistency(depth, prior, valid, pixel_weight=torch.zeros_like(depth))) == 0.0
+
+
 def test_alignment_is_stable_on_constant_prior_and_empty_mask() -> None:
     depth = torch.full((4, 4), 2.0, requires_grad=True)
     prior = torch.ones(4, 4)

@@ -236,9 +236,10 @@ def test_mask_alpha_floor_reaches_the_mask_term(splat: Path, tmp_path: Path,
 
 @pytest.mark.slow
 def test_depth_term_on_smoky_pixels_only(splat: Path, tmp_path: Path) -> None:
-    """loss.depth_smoke_only keeps the depth term where the smoke covers the RGB view: with every
-    mask pixel smoke it is the unrestricted term, value for value; on a smoke-free scene it is 0
-    while the unrestricted term is not."""
+    """loss.depth_pixels keeps the depth term where the smoke covers the RGB view. "smoky": with
+    every mask pixel smoke it is the unrestricted term, value for value. "smoke-weighted": each
+    pixel counts by its rendered smoke alpha, so it stays below the unrestricted term. On a
+    smoke-free scene both are 0 while the unrestricted term is not."""
     full_masks = tmp_path / "all-smoke"
     shutil.copytree(splat, full_masks)
     for mask in (full_masks / "rgb" / "smoke_mask").glob("*.png"):
@@ -246,15 +247,17 @@ def test_depth_term_on_smoky_pixels_only(splat: Path, tmp_path: Path) -> None:
     clear = write_splat_dataset(tmp_path / "clear", smoke="none", n_rgb=8, n_thermal=6)
     depth = {}
     for name, ds in (("smoke", full_masks), ("clear", clear)):
-        for only in (False, True):
-            run = tmp_path / f"run-{name}-{only}"
+        for pixels in ("all", "smoky", "smoke-weighted"):
+            run = tmp_path / f"run-{name}-{pixels}"
             # Stage 2 long enough to cover pixels with alpha > 0.5, where the prior is defined.
             assert main([str(ds), "--out", str(run)] + TINY + ["--iterations-stage2", "200",
                                                                "--set", "depth_camera=rgb",
-                                                               "--set", f"loss.depth_smoke_only={only}"]) == 0
-            depth[name, only] = [float(r["depth"]) for r in _log_rows(run) if r["stage"] == "3"]
-    assert depth["smoke", True] == depth["smoke", False]
-    assert max(depth["clear", False]) > 0 and max(depth["clear", True]) == 0.0
+                                                               "--set", f"loss.depth_pixels={pixels}"]) == 0
+            depth[name, pixels] = [float(r["depth"]) for r in _log_rows(run) if r["stage"] == "3"]
+    assert depth["smoke", "smoky"] == depth["smoke", "all"]
+    assert 0 < depth["smoke", "smoke-weighted"][0] < depth["smoke", "all"][0]
+    assert max(depth["clear", "all"]) > 0
+    assert max(depth["clear", "smoky"]) == 0.0 and max(depth["clear", "smoke-weighted"]) == 0.0
 
 
 @pytest.mark.parametrize("smoke", ["none", "opaque"])
