@@ -437,10 +437,10 @@ def plan_runs(cfg: HarnessConfig, datasets: dict[str, DatasetOutcome],
     return specs
 
 
-SECONDS_PER_RUN = {"quick": 240.0, "standard": 600.0, "paper": 2700.0}
+SECONDS_PER_RUN = {"quick": 240.0, "standard": 1150.0, "paper": 2700.0}
 """Rough wall time of one run when the output folder has no finished run to learn from: the
-quick profile's demo run on 2 CPU cores (README), the standard profile's 5-10 min budget on one
-core, and the paper's 10 + 30 minutes on an RTX 4090."""
+quick profile's demo run on 2 CPU cores (README), the standard profile's measured 19 min on one
+core of two busy ones (house, docs/method.md), and the paper's 10 + 30 minutes on an RTX 4090."""
 
 
 @dataclass

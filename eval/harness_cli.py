@@ -67,7 +67,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "differs from the profile's Full: w/o depth, or with depth where Full has none)")
     p.add_argument("--seeds", default="3", help="count N (seeds 0..N-1) or comma list (default 3)")
     p.add_argument("--profile", choices=("quick", "standard", "paper"), default="quick",
-                   help="training profile of every run (quick: minutes on a CPU; standard: the benchmark scale, 5-10 min a "
+                   help="training profile of every run (quick: minutes on a CPU; standard: the benchmark scale, about 20 min a "
                         "run on one core; paper: the paper's schedule, GPU)")
     p.add_argument("--workers", type=int, default=default_workers(), help="parallel tasks (default: cores/2)")
     p.add_argument("--scheduler", default=None,

@@ -25,7 +25,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="method or ablation to train (default full; see docs/method.md)")
     p.add_argument("--out", type=Path, required=True, help="run directory (resumed if it has checkpoints)")
     p.add_argument("--profile", default="quick", choices=PROFILES,
-                   help="quick: minutes on a CPU at reduced size; standard: the benchmark scale, 5-10 min on one core with a "
+                   help="quick: minutes on a CPU at reduced size; standard: the benchmark scale, about 20 min on one core with a "
                         "validation split; paper: the paper's 15k+15k schedule, for a GPU")
     p.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
     p.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda")
