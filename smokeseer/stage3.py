@@ -233,8 +233,8 @@ class Stage3Problem(StageProblem):
             cover = self._smoke_cover(raster, k)
             valid = valid & (cover > self.smoke_threshold) if cover is not None else torch.zeros_like(valid)
         elif pixels == "smoke-weighted":
-            weight = (raster.subset_alphas[0, ..., 0].detach() if raster.subset_alphas is not None
-                      else torch.zeros_like(d))
+            alpha = _rendered_smoke_alpha(raster)
+            weight = alpha if alpha is not None else torch.zeros_like(d)
         if self.prior.space == "disparity":
             d = 1.0 / d.clamp_min(1e-3)
         return depth_consistency(d, self.prior.maps[k], valid, self.cfg.loss.depth_relative, weight)
@@ -289,10 +289,10 @@ class Stage3Problem(StageProblem):
     def _smoke_cover(self, raster: RasterOutput, k: int) -> torch.Tensor | None:
         """Where this RGB view has smoke: the smoke alpha of the same render pass, and the Stage 1
         mask where the run uses one (either one calling a pixel smoky is enough)."""
-        if raster.subset_alphas is None:
-            return None
-        cover = raster.subset_alphas[0, ..., 0].detach()
-        return cover if self.masks is None else torch.maximum(cover, self.masks[k])
+        cover = _rendered_smoke_alpha(raster)
+        if cover is None or self.masks is None:
+            return cover
+        return torch.maximum(cover, self.masks[k])
 
     def state(self) -> dict[str, Any]:
         model = self.model
@@ -329,6 +329,12 @@ class Stage3Problem(StageProblem):
 
     def heldout_psnr(self, it: int) -> dict[str, float | None] | None:
         return None if self.heldout_fn is None else self.heldout_fn(self.model, it)
+
+
+def _rendered_smoke_alpha(raster: RasterOutput) -> torch.Tensor | None:
+    """The smoke alpha the RGB pass accumulated (detached: it selects or weights pixels, it is
+    not a loss); None when the run has no smoke Gaussians."""
+    return None if raster.subset_alphas is None else raster.subset_alphas[0, ..., 0].detach()
 
 
 def smoke_free_centres(means2d: torch.Tensor, smoke_cover: torch.Tensor | None, max_smoke: float) -> torch.Tensor:
