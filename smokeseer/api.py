@@ -24,6 +24,7 @@ from smokeseer.config import TrainConfig, make_config
 from smokeseer.data import ModalityData, SceneData, load_scene
 from smokeseer.depth_prior import DepthPriorMaps, file_depth_prior, monocular_depth_prior, rendered_depth_prior
 from smokeseer.evaluate import heldout_psnr, score, score_validation, write_plys, write_renders
+from smokeseer.haze_lines import SmokeColourEstimate, estimate_smoke_colour
 from smokeseer.model import Placed, SceneModel, init_gaussians, render
 from smokeseer.splits import hold_out_validation
 from smokeseer.stage1 import Stage1Report, run_stage1
@@ -190,6 +191,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
         _sample(geo, cfg.stage2.init_points, b, rng)
     deformable = cfg.mode == "deformable-3dgs"
     estimate = None
+    smoke_colour: SmokeColourEstimate | None = None
     if cfg.profile == "paper" and dev.type == "cpu":
         estimate = estimate_cpu_seconds(ctx, geo, init)
         ctx.log_line(f"profile paper on the CPU: {cfg.stage2.iterations} + {cfg.stage3.iterations} iterations, "
@@ -215,6 +217,15 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
         ctx.log_line("stage 3: skipped (deformable-3dgs baseline has one deformable set)")
     else:
         smoke_pts = _sample(scene.rgb, cfg.stage3.smoke_points, b, rng) if switches.use_smoke else None
+        if switches.use_smoke and cfg.stage3.smoke_color == "haze-lines":
+            smoke_colour = haze_line_smoke_colour(cfg, s2.gaussians, scene.rgb, dev)
+            switches.smoke_colour = smoke_colour.colour
+            ctx.log_line(f"stage 3: smoke colour from haze lines: {smoke_colour.describe()}")
+            if smoke_colour.colour is None:
+                note = ("smoke colour: the haze-line estimate is not trusted, so the smoke Gaussians learn "
+                        f"their colours as in the paper ({smoke_colour.reason})")
+                switches.notes.append(note)
+                ctx.log_line(f"stage 3: {note}")
         model = build_scene_model(ctx, s2, switches, smoke_pts, scene.smoke_static)
         prior = depth_prior_maps(cfg, s2.gaussians, scene, dev)
         if prior is not None:
@@ -250,9 +261,34 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
                      "smoke_gaussians": model.smoke.n if model.smoke is not None else 0,
                      "surface_gaussians": model.surface.n, "deformation": switches.use_deform,
                      "registration": report.registration, "masks": report.masks,
+                     "smoke_colour": smoke_colour_record(cfg, switches, smoke_colour),
                      "notes": list(report.notes) + list(switches.notes)}
     write_json(out / "metrics.json", doc)
     return doc
+
+
+def haze_line_smoke_colour(cfg: TrainConfig, geometry: Any, rgb: ModalityData,
+                           dev: torch.device) -> SmokeColourEstimate:
+    """The smoke colour where the training RGB frames' observation lines meet, with Stage 2's
+    geometry rendered as depth at each of those frames saying which pixels see the same point."""
+    idx = rgb.indices("train")
+    depth = rendered_depth_prior(geometry, views_of(rgb, idx, dev), "rgb")
+    frames = [rgb.frames[i] for i in idx]
+    return estimate_smoke_colour(rgb.images[idx], depth.maps.cpu().numpy(), depth.valid.cpu().numpy(),
+                                 np.stack([f.viewmat for f in frames]), np.stack([f.K for f in frames]),
+                                 np.random.default_rng(cfg.seed + 2))
+
+
+def smoke_colour_record(cfg: TrainConfig, switches: Any, estimate: SmokeColourEstimate | None) -> dict[str, Any] | None:
+    """metrics.json ``stages.smoke_colour``: where the smoke colour came from; None without smoke."""
+    if not switches.use_smoke or cfg.mode == "deformable-3dgs":
+        return None
+    if estimate is None:
+        return {"source": "learned", "haze_lines": None}
+    return {"source": "learned" if estimate.colour is None else "haze-lines",
+            "haze_lines": {"colour": None if estimate.colour is None else [float(c) for c in estimate.colour],
+                           "lines": estimate.lines, "points": estimate.points,
+                           "meeting_fraction": estimate.meeting_fraction, "refused": estimate.reason or None}}
 
 
 def depth_prior_maps(cfg: TrainConfig, geometry: Any, scene: SceneData, dev: torch.device) -> DepthPriorMaps | None:

@@ -24,6 +24,7 @@ MODES: tuple[str, ...] = (
     "deformable-3dgs",
 )
 PROFILES: tuple[str, ...] = ("quick", "standard", "paper")
+SMOKE_COLOR_SOURCES: tuple[str, ...] = ("learned", "haze-lines")
 DEPTH_PIXELS: tuple[str, ...] = ("all", "smoky", "smoke-weighted")
 LPIPS_NETS: tuple[str, ...] = ("alex", "vgg")
 
@@ -144,6 +145,13 @@ class Stage3Config:
     """Surface refinement counts a view's gradient for a Gaussian only where the smoke covering its
     projected centre (the rendered smoke alpha, or the Stage 1 mask where the run has one) is at
     most this, so RGB gradients from smoky pixels grow no surface; 1.0 counts every centre in the image."""
+    smoke_color: str = "learned"
+    """Where the RGB smoke colour comes from. "learned": every smoke Gaussian learns its own from
+    grey, held together by the smoke-colour and monochromaticity priors (the paper). "haze-lines":
+    one colour read off the smoky training frames before Stage 3 (``smokeseer.haze_lines``, with
+    Stage 2's geometry) and held fixed; where the estimate is not trusted (thin smoke: the lines
+    do not meet) the run learns it as the paper does and says so. Under dense smoke the images
+    alone let a brighter, denser smoke stand in for a darker surface (docs/method.md)."""
     surface_update_max_smoke: float = 1.0
     """A surface Gaussian whose projected centre lies inside this iteration's RGB view on smoke cover
     above this (rendered smoke alpha, or the Stage 1 mask where the run has one) gets no gradient
@@ -215,6 +223,9 @@ class TrainConfig:
                              "OpenCV axes), or none to leave the offset unmodelled")
         if self.stage1 not in ("ground-truth", "estimate"):
             raise ValueError(f"stage1: {self.stage1!r} is not ground-truth or estimate")
+        if self.stage3.smoke_color not in SMOKE_COLOR_SOURCES:
+            raise ValueError(f"stage3.smoke_color: {self.stage3.smoke_color!r} is not one of "
+                             f"{', '.join(SMOKE_COLOR_SOURCES)}")
         if not 0.0 < self.stage3.surface_densify_max_smoke <= 1.0:
             raise ValueError("stage3.surface_densify_max_smoke: must be in (0, 1], "
                              f"got {self.stage3.surface_densify_max_smoke}")
@@ -297,7 +308,9 @@ def _standard() -> TrainConfig:
     the quick profile's reason: too few iterations after it to regrow. The surface is refined
     (gated on smoke-free centres) and there is no depth term: on the validation views of house,
     forest and a dense excavator, the weight-free depth prior we have (Stage 2's render, in four
-    forms) cost 0.3-5 dB and made refinement collapse (docs/method.md)."""
+    forms) cost 0.3-5 dB and made refinement collapse (docs/method.md). The smoke colour is read
+    off the smoky frames where that estimate is trusted: under dense smoke the learned colour
+    drifts bright and darkens the surface (room validation 9.1 dB learned, docs/method.md)."""
     s2 = Stage2Config(
         iterations=3000,
         init_points=5000,
@@ -311,6 +324,7 @@ def _standard() -> TrainConfig:
                                     max_gaussians=10_000),
         surface_densify=DensifyConfig(start=300, stop=2400, every=100, opacity_reset_every=0,
                                       max_gaussians=80_000),
+        smoke_color="haze-lines",
         test_every=250,
     )
     deform = DeformConfig(depth=6, width=128, skip_layer=3, warmup_iterations=500, predict_rotation_scale=True)

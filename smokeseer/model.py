@@ -76,15 +76,17 @@ def add_rgb_sh(tensors: dict[str, Tensor], sh_degree: int, init_rgb: Tensor | No
 
 
 def make_smoke(points: np.ndarray, opacity: float, scale: float, max_scale: float,
-               rng: np.random.Generator, device: torch.device) -> GaussianSet:
-    """Smoke Gaussians at random positions, grey, faint (opacity and kNN scale × ``scale``
-    chosen so the initial cloud hides little of the surface), with random temporal windows."""
+               rng: np.random.Generator, device: torch.device, color: np.ndarray | None = None) -> GaussianSet:
+    """Smoke Gaussians at random positions, grey unless ``color`` (RGB in (0, 1)) is given, faint
+    (opacity and kNN scale × ``scale`` chosen so the initial cloud hides little of the surface),
+    with random temporal windows."""
     base = init_gaussians(points, opacity, max_scale, device)
     base["log_scales"] = base["log_scales"] + float(np.log(scale))
     n = len(points)
     base["opacity_rgb"] = base.pop("opacity")
     base["opacity_thermal"] = torch.full((n,), logit(opacity), device=device)
-    base["color"] = torch.zeros((n, 3), device=device)
+    base["color"] = (torch.zeros((n, 3), device=device) if color is None
+                     else torch.logit(torch.as_tensor(color, dtype=torch.float32, device=device)).expand(n, 3).clone())
     base["thermal"] = torch.zeros((n, 1), device=device)
     centre = torch.as_tensor(rng.uniform(0.0, 1.0, n), dtype=torch.float32, device=device)
     half = torch.as_tensor(rng.uniform(0.25, 0.5, n), dtype=torch.float32, device=device)

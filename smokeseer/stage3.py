@@ -44,6 +44,9 @@ class Stage3Switches:
     smoke_threshold: float
     """Rendered smoke alpha above this counts as smoke: the dataset's mask threshold."""
     notes: list[str] = field(default_factory=list)
+    smoke_colour: np.ndarray | None = None
+    """The fixed RGB smoke colour (``stage3.smoke_color=haze-lines``, set once Stage 2 has given the
+    geometry), or None when the smoke Gaussians learn their colours."""
 
 
 def loss_weights(cfg: TrainConfig) -> dict[str, float]:
@@ -100,7 +103,8 @@ def build_scene_model(ctx: RunContext, s2: Stage2Result, switches: Stage3Switche
     deform = None
     if switches.use_smoke and smoke_points is not None:
         smoke = make_smoke(smoke_points, cfg.stage3.smoke_init_opacity, cfg.stage3.smoke_init_scale,
-                           cfg.stage2.init_scale_max * ctx.extent, np.random.default_rng(cfg.seed + 1), ctx.device)
+                           cfg.stage2.init_scale_max * ctx.extent, np.random.default_rng(cfg.seed + 1), ctx.device,
+                           switches.smoke_colour)
         if switches.use_deform:
             deform = DeformNetwork(cfg.deform, ctx.extent, ctx.device)
     thermal_geometry = s2.color == "thermal"
@@ -124,10 +128,10 @@ def _surface_lrs(cfg: TrainConfig, g: GaussianSet, extent: float) -> dict[str, f
     return {k: table[k] for k in g.params}
 
 
-def _smoke_lrs(cfg: TrainConfig, extent: float) -> dict[str, float]:
+def _smoke_lrs(cfg: TrainConfig, extent: float, colour_fixed: bool) -> dict[str, float]:
     lr = cfg.lr
     return {"means": lr.means_init * extent, "quats": lr.quats, "log_scales": lr.scales,
-            "opacity_rgb": lr.opacity, "opacity_thermal": lr.opacity, "color": lr.sh_dc * 4,
+            "opacity_rgb": lr.opacity, "opacity_thermal": lr.opacity, "color": 0.0 if colour_fixed else lr.sh_dc * 4,
             "thermal": lr.thermal, "t_lo": lr.temporal, "t_hi": lr.temporal, "t_log_sigma": lr.temporal}
 
 
@@ -144,6 +148,7 @@ class Stage3Problem(StageProblem):
         self.ctx, self.cfg, self.model, self.prior, self.heldout_fn = ctx, cfg, model, prior, heldout_psnr
         self.weights = loss_weights(cfg)
         self.smoke_threshold = switches.smoke_threshold
+        self.colour_fixed = switches.smoke_colour is not None
         self._make_optimizers()
         self.strategy = DensifyStrategy(cfg.stage3.smoke_densify, ("opacity_rgb", "opacity_thermal"), ctx.extent)
         refine = cfg.stage3.train_surface_geometry and cfg.stage3.surface_densify.every > 0
@@ -169,7 +174,7 @@ class Stage3Problem(StageProblem):
     def _make_optimizers(self) -> None:
         cfg, model = self.cfg, self.model
         self.surface_optimizer = make_optimizer(model.surface, _surface_lrs(cfg, model.surface, self.ctx.extent))
-        self.smoke_optimizer = (make_optimizer(model.smoke, _smoke_lrs(cfg, self.ctx.extent))
+        self.smoke_optimizer = (make_optimizer(model.smoke, _smoke_lrs(cfg, self.ctx.extent, self.colour_fixed))
                                 if model.smoke is not None else None)
         self.deform_optimizer = (Adam(model.deform.parameters(), lr=cfg.deform.lr_init)
                                  if model.deform else None)
@@ -198,9 +203,9 @@ class Stage3Problem(StageProblem):
             col = torch.sigmoid(model.smoke["color"])
             if weights["smoke_alpha"] > 0:
                 terms["smoke_alpha"] = smoke_alpha_variance(o_rgb)
-            if weights["smoke_color"] > 0:
+            if weights["smoke_color"] > 0 and not self.colour_fixed:
                 terms["smoke_color"] = smoke_color_variance(col)
-            if weights["mono"] > 0:
+            if weights["mono"] > 0 and not self.colour_fixed:
                 terms["mono"] = monochromaticity(col)
             if self.masks is not None and weights["mask"] > 0:
                 terms["mask"] = mask_alignment(out.subset_alphas[0, ..., 0], self.masks[k],

@@ -388,6 +388,42 @@ def test_dropped_terms_are_said_in_the_log_and_metrics(splat: Path, tmp_path: Pa
         assert any(needle in n for n in notes) and needle in err
 
 
+def test_haze_line_smoke_colour_is_fixed_or_refused_aloud(splat: Path, tmp_path: Path,
+                                                          monkeypatch: pytest.MonkeyPatch,
+                                                          capsys: pytest.CaptureFixture) -> None:
+    """stage3.smoke_color=haze-lines: a trusted estimate becomes every smoke Gaussian's colour
+    (clones included) and stays so through training, with the colour priors off; on this tiny
+    scene the real estimator finds too few lines, and the run says it learns the colours."""
+    from smokeseer import api
+    from smokeseer.haze_lines import SmokeColourEstimate
+
+    refused = tmp_path / "refused"
+    assert main([str(splat), "--out", str(refused), "--set", "stage3.smoke_color=haze-lines"] + TINY) == 0
+    stages = json.loads((refused / "metrics.json").read_text())["stages"]
+    assert stages["smoke_colour"]["source"] == "learned" and stages["smoke_colour"]["haze_lines"]["refused"]
+    assert any(n.startswith("smoke colour: the haze-line estimate is not trusted") for n in stages["notes"])
+    assert "smoke colour: the haze-line estimate is not trusted" in capsys.readouterr().err
+
+    colour = np.array([0.21, 0.2, 0.23])
+    monkeypatch.setattr(api, "estimate_smoke_colour", lambda *a, **k: SmokeColourEstimate(colour, 500, 900, 0.8))
+    run = tmp_path / "fixed"
+    assert main([str(splat), "--out", str(run), "--set", "stage3.smoke_color=haze-lines",
+                 "--set", "stage3.smoke_densify.start=3", "--set", "stage3.smoke_densify.every=3",
+                 "--set", "stage3.smoke_densify.grad_threshold=0"] + TINY) == 0
+    doc = json.loads((run / "metrics.json").read_text())
+    assert doc["stages"]["smoke_colour"]["source"] == "haze-lines"
+    assert doc["stages"]["smoke_colour"]["haze_lines"]["colour"] == pytest.approx(colour.tolist())
+    smoke = torch.load(run / "checkpoints" / "stage3.pt", weights_only=False)["smoke"]
+    assert smoke["color"].shape[0] > 120  # densified: the clones carry the colour too
+    torch.testing.assert_close(torch.sigmoid(smoke["color"]), torch.as_tensor(colour, dtype=torch.float32)
+                               .expand_as(smoke["color"]), atol=1e-6, rtol=0)
+    rows = [r for r in _log_rows(run) if r["stage"] == "3"]
+    assert rows and not any(r.get("smoke_color") or r.get("mono") for r in rows)
+    assert main([str(splat), "--out", str(tmp_path / "bad"), "--set", "stage3.smoke_color=guessed"] + TINY) == 2
+    assert "stage3.smoke_color: 'guessed' is not one of learned, haze-lines" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
+
+
 def test_metrics_name_the_commit_threads_and_machine(splat: Path, tmp_path: Path) -> None:
     run = tmp_path / "run"
     assert main([str(splat), "--out", str(run)] + TINY) == 0

@@ -1,0 +1,82 @@
+"""Dense-smoke diagnosis of a finished run: rebuild its model through the resume path (in a
+copy of the run folder), render every RGB frame, and compare with the dataset's truth passes:
+composite vs smoky input, surface vs clean, rendered smoke alpha vs the true smoke alpha, and the
+smoke colour implied by the smoke-only render. One line per frame, then the mean per split.
+
+    python benchmarks/dense_diagnosis.py RUN_DIR DATASET ['{"dotted.key": value, ...}']
+
+The overrides must be the ones the run was trained with (its checkpoints are keyed by the config)."""
+import json
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from contracts.imageio import read_exr
+from smokeseer.api import prepare
+from smokeseer.model import make_view
+from smokeseer.stage2 import train_stage2
+from smokeseer.stage3 import build_scene_model, train_stage3
+from smokeseer.trainutil import RunContext, RunLog
+
+
+def rebuild(run: Path, overrides: dict, tmp: Path):
+    """The run's finished model, through the trainer's own resume (which checks the config)."""
+    cfg_doc = json.loads((run / "config.json").read_text())
+    metrics = json.loads((run / "metrics.json").read_text())
+    prep = prepare(Path(metrics["dataset"]), cfg_doc["mode"], cfg_doc["profile"], cfg_doc["seed"], overrides)
+    shutil.copytree(run / "checkpoints", tmp / "checkpoints")
+    cfg, scene, b = prep.cfg, prep.scene, prep.report.bounds
+    ctx = RunContext(cfg, tmp, RunLog(tmp / "log.csv"), torch.as_tensor(b.center, dtype=torch.float32), b.extent)
+    saved = torch.load(run / "checkpoints" / "stage3.pt", map_location="cpu", weights_only=False)
+    if saved["config_sha256"] != ctx.config_sha or not saved.get("done"):
+        raise SystemExit(f"{run}: its stage3.pt is unfinished or from another config; pass the run's overrides")
+    geo = scene.thermal if prep.switches.use_thermal else scene.rgb
+    s2 = train_stage2(ctx, geo, np.random.default_rng(0).normal(size=(8, 3)), deformable=False, heldout_psnr=lambda *a: None)
+    pts = np.random.default_rng(1).normal(size=(cfg.stage3.smoke_points, 3)) if prep.switches.use_smoke else None
+    model = build_scene_model(ctx, s2, prep.switches, pts, scene.smoke_static)
+    model = train_stage3(ctx, model, scene.rgb, scene.thermal, prep.switches, None, heldout_psnr=None)
+    return prep, model
+
+
+def psnr(a, b):
+    return -10 * np.log10(max(float(((a - b) ** 2).mean()), 1e-12))
+
+
+def main() -> None:
+    run, dataset = Path(sys.argv[1]), Path(sys.argv[2])
+    overrides = json.loads(sys.argv[3]) if len(sys.argv) > 3 else {}
+    with tempfile.TemporaryDirectory() as tmp:
+        prep, model = rebuild(run, overrides, Path(tmp))
+    rgb = prep.scene.rgb
+    rows = []
+    with torch.no_grad():
+        for i, f in enumerate(rgb.frames):
+            v = make_view(f.viewmat, f.K, f.width, f.height, f.time, torch.device("cpu"))
+            comp = model.render_rgb(v)
+            surf = model.render_rgb(v, smoke=False).colors[0].clamp(0, 1).numpy()
+            smoke_only = model.render_rgb(v, surface=False).colors[0].numpy()
+            a_model = comp.subset_alphas[0, ..., 0].numpy() if model.smoke is not None else np.zeros(surf.shape[:2])
+            a_true = read_exr(dataset / "rgb" / "smoke_alpha" / f"{f.file_stem}.exr")["A"]
+            k_model = smoke_only.sum((0, 1)) / max(a_model.sum(), 1e-6)
+            clean = rgb.clean[i]
+            rows.append(dict(split=f.split, stem=f.file_stem, comp_vs_smoky=psnr(comp.colors[0].clamp(0, 1).numpy(), rgb.images[i]),
+                             surf_vs_clean=psnr(surf, clean), input=psnr(rgb.images[i], clean),
+                             alpha_true=float(a_true.mean()), alpha_model=float(a_model.mean()),
+                             alpha_corr=float(np.corrcoef(a_true.ravel(), a_model.ravel())[0, 1]),
+                             bias=(surf - clean).mean((0, 1)).round(3).tolist(), k_model=k_model.round(3).tolist()))
+    for r in rows:
+        print(" ".join(f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}" for k, v in r.items()))
+    for split in ("train", "val", "test"):
+        sel = [r for r in rows if r["split"] == split]
+        if sel:
+            print(f"MEAN {split:5s} n={len(sel)} " + " ".join(
+                f"{k}={np.mean([r[k] for r in sel]):.3f}" for k in
+                ("comp_vs_smoky", "surf_vs_clean", "input", "alpha_true", "alpha_model", "alpha_corr"))
+                  + f" bias={np.mean([r['bias'] for r in sel], 0).round(3).tolist()}")
+
+
+main()
