@@ -147,7 +147,8 @@ def estimate_smoke_colour(images: np.ndarray, depths: np.ndarray, valid: np.ndar
     lines = int(sum(len(m) for m in all_means))
     if lines < settings.min_lines:
         return SmokeColourEstimate(None, lines, n_points, reason=f"fewer than {settings.min_lines} observation "
-                                   "lines: the smoke barely changes what the surface shows")
+                                   f"lines (from {n_points} sampled points the geometry covers): too little "
+                                   "geometry, or smoke that barely changes what the surface shows")
     means, dirs = np.concatenate(all_means), np.concatenate(all_dirs)
     colour = meeting_point(means, dirs, np.concatenate(all_weights))
     if colour is None:
