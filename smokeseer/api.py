@@ -279,7 +279,8 @@ def haze_line_smoke_colour(cfg: TrainConfig, geometry: Any, rgb: ModalityData,
                                  np.random.default_rng(cfg.seed + 2))
 
 
-def smoke_colour_record(cfg: TrainConfig, switches: Any, estimate: SmokeColourEstimate | None) -> dict[str, Any] | None:
+def smoke_colour_record(cfg: TrainConfig, switches: Stage3Switches,
+                        estimate: SmokeColourEstimate | None) -> dict[str, Any] | None:
     """metrics.json ``stages.smoke_colour``: where the smoke colour came from; None without smoke."""
     if not switches.use_smoke or cfg.mode == "deformable-3dgs":
         return None
