@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from contracts.imageio import read_exr
+from contracts.metrics import psnr
 from smokeseer.api import prepare
 from smokeseer.model import make_view
 from smokeseer.stage2 import train_stage2
@@ -40,10 +41,6 @@ def rebuild(run: Path, overrides: dict, tmp: Path):
     model = build_scene_model(ctx, s2, prep.switches, pts, scene.smoke_static)
     model = train_stage3(ctx, model, scene.rgb, scene.thermal, prep.switches, None, heldout_psnr=None)
     return prep, model
-
-
-def psnr(a, b):
-    return -10 * np.log10(max(float(((a - b) ** 2).mean()), 1e-12))
 
 
 def main() -> None:

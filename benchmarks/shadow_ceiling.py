@@ -7,10 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
+from contracts.metrics import psnr
 from smokeseer.data import image01, read_png
 
 out = Path(sys.argv[1])
-psnr = lambda a, b: -10 * np.log10(((a - b) ** 2).mean())
 rows = []
 for f in sorted((out / "smoky").glob("*.png")):
     clean, lit, smoky = (image01(read_png(out / k / f.name))[..., :3] for k in ("clean", "lit_through_smoke", "smoky"))

@@ -29,7 +29,8 @@ from smokeseer.model import Placed, SceneModel, init_gaussians, render
 from smokeseer.splits import hold_out_validation
 from smokeseer.stage1 import Stage1Report, run_stage1
 from smokeseer.stage2 import train_stage2, views_of
-from smokeseer.stage3 import Stage3Switches, build_scene_model, depth_term_on, dropped_term_notes, train_stage3
+from smokeseer.stage3 import (Stage3Switches, build_scene_model, depth_term_on, dropped_term_notes, loss_weights,
+                              train_stage3)
 from smokeseer.trainutil import RunContext, RunLog
 
 
@@ -221,9 +222,8 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
             smoke_colour = haze_line_smoke_colour(cfg, s2.gaussians, scene.rgb, dev)
             switches.smoke_colour = smoke_colour.colour
             ctx.log_line(f"stage 3: smoke colour from haze lines: {smoke_colour.describe()}")
-            if smoke_colour.colour is None:
-                note = ("smoke colour: the haze-line estimate is not trusted, so the smoke Gaussians learn "
-                        f"their colours as in the paper ({smoke_colour.reason})")
+            note = smoke_colour_note(cfg, smoke_colour)
+            if note:
                 switches.notes.append(note)
                 ctx.log_line(f"stage 3: {note}")
         model = build_scene_model(ctx, s2, switches, smoke_pts, scene.smoke_static)
@@ -277,6 +277,20 @@ def haze_line_smoke_colour(cfg: TrainConfig, geometry: Any, rgb: ModalityData,
     return estimate_smoke_colour(rgb.images[idx], depth.maps.cpu().numpy(), depth.valid.cpu().numpy(),
                                  np.stack([f.viewmat for f in frames]), np.stack([f.K for f in frames]),
                                  np.random.default_rng(cfg.seed + 2))
+
+
+def smoke_colour_note(cfg: TrainConfig, estimate: SmokeColourEstimate) -> str | None:
+    """What the haze-line colour changes in the loss, said like every other dropped term: the
+    colour priors when the estimate holds the colour fixed, the estimate itself when refused."""
+    if estimate.colour is None:
+        return ("smoke colour: the haze-line estimate is not trusted, so the smoke Gaussians learn "
+                f"their colours as in the paper ({estimate.reason})")
+    weights = loss_weights(cfg)
+    dropped = [name for name in ("smoke_color", "mono") if weights[name] > 0]
+    if not dropped:
+        return None
+    return (f"{' and '.join(dropped)} term{'s' if len(dropped) > 1 else ''} dropped: the smoke colour is held "
+            "fixed at the haze-line estimate, so there is no colour spread for them to act on")
 
 
 def smoke_colour_record(cfg: TrainConfig, switches: Stage3Switches,

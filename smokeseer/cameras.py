@@ -65,17 +65,24 @@ def scene_bounds(viewmats: np.ndarray, Ks: np.ndarray, widths: np.ndarray) -> Sc
     return SceneBounds(center=center, half_size=half_size, extent=extent)
 
 
+def project(points: np.ndarray, viewmat: np.ndarray, K: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Pixel coordinates (u, v), camera depth z and whether each point is in front of the camera
+    (u and v are finite but meaningless for points that are not)."""
+    pc = points @ viewmat[:3, :3].T + viewmat[:3, 3]
+    z = pc[:, 2]
+    ahead = z > 1e-6
+    safe = np.where(ahead, z, 1.0)
+    return K[0, 0] * pc[:, 0] / safe + K[0, 2], K[1, 1] * pc[:, 1] / safe + K[1, 2], z, ahead
+
+
 def visible_fraction(points: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray,
                      widths: np.ndarray, heights: np.ndarray) -> np.ndarray:
     """Fraction of cameras whose image contains each point (in front of the camera)."""
     hits = np.zeros(len(points))
     for v, k, w, h in zip(viewmats, Ks, widths, heights):
-        pc = points @ v[:3, :3].T + v[:3, 3]
-        z = pc[:, 2]
-        safe = np.where(z > 1e-6, z, 1.0)
-        u = k[0, 0] * pc[:, 0] / safe + k[0, 2]
-        vv = k[1, 1] * pc[:, 1] / safe + k[1, 2]
-        hits += (z > 1e-6) & (u >= 0) & (u < w) & (vv >= 0) & (vv < h)
+        u, vv, _, ahead = project(points, v, k)
+        hits += ahead & (u >= 0) & (u < w) & (vv >= 0) & (vv < h)
     return hits / max(len(viewmats), 1)
 
 

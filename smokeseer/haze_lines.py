@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from smokeseer.cameras import project
+
 
 @dataclass(frozen=True)
 class HazeLineSettings:
@@ -68,15 +70,9 @@ def observations(points: np.ndarray, images: np.ndarray, depths: np.ndarray, val
     n_frames, height, width = depths.shape
     colours = np.zeros((n_frames, len(points), images.shape[-1]), dtype=np.float64)
     seen = np.zeros((n_frames, len(points)), dtype=bool)
-    homog = np.hstack([points, np.ones((len(points), 1))]).T
     for f in range(n_frames):
-        cam = (viewmats[f] @ homog)[:3]
-        z = cam[2]
-        ahead = z > 1e-6
-        proj = Ks[f] @ cam
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = np.floor(proj[0] / z)
-            v = np.floor(proj[1] / z)
+        u, v, z, ahead = project(points, viewmats[f], Ks[f])
+        u, v = np.floor(u), np.floor(v)
         inside = ahead & (u >= 0) & (u < width) & (v >= 0) & (v < height)
         iu, iv = u[inside].astype(int), v[inside].astype(int)
         rendered = depths[f, iv, iu]

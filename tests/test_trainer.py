@@ -412,6 +412,7 @@ def test_haze_line_smoke_colour_is_fixed_or_refused_aloud(splat: Path, tmp_path:
                  "--set", "stage3.smoke_densify.grad_threshold=0"] + TINY) == 0
     doc = json.loads((run / "metrics.json").read_text())
     assert doc["stages"]["smoke_colour"]["source"] == "haze-lines"
+    assert "smoke_color and mono terms dropped: the smoke colour is held fixed" in " ".join(doc["stages"]["notes"])
     assert doc["stages"]["smoke_colour"]["haze_lines"]["colour"] == pytest.approx(colour.tolist())
     smoke = torch.load(run / "checkpoints" / "stage3.pt", weights_only=False)["smoke"]
     assert smoke["color"].shape[0] > 120  # densified: the clones carry the colour too
