@@ -157,7 +157,7 @@ def sidecar(scene: SceneData, conv: Conversion, origin: float) -> dict[str, Any]
         "format": "smokeseer-interop", "format_version": 1, "layout": conv.target, "scene": scene.name,
         "source": str(scene.path), "tick_s": TICK_S, "time_origin_s": origin, "duration_s": float(duration),
         "split": conv.split, "smoke": {"present": scene.smoke_present, "static": scene.smoke_static},
-        "thermal_counts_range": list(scene.thermal.counts_range) if scene.thermal and scene.thermal.counts_range
+        "thermal_counts_range": list(scene.thermal.scale.raw_range) if scene.thermal and scene.thermal.scale
         else None,
         "images_depth": conv.images_depth,
         "notes": scene.notes + conv.notes,

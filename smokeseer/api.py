@@ -31,6 +31,7 @@ from smokeseer.stage1 import Stage1Report, run_stage1
 from smokeseer.stage2 import train_stage2, views_of
 from smokeseer.stage3 import (Stage3Switches, build_scene_model, depth_term_on, dropped_term_notes, loss_weights,
                               train_stage3)
+from smokeseer.thermal_scale import ThermalScaleSpec
 from smokeseer.trainutil import RunContext, RunLog
 
 
@@ -118,7 +119,7 @@ def prepare(dataset: Path, mode: str = "full", profile: str = "quick", seed: int
                          "uses weights on local disk only)")
     if (dataset / "dataset.json").is_file():
         validate_dataset(dataset)
-    scene = load_scene(dataset, cfg.max_width)
+    scene = load_scene(dataset, cfg.max_width, ThermalScaleSpec(cfg.thermal_scale, cfg.thermal_equalised_share))
     hold_out_validation(scene.rgb, cfg.validation_every)
     report = run_stage1(cfg, scene)
     check_depth_files(cfg, scene)
@@ -177,6 +178,9 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
                  f"{len(scene.thermal.frames) if scene.thermal else 0} thermal; geometry from {geo.name}; "
                  f"smoke={'on' if switches.use_smoke else 'off'} deform={'on' if switches.use_deform else 'off'} "
                  f"registered={report.registered} extent={b.extent:.3g}")
+    thermal_scale = scene.thermal.scale if scene.thermal is not None and switches.use_thermal else None
+    if thermal_scale is not None:
+        ctx.log_line(f"stage 1: thermal scale {thermal_scale.describe(scene.thermal.images)}")
     for note in report.notes:
         ctx.log_line(f"stage 1: {note}")
     if report.registration is not None:
@@ -262,6 +266,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
                      "surface_gaussians": model.surface.n, "deformation": switches.use_deform,
                      "registration": report.registration, "masks": report.masks,
                      "smoke_colour": smoke_colour_record(cfg, switches, smoke_colour),
+                     "thermal_scale": thermal_scale.record(scene.thermal.images) if thermal_scale else None,
                      "notes": list(report.notes) + list(switches.notes)}
     write_json(out / "metrics.json", doc)
     return doc

@@ -18,6 +18,7 @@ from PIL import Image
 from contracts.dataset_format import load_json, need_field
 from contracts.errors import DatasetError
 from smokeseer.cameras import c2w_gl_to_viewmat, intrinsics
+from smokeseer.thermal_scale import LINEAR_SCALE, ThermalScale, ThermalScaleSpec
 
 __all__ = ["DatasetError", "Frame", "ModalityData", "SceneData", "load_scene"]
 
@@ -46,7 +47,8 @@ class ModalityData:
     clean: np.ndarray | None = None
     masks: np.ndarray | None = None
     depth: np.ndarray | None = None
-    counts_range: tuple[float, float] | None = None
+    scale: ThermalScale | None = None
+    """Thermal only: the dataset's curve from raw values to ``images`` (smokeseer.thermal_scale)."""
     inverse_depth: np.ndarray | None = None
     """A depth prior the layout carries (the official ``images_depth``): inverse depth in the
     model's units, 0 where there is none. Truth for scoring only if the layout says so."""
@@ -224,7 +226,7 @@ def _frames_from_transforms(path: Path, data: dict[str, Any], frames: list[dict[
     return out
 
 
-def load_scene(path: Path, max_width: int = 0) -> SceneData:
+def load_scene(path: Path, max_width: int = 0, thermal_scale: ThermalScaleSpec = LINEAR_SCALE) -> SceneData:
     """Load a generated dataset (has dataset.json), one of the official SmokeSeer layouts
     (transforms_train.json or sparse/0/images.bin), or a real capture (capture.json or
     COLMAP/transforms poses per modality)."""
@@ -232,43 +234,16 @@ def load_scene(path: Path, max_width: int = 0) -> SceneData:
     if not path.is_dir():
         raise DatasetError(f"{path}: not a directory")
     if (path / "dataset.json").exists():
-        return _load_synthetic(path, max_width)
+        return _load_synthetic(path, max_width, thermal_scale)
     from smokeseer.official_layouts import detect_official_layout, load_official  # reads data.py's types
 
     layout = detect_official_layout(path)
     if layout is not None:
-        return load_official(path, layout, max_width)
-    return _load_capture(path, max_width)
+        return load_official(path, layout, max_width, thermal_scale)
+    return _load_capture(path, max_width, thermal_scale)
 
 
-THERMAL_RANGE_PERCENTILES = (0.5, 99.5)
-
-
-def _normalise_counts(stack: np.ndarray) -> tuple[np.ndarray, tuple[float, float]]:
-    """Map raw thermal values to [0, 1] by the dataset's own robust range: the 0.5th and 99.5th
-    percentiles over all frames, clipped outside.
-
-    A per-dataset range keeps the low-contrast LWIR signal spread over [0, 1] whatever the
-    sensor's gain, and works the same for real captures that have no sensor metadata. The
-    percentiles matter: one small hot object (a heater, a fire) otherwise sets the top of the
-    range and squeezes the rest of the scene into a few percent of it, where the photometric
-    loss barely sees geometry (measured on the brick_toy bench scene: 90 % of pixels within
-    0.06 of each other under min/max).
-    """
-    lo, hi = (float(v) for v in np.percentile(stack, THERMAL_RANGE_PERCENTILES))
-    if hi - lo < 1e-9:
-        lo, hi = float(stack.min()), float(stack.max())
-    if hi - lo < 1e-9:
-        hi = lo + 1.0
-    return normalise_with(stack, (lo, hi)), (lo, hi)
-
-
-def normalise_with(stack: np.ndarray, counts: tuple[float, float]) -> np.ndarray:
-    """Raw thermal values to [0, 1] with a range from ``_normalise_counts``."""
-    return np.clip((stack - counts[0]) / (counts[1] - counts[0]), 0.0, 1.0)
-
-
-def _load_synthetic(path: Path, max_width: int) -> SceneData:
+def _load_synthetic(path: Path, max_width: int, thermal_scale: ThermalScaleSpec) -> SceneData:
     meta = load_json(path / "dataset.json")
     if meta.get("format") != "smokeseer-synth-dataset":
         raise DatasetError(f"{path / 'dataset.json'}: field 'format' must be 'smokeseer-synth-dataset'")
@@ -279,7 +254,7 @@ def _load_synthetic(path: Path, max_width: int) -> SceneData:
         raise DatasetError(f"{path / 'dataset.json'}: field 'passes.rgb' must include 'smoky'")
     rgb = _load_synth_modality(path, "rgb", rgb_passes, max_width)
     thermal_passes = passes.get("thermal", [])
-    thermal = _load_synth_modality(path, "thermal", thermal_passes, max_width) if "smoky" in thermal_passes else None
+    thermal = _load_synth_modality(path, "thermal", thermal_passes, max_width, thermal_scale) if "smoky" in thermal_passes else None
     _set_times(rgb, thermal, meta.get("duration_s"))
     return SceneData(
         name=str(meta.get("scene", path.name)), path=path.resolve(), rgb=rgb, thermal=thermal,
@@ -287,7 +262,8 @@ def _load_synthetic(path: Path, max_width: int) -> SceneData:
         mask_threshold=float(smoke.get("mask_threshold", 0.02)), synthetic=True, meta=meta)
 
 
-def _load_synth_modality(path: Path, modality: str, passes: list[str], max_width: int) -> ModalityData:
+def _load_synth_modality(path: Path, modality: str, passes: list[str], max_width: int,
+                         thermal_scale: ThermalScaleSpec = LINEAR_SCALE) -> ModalityData:
     tpath = path / f"transforms_{modality}.json"
     data, raw_frames = _parse_transforms(tpath, modality)
     factor = _factor(int(data["w"]), max_width)
@@ -309,15 +285,13 @@ def _load_synth_modality(path: Path, modality: str, passes: list[str], max_width
                            for a, s in zip(stack("smoky", None), stems)])
         clean = (np.stack([box_downscale(_rgb01(a, path / "rgb" / "clean" / f"{s}.png"), factor)
                            for a, s in zip(stack("clean", None), stems)]) if "clean" in passes else None)
-        counts = None
+        scale = None
     else:
-        raw = np.stack([_gray(a) for a in stack("smoky", None)])
-        norm, counts = _normalise_counts(raw)
-        images = np.stack([box_downscale(x, factor)[..., None] for x in norm])
+        images, scale = thermal_images(np.stack([_gray(a) for a in stack("smoky", None)]), factor, thermal_scale)
         clean = None
         if "clean" in passes:
             craw = np.stack([_gray(a) for a in stack("clean", None)])
-            clean = np.stack([box_downscale(normalise_with(x, counts), factor)[..., None] for x in craw])
+            clean = np.stack([box_downscale(scale.apply(x), factor)[..., None] for x in craw])
     masks = depth = None
     if "smoke_alpha" in passes:
         masks = np.stack([box_downscale(_gray(a) / 255.0, factor) for a in stack("smoke_mask", None)])
@@ -329,7 +303,14 @@ def _load_synth_modality(path: Path, modality: str, passes: list[str], max_width
                         clean=None if clean is None else clean.astype(np.float32),
                         masks=None if masks is None else masks.astype(np.float32),
                         depth=None if depth is None else depth.astype(np.float32),
-                        counts_range=counts)
+                        scale=scale)
+
+
+def thermal_images(raw: np.ndarray, factor: int, spec: ThermalScaleSpec) -> tuple[np.ndarray, ThermalScale]:
+    """Raw thermal frames [N, H, W] to training images [N, H/factor, W/factor, 1] through the
+    dataset's curve, fitted on every full-resolution frame."""
+    scale = spec.fit(raw)
+    return np.stack([box_downscale(scale.apply(x), factor)[..., None] for x in raw]), scale
 
 
 def _check_finite(arr: np.ndarray, where: Path) -> None:
@@ -352,15 +333,15 @@ def _set_times(rgb: ModalityData, thermal: ModalityData | None, duration: Any) -
 
 # ----------------------------------------------------------------------------- real captures
 
-def _load_capture(path: Path, max_width: int) -> SceneData:
+def _load_capture(path: Path, max_width: int, thermal_scale: ThermalScaleSpec) -> SceneData:
     meta = load_json(path / "capture.json") if (path / "capture.json").exists() else {}
     smoke = meta.get("smoke", {}) if isinstance(meta.get("smoke", {}), dict) else {}
     test_every = int(meta.get("test_every", 8))
     notes: list[str] = []
-    rgb = _load_capture_modality(path, "rgb", max_width, test_every, notes)
+    rgb = _load_capture_modality(path, "rgb", max_width, test_every, notes, thermal_scale)
     if rgb is None:
         raise DatasetError(f"{path}: no RGB poses (need transforms_rgb.json or rgb/sparse/images.txt)")
-    thermal = _load_capture_modality(path, "thermal", max_width, 0, notes)
+    thermal = _load_capture_modality(path, "thermal", max_width, 0, notes, thermal_scale)
     _set_times(rgb, thermal, meta.get("duration_s"))
     points = None
     pts_file = path / "rgb" / "sparse" / "points3D.txt"
@@ -396,8 +377,8 @@ def load_masks(files: list[Path], factor: int, what: str, notes: list[str]) -> n
                      for p in files]).astype(np.float32)
 
 
-def _load_capture_modality(path: Path, modality: str, max_width: int,
-                           test_every: int, notes: list[str]) -> ModalityData | None:
+def _load_capture_modality(path: Path, modality: str, max_width: int, test_every: int, notes: list[str],
+                           thermal_scale: ThermalScaleSpec) -> ModalityData | None:
     tpath = path / f"transforms_{modality}.json"
     colmap = path / modality / "sparse"
     if tpath.exists():
@@ -426,15 +407,14 @@ def _load_capture_modality(path: Path, modality: str, max_width: int,
     masks = None
     if modality == "rgb":
         images = np.stack([box_downscale(_rgb01(a, p), factor) for a, p in zip(imgs, files)])
-        counts = None
+        scale = None
         masks = load_masks([path / "rgb" / "masks" / f"{f.file_stem}.png" for f in frames], factor,
                            f"{path / 'rgb' / 'masks'}", notes)
     else:
-        norm, counts = _normalise_counts(np.stack([_gray(a) for a in imgs]))
-        images = np.stack([box_downscale(x, factor)[..., None] for x in norm])
+        images, scale = thermal_images(np.stack([_gray(a) for a in imgs]), factor, thermal_scale)
     _check_finite(images, path / modality)
     return ModalityData(name=modality, frames=frames, images=images.astype(np.float32),
-                        masks=masks, counts_range=counts)
+                        masks=masks, scale=scale)
 
 
 def read_timestamps(tfile: Path) -> dict[str, float]:

@@ -96,7 +96,7 @@ def write_renders(model: SceneModel, scene: SceneData, out: Path, device: torch.
     """renders/{composite,surface,smoke,thermal}/NNNN.png for every test view."""
     idx, views = split_views(scene, device)
     res = TestRenders([], [], [], [])
-    lo_hi = scene.thermal.counts_range if scene.thermal is not None else None
+    scale = scene.thermal.scale if scene.thermal is not None else None
     with torch.no_grad():
         for i, v in zip(idx, views):
             stem = scene.rgb.frames[i].file_stem
@@ -111,9 +111,9 @@ def write_renders(model: SceneModel, scene: SceneData, out: Path, device: torch.
                 smoke = np.zeros_like(surf_img)
             _save_png8(out / "renders" / "smoke" / f"{stem}.png", smoke)
             tv = thermal_test_view(scene, i, device)
-            if tv is not None and "thermal" in model.surface and lo_hi is not None:
+            if tv is not None and "thermal" in model.surface and scale is not None:
                 th = model.render_thermal(tv).colors[0, ..., 0].cpu().numpy()
-                _save_png16(out / "renders" / "thermal" / f"{stem}.png", lo_hi[0] + th * (lo_hi[1] - lo_hi[0]))
+                _save_png16(out / "renders" / "thermal" / f"{stem}.png", scale.invert(th))
             res.stems.append(stem)
             res.surface.append(surf_img)
             res.surface_depth.append(surf.depths[0, ..., 0].cpu().numpy())

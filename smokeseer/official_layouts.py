@@ -25,9 +25,10 @@ from contracts.dataset_format import load_json, need_field
 from contracts.errors import DatasetError
 from smokeseer.cameras import c2w_gl_to_viewmat, intrinsics
 from smokeseer.colmap_binary import read_cameras_bin, read_images_bin, read_points3d_bin
-from smokeseer.data import (Frame, ModalityData, SceneData, _factor, _gray, _normalise_counts, _set_times,
-                            box_downscale, image01, load_masks, read_png)
+from smokeseer.data import (Frame, ModalityData, SceneData, _factor, _gray, _set_times,
+                            box_downscale, image01, load_masks, read_png, thermal_images)
 from smokeseer.official_depth import read_depth_files, reciprocal_or_zero
+from smokeseer.thermal_scale import LINEAR_SCALE, ThermalScaleSpec
 
 SIDECAR = "smokeseer_interop.json"
 OFFICIAL_TEST_EVERY = 8
@@ -42,14 +43,14 @@ def detect_official_layout(path: Path) -> str | None:
     return None
 
 
-def load_official(path: Path, layout: str, max_width: int) -> SceneData:
+def load_official(path: Path, layout: str, max_width: int, thermal_scale: ThermalScaleSpec = LINEAR_SCALE) -> SceneData:
     sidecar = load_json(path / SIDECAR) if (path / SIDECAR).is_file() else {}
     notes: list[str] = [] if sidecar else [
         f"{path}: no {SIDECAR}; smoke assumed present and moving (set by the data under --stage1 estimate)"]
     if layout == "smokeseer-blender":
-        rgb, thermal, points = _load_blender(path, max_width, sidecar, notes)
+        rgb, thermal, points = _load_blender(path, max_width, sidecar, notes, thermal_scale)
     else:
-        rgb, thermal, points = _load_colmap(path, max_width, sidecar, notes)
+        rgb, thermal, points = _load_colmap(path, max_width, sidecar, notes, thermal_scale)
     smoke = sidecar.get("smoke", {}) if isinstance(sidecar.get("smoke", {}), dict) else {}
     meta = {"layout": layout, **sidecar}
     return SceneData(
@@ -99,7 +100,7 @@ def _read_transforms(path: Path) -> tuple[float, list[dict[str, Any]]]:
 
 
 def _blender_modality(root: Path, files: list[tuple[str, str]], modality: str, max_width: int,
-                      duration: float, notes: list[str]) -> ModalityData | None:
+                      duration: float, notes: list[str], thermal_scale: ThermalScaleSpec = LINEAR_SCALE) -> ModalityData | None:
     entries = []
     for name, split in files:
         tpath = root / name
@@ -142,17 +143,15 @@ def _blender_modality(root: Path, files: list[tuple[str, str]], modality: str, m
         else:
             notes.append(f"{root}: no NAME_gt.png smoke-free truth; novel views are not scored")
         masks = load_masks(mask_files, factor, f"{root}/*_mask", notes)
-        counts = None
+        scale = None
     else:
-        norm, counts = _normalise_counts(np.stack([_gray(_rgba_on_black(a)) for a in raws]))
-        images = np.stack([box_downscale(x, factor)[..., None] for x in norm])
+        images, scale = thermal_images(np.stack([_gray(_rgba_on_black(a)) for a in raws]), factor, thermal_scale)
     return ModalityData(name=modality, frames=frames_out, images=images.astype(np.float32),
-                        clean=None if clean is None else clean.astype(np.float32), masks=masks,
-                        counts_range=counts)
+                        clean=None if clean is None else clean.astype(np.float32), masks=masks, scale=scale)
 
 
-def _load_blender(path: Path, max_width: int, sidecar: dict[str, Any],
-                  notes: list[str]) -> tuple[ModalityData, ModalityData | None, np.ndarray | None]:
+def _load_blender(path: Path, max_width: int, sidecar: dict[str, Any], notes: list[str],
+                  thermal_scale: ThermalScaleSpec) -> tuple[ModalityData, ModalityData | None, np.ndarray | None]:
     if not (path / "transforms_test.json").is_file():
         raise DatasetError(f"{path / 'transforms_test.json'}: missing file (the official Blender layout has both "
                            "transforms_train.json and transforms_test.json)")
@@ -163,7 +162,7 @@ def _load_blender(path: Path, max_width: int, sidecar: dict[str, Any],
         raise DatasetError(f"{path}: transforms_train.json and transforms_test.json list no frames")
     thermal = _blender_modality(path, [("transforms_thermaltrain.json", "train"),
                                        ("transforms_thermaltest.json", "train")],
-                                "thermal", max_width, duration, notes)
+                                "thermal", max_width, duration, notes, thermal_scale)
     pts = path / "sparse_colmap" / "points3D.bin"
     points = read_points3d_bin(pts)[0] if pts.is_file() else None
     return rgb, thermal, points
@@ -179,8 +178,8 @@ def frame_number(name: str, where: Path) -> int:
     return int(digits)
 
 
-def _load_colmap(path: Path, max_width: int, sidecar: dict[str, Any],
-                 notes: list[str]) -> tuple[ModalityData, ModalityData | None, np.ndarray | None]:
+def _load_colmap(path: Path, max_width: int, sidecar: dict[str, Any], notes: list[str],
+                 thermal_scale: ThermalScaleSpec) -> tuple[ModalityData, ModalityData | None, np.ndarray | None]:
     sparse = path / "sparse" / "0"
     cams = read_cameras_bin(sparse / "cameras.bin")
     images = read_images_bin(sparse / "images.bin")
@@ -215,7 +214,7 @@ def _load_colmap(path: Path, max_width: int, sidecar: dict[str, Any],
     for modality, items in entries.items():
         if items:
             ordered = sorted(items, key=lambda e: e[0])
-            mod = _colmap_modality(path, modality, ordered, max_width, notes, lo, hi, tick, origin)
+            mod = _colmap_modality(path, modality, ordered, max_width, notes, lo, hi, tick, origin, thermal_scale)
             _attach_depth(path, mod, [(e[5], e[4]) for e in ordered], max_width,
                           sidecar.get("images_depth") == "ground-truth", notes)
             mods[modality] = mod
@@ -244,7 +243,7 @@ def _attach_depth(path: Path, mod: ModalityData, sizes: list[tuple[int, int]], m
 
 
 def _colmap_modality(path: Path, modality: str, items: list, max_width: int, notes: list[str],
-                     lo: int, hi: int, tick: float, origin: float) -> ModalityData:
+                     lo: int, hi: int, tick: float, origin: float, thermal_scale: ThermalScaleSpec) -> ModalityData:
     factor = _factor(max(e[4] for e in items), max_width)
     frames, raws, cleans = [], [], []
     for idx, (base, number, viewmat, k, w, h) in enumerate(items):
@@ -262,7 +261,7 @@ def _colmap_modality(path: Path, modality: str, items: list, max_width: int, not
         stem, ext = base.split(".")[0], base.split(".")[1] if "." in base else "png"
         gt = path / "images" / f"{stem}_gt.{ext}"
         cleans.append(gt if gt.is_file() else None)
-    clean = masks = counts = None
+    clean = masks = scale = None
     if modality == "rgb":
         images = np.stack([box_downscale(_rgba_on_black(a), factor) for a in raws])
         if all(c is not None for c in cleans):
@@ -275,7 +274,6 @@ def _colmap_modality(path: Path, modality: str, items: list, max_width: int, not
         masks = load_masks([path / "images_mask" / f"{f.file_stem}.png" for f in frames], factor,
                            f"{path / 'images_mask'}", notes)
     else:
-        norm, counts = _normalise_counts(np.stack([_gray(image01(a)) for a in raws]))
-        images = np.stack([box_downscale(x, factor)[..., None] for x in norm])
+        images, scale = thermal_images(np.stack([_gray(image01(a)) for a in raws]), factor, thermal_scale)
     return ModalityData(name=modality, frames=frames, images=images.astype(np.float32), clean=clean, masks=masks,
-                        counts_range=counts)
+                        scale=scale)

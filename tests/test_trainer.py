@@ -425,6 +425,30 @@ def test_haze_line_smoke_colour_is_fixed_or_refused_aloud(splat: Path, tmp_path:
     assert not (tmp_path / "bad").exists()
 
 
+def test_equalised_thermal_is_recorded_and_rendered_in_raw_counts(splat: Path, tmp_path: Path,
+                                                                   capsys: pytest.CaptureFixture) -> None:
+    """thermal_scale=equalised: the curve goes in the log and stages.thermal_scale, the Stage-2
+    checkpoint is keyed apart from the linear one, and the thermal renders come back in raw counts."""
+    from smokeseer.config import make_config
+
+    run = tmp_path / "equalised"
+    assert main([str(splat), "--out", str(run), "--set", "thermal_scale=equalised"] + TINY) == 0
+    err = capsys.readouterr().err
+    record = json.loads((run / "metrics.json").read_text())["stages"]["thermal_scale"]
+    assert record["kind"] == "equalised" and record["bins"] == 2048 and 0 < record["crowded"] <= 1
+    assert "stage 1: thermal scale equalised over raw" in err
+    lo, hi = record["raw_range"]
+    renders = np.stack([np.asarray(Image.open(p)) for p in sorted((run / "renders" / "thermal").glob("*.png"))])
+    assert renders.min() >= math.floor(lo) and renders.max() <= math.ceil(hi) and renders.std() > 0
+    linear, equalised = make_config("full", "quick", 0, {}), make_config("full", "quick", 0, {"thermal_scale": "equalised"})
+    assert linear.stage2_sha256() != equalised.stage2_sha256()
+    rgb = [make_config("rgb-only", "quick", 0, o).stage2_sha256() for o in ({}, {"thermal_scale": "equalised"})]
+    assert rgb[0] == rgb[1]  # RGB-only never reads the thermal frames: its Stage 2 is shared
+    assert main([str(splat), "--out", str(tmp_path / "bad"), "--set", "thermal_scale=agc"] + TINY) == 2
+    assert "thermal_scale: 'agc' is not one of linear, equalised" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
+
+
 def test_metrics_name_the_commit_threads_and_machine(splat: Path, tmp_path: Path) -> None:
     run = tmp_path / "run"
     assert main([str(splat), "--out", str(run)] + TINY) == 0
