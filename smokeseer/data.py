@@ -254,7 +254,8 @@ def _load_synthetic(path: Path, max_width: int, thermal_scale: ThermalScaleSpec)
         raise DatasetError(f"{path / 'dataset.json'}: field 'passes.rgb' must include 'smoky'")
     rgb = _load_synth_modality(path, "rgb", rgb_passes, max_width)
     thermal_passes = passes.get("thermal", [])
-    thermal = _load_synth_modality(path, "thermal", thermal_passes, max_width, thermal_scale) if "smoky" in thermal_passes else None
+    thermal = (_load_synth_modality(path, "thermal", thermal_passes, max_width, thermal_scale)
+               if "smoky" in thermal_passes else None)
     _set_times(rgb, thermal, meta.get("duration_s"))
     return SceneData(
         name=str(meta.get("scene", path.name)), path=path.resolve(), rgb=rgb, thermal=thermal,

@@ -100,7 +100,8 @@ def _read_transforms(path: Path) -> tuple[float, list[dict[str, Any]]]:
 
 
 def _blender_modality(root: Path, files: list[tuple[str, str]], modality: str, max_width: int,
-                      duration: float, notes: list[str], thermal_scale: ThermalScaleSpec = LINEAR_SCALE) -> ModalityData | None:
+                      duration: float, notes: list[str],
+                      thermal_scale: ThermalScaleSpec = LINEAR_SCALE) -> ModalityData | None:
     entries = []
     for name, split in files:
         tpath = root / name
