@@ -88,11 +88,12 @@ def check_depth_files(cfg: TrainConfig, scene: SceneData) -> None:
                          "(the official COLMAP layout's images_depth/ with sparse/0/depth_params.json)")
 
 
-def _metrics_doc(cfg: TrainConfig, scene_name: str, dataset: Path, status: str) -> dict[str, Any]:
-    return {"format": RESULTS_FORMAT, "format_version": RESULTS_FORMAT_VERSION, "scene": scene_name,
-            "dataset": str(Path(dataset).resolve()), "method": cfg.mode, "profile": cfg.profile,
+def _metrics_doc(prep: PreparedRun, status: str) -> dict[str, Any]:
+    cfg = prep.cfg
+    return {"format": RESULTS_FORMAT, "format_version": RESULTS_FORMAT_VERSION, "scene": prep.scene.name,
+            "dataset": str(Path(prep.dataset).resolve()), "method": cfg.mode, "profile": cfg.profile,
             "seed": cfg.seed, "status": status, "versions": _versions(), "config_sha256": cfg.sha256(),
-            "provenance": provenance("smokeseer.api", torch.get_num_threads())}
+            "provenance": prep.provenance}
 
 
 @dataclass
@@ -105,6 +106,9 @@ class PreparedRun:
     report: Stage1Report
     switches: Stage3Switches
     load_s: float
+    provenance: dict[str, Any]
+    """Taken before training: a commit made or a file edited during a long run must not be
+    credited with its result."""
 
 
 def prepare(dataset: Path, mode: str = "full", profile: str = "quick", seed: int = 0,
@@ -112,6 +116,7 @@ def prepare(dataset: Path, mode: str = "full", profile: str = "quick", seed: int
     """Config, dataset validation (the validator of ``generate-scene --validate`` for datasets in
     our format), loading and Stage 1; raises DatasetError/ValueError naming the bad input."""
     t = time.perf_counter()
+    code = provenance("smokeseer.api", torch.get_num_threads())
     cfg = make_config(mode, profile, seed, overrides)
     dataset = Path(dataset)
     if cfg.depth_prior == "mono" and not Path(cfg.mono_weights).is_file():
@@ -123,7 +128,7 @@ def prepare(dataset: Path, mode: str = "full", profile: str = "quick", seed: int
     hold_out_validation(scene.rgb, cfg.validation_every)
     report = run_stage1(cfg, scene)
     check_depth_files(cfg, scene)
-    return PreparedRun(cfg, dataset, scene, report, switches_for(cfg, scene), time.perf_counter() - t)
+    return PreparedRun(cfg, dataset, scene, report, switches_for(cfg, scene), time.perf_counter() - t, code)
 
 
 def train_and_evaluate(dataset: Path, out: Path, mode: str = "full", profile: str = "quick", seed: int = 0,
@@ -138,7 +143,7 @@ def train_and_evaluate(dataset: Path, out: Path, mode: str = "full", profile: st
     try:
         return _run(prep, out)
     except Exception as exc:
-        doc = _metrics_doc(cfg, prep.scene.name, prep.dataset, "failed")
+        doc = _metrics_doc(prep, "failed")
         doc["error"] = f"{type(exc).__name__}: {exc}"
         write_json(out / "metrics.json", doc)
         raise
@@ -254,7 +259,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
     m = scores["metrics"]
     ctx.log_line(f"eval: PSNR surface vs clean {m['psnr']}, smoky input vs clean {m['psnr_input']} "
                  f"in {wall['eval']:.1f} s")
-    doc = _metrics_doc(cfg, scene.name, prep.dataset, "ok")
+    doc = _metrics_doc(prep, "ok")
     doc.update(scores)
     doc["validation"] = validation
     doc["wall_time_s"] = {k: round(v, 3) for k, v in wall.items()}

@@ -459,6 +459,29 @@ def test_metrics_name_the_commit_threads_and_machine(splat: Path, tmp_path: Path
         assert re.fullmatch(r"[0-9a-f]{40}", prov["commit"])
 
 
+def test_provenance_is_taken_before_training(splat: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A commit made, or a file edited, while a long run trains must not be credited with it:
+    metrics.json carries the provenance read before Stage 2 began."""
+    from smokeseer import api
+
+    reads: list[str] = []
+    real_provenance, real_stage2 = api.provenance, api.train_stage2
+
+    def provenance(*args, **kwargs):
+        reads.append("during training" if "stage 2" in reads else "before training")
+        return {**real_provenance(*args, **kwargs), "commit": reads[-1]}
+
+    def train_stage2(*args, **kwargs):
+        reads.append("stage 2")
+        return real_stage2(*args, **kwargs)
+
+    monkeypatch.setattr(api, "provenance", provenance)
+    monkeypatch.setattr(api, "train_stage2", train_stage2)
+    run = tmp_path / "run"
+    assert main([str(splat), "--out", str(run)] + TINY) == 0
+    assert json.loads((run / "metrics.json").read_text())["provenance"]["commit"] == "before training"
+
+
 def test_paper_profile_on_cpu_prints_its_estimate_first(splat: Path, tmp_path: Path,
                                                         capsys: pytest.CaptureFixture) -> None:
     run = tmp_path / "paper"
