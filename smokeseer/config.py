@@ -347,9 +347,8 @@ def _standard() -> TrainConfig:
     )
     deform = DeformConfig(depth=6, width=128, skip_layer=3, warmup_iterations=500, predict_rotation_scale=True)
     return TrainConfig(profile="standard", max_width=0, thermal_scale="equalised", thermal_equalised_share=0.5,
-                       sh_degree=2,
-                       sh_increase_every=800, stage2=s2, stage3=s3, deform=deform, checkpoint_every=500,
-                       depth_prior="none")
+                       sh_degree=2, sh_increase_every=800, stage2=s2, stage3=s3, deform=deform,
+                       checkpoint_every=500, depth_prior="none")
 
 
 def _paper() -> TrainConfig:

@@ -12,8 +12,10 @@ value across frames, as a camera with a frozen gain curve records it. Two curves
   the cumulative histogram of every pixel of the dataset, each bin clipped at ``PLATEAU`` times
   the mean bin count so that a large uniform wall does not take the whole range. Why: when a
   warm object covers more than the top half-percent (the standard food_plate's grill), the
-  linear range still leaves 92 % of pixels within 0.06 of each other (room 85 %, forest 84 %),
-  where the photometric loss barely sees geometry (benchmarks/results/standard/README.md).
+  linear range still puts 92 % of the pixels in one 0.06-wide window (room 80 %, forest 82 %),
+  where the photometric loss barely sees geometry. Fully equalised, warm smoke can become one
+  of the brightest things in view (forest), which Stage 2 fits as surface; the standard
+  profile mixes the two half and half (docs/method.md "Data").
 
 ``invert`` maps trained values back to raw units for the thermal renders.
 """
