@@ -20,7 +20,7 @@ from PIL import Image
 from interop.colmap_write import CameraRecord, ImageRecord, points3d_bin, write_model
 from interop.resample import centred_intrinsics, needs_resample, warp_to_intrinsics
 from smokeseer.official_depth import DEPTH_DIR, PARAMS_FILE, encode_inverse_depth, global_code, reciprocal_or_zero
-from smokeseer.cameras import scene_bounds
+from smokeseer.cameras import backproject, scene_bounds
 from smokeseer.data import Frame, ModalityData, SceneData
 
 TARGETS = ("smokeseer-blender", "smokeseer-colmap", "nerfstudio")
@@ -176,10 +176,7 @@ def _points(scene: SceneData, conv: Conversion) -> tuple[np.ndarray, np.ndarray]
             if f.split != "train":
                 continue
             v, u = np.nonzero(mod.depth[i] > 0)
-            d = mod.depth[i][v, u]
-            cam = np.stack([(u + 0.5 - f.K[0, 2]) / f.K[0, 0] * d, (v + 0.5 - f.K[1, 2]) / f.K[1, 1] * d, d], 1)
-            r, t = f.viewmat[:3, :3], f.viewmat[:3, 3]
-            xyz.append((cam - t) @ r)
+            xyz.append(backproject(mod.depth[i][v, u], np.stack([u, v], 1), f.viewmat, f.K))
             rgb.append(colour[i][v, u])
         pts, cols = np.concatenate(xyz), np.concatenate(rgb)
         keep = rng.choice(len(pts), size=min(MAX_POINTS, len(pts)), replace=False)

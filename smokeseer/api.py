@@ -184,8 +184,9 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
                  f"smoke={'on' if switches.use_smoke else 'off'} deform={'on' if switches.use_deform else 'off'} "
                  f"registered={report.registered} extent={b.extent:.3g}")
     thermal_scale = scene.thermal.scale if scene.thermal is not None and switches.use_thermal else None
-    if thermal_scale is not None:
-        ctx.log_line(f"stage 1: thermal scale {thermal_scale.describe(scene.thermal.images)}")
+    thermal_record = thermal_scale.record(scene.thermal.images) if thermal_scale is not None else None
+    if thermal_record is not None:
+        ctx.log_line(f"stage 1: thermal scale {thermal_scale.describe(thermal_record['crowded'])}")
     for note in report.notes:
         ctx.log_line(f"stage 1: {note}")
     if report.registration is not None:
@@ -271,7 +272,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
                      "surface_gaussians": model.surface.n, "deformation": switches.use_deform,
                      "registration": report.registration, "masks": report.masks,
                      "smoke_colour": smoke_colour_record(cfg, switches, smoke_colour),
-                     "thermal_scale": thermal_scale.record(scene.thermal.images) if thermal_scale else None,
+                     "thermal_scale": thermal_record,
                      "notes": list(report.notes) + list(switches.notes)}
     write_json(out / "metrics.json", doc)
     return doc

@@ -76,6 +76,14 @@ def project(points: np.ndarray, viewmat: np.ndarray, K: np.ndarray
     return K[0, 0] * pc[:, 0] / safe + K[0, 2], K[1, 1] * pc[:, 1] / safe + K[1, 2], z, ahead
 
 
+def backproject(depth: np.ndarray, pixels_uv: np.ndarray, viewmat: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """World points seen at pixel centres ``pixels_uv`` (n, 2, integer) with planar ``depth`` (n,):
+    the inverse of ``project``."""
+    homog = np.stack([pixels_uv[:, 0] + 0.5, pixels_uv[:, 1] + 0.5, np.ones(len(depth))])
+    cam = np.linalg.inv(K) @ homog * depth
+    return (np.linalg.inv(viewmat) @ np.vstack([cam, np.ones(len(depth))]))[:3].T
+
+
 def visible_fraction(points: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray,
                      widths: np.ndarray, heights: np.ndarray) -> np.ndarray:
     """Fraction of cameras whose image contains each point (in front of the camera)."""

@@ -13,7 +13,7 @@ from typing import Any
 
 import yaml
 
-from smokeseer.thermal_scale import THERMAL_SCALES
+from smokeseer.thermal_scale import check_thermal_scale
 
 MODES: tuple[str, ...] = (
     "full",
@@ -213,10 +213,7 @@ class TrainConfig:
                             ("stage3.iterations", self.stage3.iterations)):
             if value < 0:
                 raise ValueError(f"{name}: must be >= 0, got {value}")
-        if self.thermal_scale not in THERMAL_SCALES:
-            raise ValueError(f"thermal_scale: {self.thermal_scale!r} is not one of {', '.join(THERMAL_SCALES)}")
-        if not 0.0 < self.thermal_equalised_share <= 1.0:
-            raise ValueError(f"thermal_equalised_share: must be in (0, 1], got {self.thermal_equalised_share}")
+        check_thermal_scale(self.thermal_scale, self.thermal_equalised_share)
         if not 0 <= self.sh_degree <= 3:
             raise ValueError(f"sh_degree: must be in 0..3, got {self.sh_degree}")
         if self.background not in ("environment", "black"):

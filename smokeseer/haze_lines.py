@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from smokeseer.cameras import project
+from smokeseer.cameras import backproject, project
 
 
 @dataclass(frozen=True)
@@ -54,13 +54,6 @@ class SmokeColourEstimate:
         met = "" if self.meeting_fraction is None else f", {self.meeting_fraction:.2f} of them meeting"
         found = (f"{np.round(self.colour, 3).tolist()}" if self.colour is not None else f"none: {self.reason}")
         return f"{found} ({self.lines} observation lines from {self.points} points{met})"
-
-
-def backproject(depth: np.ndarray, pixels_uv: np.ndarray, viewmat: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """World points seen at pixel centres ``pixels_uv`` (n, 2, integer) with planar ``depth`` (n,)."""
-    homog = np.stack([pixels_uv[:, 0] + 0.5, pixels_uv[:, 1] + 0.5, np.ones(len(depth))])
-    cam = np.linalg.inv(K) @ homog * depth
-    return (np.linalg.inv(viewmat) @ np.vstack([cam, np.ones(len(depth))]))[:3].T
 
 
 def observations(points: np.ndarray, images: np.ndarray, depths: np.ndarray, valid: np.ndarray,

@@ -72,10 +72,11 @@ class ThermalScale:
             doc["percentiles"] = list(LINEAR_PERCENTILES)
         return doc
 
-    def describe(self, mapped: np.ndarray) -> str:
+    def describe(self, crowded: float) -> str:
+        """One log line; ``crowded`` as in ``record``."""
         lo, hi = self.raw_range
         share = f" (share {self.equalised_share:g}, the rest linear)" if 0 < self.equalised_share < 1 else ""
-        return (f"{self.kind}{share} over raw {lo:.6g}..{hi:.6g}; {100 * crowded_fraction(mapped):.0f} % of pixels "
+        return (f"{self.kind}{share} over raw {lo:.6g}..{hi:.6g}; {100 * crowded:.0f} % of pixels "
                 f"within {CROWDING_WIDTH} of each other")
 
 
@@ -93,15 +94,20 @@ class ThermalScaleSpec:
 LINEAR_SCALE = ThermalScaleSpec()
 
 
+def check_thermal_scale(kind: str, equalised_share: float) -> None:
+    """Reject a curve that cannot be fitted, naming the config field."""
+    if kind not in THERMAL_SCALES:
+        raise ValueError(f"thermal_scale: {kind!r} is not one of {', '.join(THERMAL_SCALES)}")
+    if not 0.0 < equalised_share <= 1.0:
+        raise ValueError(f"thermal_equalised_share: must be in (0, 1], got {equalised_share}")
+
+
 def fit_thermal_scale(stack: np.ndarray, kind: str, equalised_share: float = 1.0) -> ThermalScale:
     """The dataset's curve from every raw thermal value of every frame. ``equalised_share`` < 1
     mixes the equalised curve with the linear one (that share equalised, the rest linear). A
     constant stack (no contrast to spread) gets a unit-wide ramp from its value, so values stay
     finite."""
-    if kind not in THERMAL_SCALES:
-        raise ValueError(f"thermal_scale: {kind!r} is not one of {', '.join(THERMAL_SCALES)}")
-    if not 0.0 < equalised_share <= 1.0:
-        raise ValueError(f"thermal_equalised_share: must be in (0, 1], got {equalised_share}")
+    check_thermal_scale(kind, equalised_share)
     values = np.asarray(stack, dtype=np.float64)
     low, high = float(values.min()), float(values.max())
     share = equalised_share if kind == "equalised" else 0.0

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from smokeseer.haze_lines import (HazeLineSettings, backproject, estimate_smoke_colour, fit_lines, meeting_point,
-                                  observations)
+from smokeseer.cameras import backproject
+from smokeseer.haze_lines import HazeLineSettings, estimate_smoke_colour, fit_lines, meeting_point, observations
 
 SMOKE = np.array([0.2, 0.3, 0.25])
 F, W, H = 100.0, 64, 48
