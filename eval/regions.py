@@ -1,0 +1,162 @@
+"""Where a method's error is: test-view PSNR split by the dataset's smoke mask.
+
+Table 1 compares each method's surface render with the smoky input as a floor. On a scene with
+thin or local smoke most pixels are smoke-free, the input is exact there, and a method loses to
+it by its reconstruction error alone, whatever it does with the smoke. This split separates the
+two: "smoky" pixels (the true RGB smoke mask of the test frame is set) measure de-smoking, "clear"
+pixels measure reconstruction. Squared errors are pooled over a run's test views, per region,
+so a region that is small in one view and large in another is weighed by its pixels.
+
+The renders are the run's 8-bit PNGs, so whole-image PSNRs here can differ from metrics.json's
+(scored on float renders) by the rounding. A run trained at a reduced width is compared with the
+dataset's frames box-downscaled by the same whole factor as the trainer's loader does, and a pixel
+counts as smoky when most of its block is.
+"""
+
+from __future__ import annotations
+
+import csv
+import logging
+import math
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+import numpy as np
+
+from contracts.atomic import atomic_path, write_text
+from contracts.dataset_format import PASS_FILES, file_path
+from contracts.errors import DatasetError
+from contracts.imageio import read_png
+from contracts.metrics import PSNR_CAP_DB
+from eval.runs import VARIANTS, RunResult
+from smokeseer.data import box_downscale
+
+log = logging.getLogger(__name__)
+
+REGIONS = ("smoky", "clear")
+CLEAN, SMOKY = PASS_FILES[("rgb", "clean")][0], PASS_FILES[("rgb", "smoky")][0]
+MASK = PASS_FILES[("rgb", "smoke_alpha")][1]
+
+
+@dataclass(frozen=True)
+class RegionScore:
+    """One run's test views pooled over one region (a row of per_scene_regions.csv)."""
+
+    scene: str
+    variant: str
+    seed: int
+    region: str
+    views: int
+    pixel_share: float  # of all test-view pixels
+    psnr: float  # the method's surface render against the clean frames, pooled squared error
+    psnr_input: float  # the smoky input against the clean frames, same pixels
+    error_share: float  # share of the method's squared error over all test pixels in this region
+
+
+def pooled_psnr(sq_error_sum: float, count: int) -> float:
+    """PSNR of a pooled mean squared error on [0, 1] images, capped as contracts.metrics caps it;
+    NaN for an empty region."""
+    if count == 0:
+        return math.nan
+    return 10.0 * math.log10(1.0 / max(sq_error_sum / count, 10 ** (-PSNR_CAP_DB / 10)))
+
+
+def _image(path: Path) -> np.ndarray:
+    if not path.is_file():
+        raise DatasetError(f"{path}: missing file")
+    return read_png(path).astype(np.float64) / 255.0
+
+
+def score_run(result: RunResult, dataset: Path) -> list[RegionScore]:
+    """The region split of one finished run: its saved surface renders (renders/surface/STEM.png)
+    against the source dataset's clean frames, with the smoky input and smoke mask of the same
+    frames. ``dataset`` is the scene's original dataset (for the dehazing baseline too: the floor
+    is the smoky input, not the dehazed one). DatasetError names a missing or unreadable file."""
+    renders = sorted((Path(result.run_dir) / "renders" / "surface").glob("*.png"))
+    if not renders:
+        raise DatasetError(f"{Path(result.run_dir) / 'renders' / 'surface'}: no surface renders")
+    sums = {r: [0.0, 0.0, 0] for r in REGIONS}  # method sq error, input sq error, pixels
+    for render in renders:
+        stem = render.stem
+        pred = _image(render)
+        clean = _image(file_path(dataset, CLEAN, stem))
+        factor = clean.shape[1] // pred.shape[1]
+        smoky = box_downscale(_image(file_path(dataset, SMOKY, stem)), factor)
+        mask = box_downscale(read_png(file_path(dataset, MASK, stem)) / 255.0, factor) >= 0.5
+        clean = box_downscale(clean, factor)
+        if not (pred.shape == clean.shape == smoky.shape and mask.shape == clean.shape[:2]):
+            raise DatasetError(f"{render}: {pred.shape[1]}x{pred.shape[0]} render is not the dataset's frame {stem} "
+                               f"({clean.shape[1] * factor}x{clean.shape[0] * factor}) downscaled by a whole factor")
+        err = ((pred - clean) ** 2).sum(-1)
+        err_in = ((smoky - clean) ** 2).sum(-1)
+        for region, sel in (("smoky", mask), ("clear", ~mask)):
+            sums[region][0] += float(err[sel].sum())
+            sums[region][1] += float(err_in[sel].sum())
+            sums[region][2] += int(sel.sum()) * 3
+    total_pixels = sum(s[2] for s in sums.values())
+    total_error = sum(s[0] for s in sums.values())
+    return [RegionScore(result.scene, result.variant, result.seed, region, len(renders),
+                        count / total_pixels, pooled_psnr(err, count), pooled_psnr(err_in, count),
+                        err / total_error if total_error > 0 else 0.0)
+            for region, (err, err_in, count) in sums.items()]
+
+
+def _fmt(x: float, digits: int = 2) -> str:
+    return "-" if math.isnan(x) else f"{x:.{digits}f}"
+
+
+def _summary(scores: list[RegionScore], skipped: list[str]) -> str:
+    """Markdown: per scene and method, mean over seeds of each region's PSNR beside the input's."""
+    lines = ["# Where the error is: test PSNR on smoky and on clear pixels", "",
+             "Pixels split by the dataset's RGB smoke mask of each test frame; squared error pooled over "
+             "a run's test views, then the mean over seeds. `clear` is reconstruction (the input is exact "
+             "there up to the renderer's noise), `smoky` is de-smoking. Error share: the part of the "
+             "method's squared error that lies on clear pixels.", "",
+             "| scene | method | seeds | smoky pixels | smoky: method / input (dB) | clear: method / input (dB) "
+             "| error share on clear |", "|---|---|---|---|---|---|---|"]
+    keys = sorted({(s.scene, s.variant) for s in scores})
+    for scene, variant in keys:
+        mine = {r: [s for s in scores if (s.scene, s.variant, s.region) == (scene, variant, r)] for r in REGIONS}
+
+        def mean(region: str, attr: str) -> float:
+            vals = [getattr(s, attr) for s in mine[region] if not math.isnan(getattr(s, attr))]
+            return sum(vals) / len(vals) if vals else math.nan
+
+        label = VARIANTS[variant].label if variant in VARIANTS else variant
+        lines.append(f"| {scene} | {label} | {len(mine['smoky'])} | {_fmt(100 * mean('smoky', 'pixel_share'), 0)} % "
+                     f"| {_fmt(mean('smoky', 'psnr'))} / {_fmt(mean('smoky', 'psnr_input'))} "
+                     f"| {_fmt(mean('clear', 'psnr'))} / {_fmt(mean('clear', 'psnr_input'))} "
+                     f"| {_fmt(100 * mean('clear', 'error_share'), 0)} % |")
+    if skipped:
+        lines += ["", "Not split (said in the log too):", ""] + [f"- {s}" for s in skipped]
+    return "\n".join(lines) + "\n"
+
+
+def write_region_split(results: list[RunResult], datasets: dict[str, Path], out_dir: Path) -> dict[str, Path]:
+    """per_scene_regions.csv (one row per run and region) and per_scene_regions.md (the summary).
+    A run whose scene has no smoke mask (a real capture) or whose files are missing is left out,
+    with one log line and a line in the summary."""
+    scores: list[RegionScore] = []
+    skipped: list[str] = []
+    for r in sorted((r for r in results if r.status == "ok"), key=lambda r: (r.scene, r.variant, r.seed)):
+        dataset = datasets.get(r.scene)
+        if dataset is None:
+            skipped.append(f"{r.scene} {r.variant} seed {r.seed}: no dataset for the scene")
+        elif not (Path(dataset) / MASK.folder).is_dir():
+            skipped.append(f"{r.scene} {r.variant} seed {r.seed}: {Path(dataset) / MASK.folder} missing "
+                           "(no smoke ground truth, e.g. a real capture)")
+        else:
+            try:
+                scores += score_run(r, Path(dataset))
+            except DatasetError as exc:
+                skipped.append(f"{r.scene} {r.variant} seed {r.seed}: {exc}")
+    for line in skipped:
+        log.info("region split skipped: %s", line)
+    out_dir = Path(out_dir)
+    csv_path, md_path = out_dir / "per_scene_regions.csv", out_dir / "per_scene_regions.md"
+    with atomic_path(csv_path) as tmp, open(tmp, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=[f.name for f in fields(RegionScore)])
+        writer.writeheader()
+        writer.writerows(asdict(s) for s in scores)
+    write_text(md_path, _summary(scores, skipped))
+    return {"per_scene_regions.csv": csv_path, "per_scene_regions.md": md_path}

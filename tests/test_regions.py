@@ -1,0 +1,121 @@
+"""The region split of eval/regions.py against hand-computed PSNRs on tiny images."""
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from contracts.errors import DatasetError
+from contracts.imageio import write_png
+from eval.regions import score_run, write_region_split
+from eval.runs import RunResult
+
+H, W = 4, 6
+
+
+def _rgb(level: int) -> np.ndarray:
+    return np.full((H, W, 3), level, np.uint8)
+
+
+def _scene(root: Path, masks: dict[str, np.ndarray], smoky_offset: int) -> None:
+    """Clean frames at 100; the smoky input is +smoky_offset on smoky pixels, exact elsewhere."""
+    for stem, mask in masks.items():
+        clean = _rgb(100)
+        smoky = clean.copy()
+        smoky[mask] += np.uint8(smoky_offset)
+        write_png(root / "rgb" / "clean" / f"{stem}.png", clean)
+        write_png(root / "rgb" / "smoky" / f"{stem}.png", smoky)
+        write_png(root / "rgb" / "smoke_mask" / f"{stem}.png", np.where(mask, 255, 0).astype(np.uint8))
+
+
+def _run(root: Path, renders: dict[str, np.ndarray], scene: str = "s", variant: str = "full") -> RunResult:
+    for stem, img in renders.items():
+        write_png(root / "renders" / "surface" / f"{stem}.png", img)
+    return RunResult(scene, variant, 0, "ok", str(root), "hash")
+
+
+def _db(err_levels: float) -> float:
+    return 10 * math.log10(1 / (err_levels / 255) ** 2)
+
+
+def test_pooled_psnr_per_region(tmp_path: Path) -> None:
+    left = np.zeros((H, W), bool)
+    left[:, :2] = True  # view 0000: 8 of 24 pixels smoky
+    half = np.zeros((H, W), bool)
+    half[:, :3] = True  # view 0008: 12 of 24 pixels smoky
+    _scene(tmp_path / "ds", {"0000": left, "0008": half}, smoky_offset=30)
+    # The method is 10 levels off on smoky pixels and 4 off on clear pixels of both views.
+    renders = {}
+    for stem, mask in (("0000", left), ("0008", half)):
+        img = _rgb(104)
+        img[mask] = 110
+        renders[stem] = img
+    scores = {s.region: s for s in score_run(_run(tmp_path / "run", renders), tmp_path / "ds")}
+    assert scores["smoky"].pixel_share == pytest.approx(20 / 48)
+    assert scores["smoky"].psnr == pytest.approx(_db(10))
+    assert scores["smoky"].psnr_input == pytest.approx(_db(30))
+    assert scores["clear"].psnr == pytest.approx(_db(4))
+    assert scores["clear"].psnr_input == pytest.approx(100.0)  # exact input: the metrics' cap
+    smoky_err, clear_err = 20 * 10 ** 2, 28 * 4 ** 2
+    assert scores["clear"].error_share == pytest.approx(clear_err / (smoky_err + clear_err))
+    assert scores["smoky"].views == 2
+
+
+def test_smoke_free_region_is_nan_not_an_error(tmp_path: Path) -> None:
+    everywhere = np.ones((H, W), bool)
+    _scene(tmp_path / "ds", {"0000": everywhere}, smoky_offset=20)
+    scores = {s.region: s for s in score_run(_run(tmp_path / "run", {"0000": _rgb(100)}), tmp_path / "ds")}
+    assert math.isnan(scores["clear"].psnr) and scores["clear"].pixel_share == 0
+    assert scores["smoky"].psnr == pytest.approx(100.0)
+    assert scores["smoky"].psnr_input == pytest.approx(_db(20))
+
+
+def test_missing_file_and_missing_mask_are_named_and_skipped(tmp_path: Path) -> None:
+    mask = np.zeros((H, W), bool)
+    _scene(tmp_path / "ds", {"0000": mask}, smoky_offset=0)
+    (tmp_path / "ds" / "rgb" / "clean" / "0000.png").unlink()
+    run = _run(tmp_path / "run", {"0000": _rgb(100)})
+    with pytest.raises(DatasetError, match=r"rgb/clean/0000\.png: missing file"):
+        score_run(run, tmp_path / "ds")
+    capture = tmp_path / "capture"
+    (capture / "rgb" / "clean").mkdir(parents=True)
+    other = _run(tmp_path / "run2", {"0000": _rgb(100)}, scene="real")
+    paths = write_region_split([run, other], {"s": tmp_path / "ds", "real": capture}, tmp_path / "out")
+    md = paths["per_scene_regions.md"].read_text()
+    assert "s full seed 0:" in md and "missing file" in md
+    assert "real full seed 0:" in md and "no smoke ground truth" in md
+    with open(paths["per_scene_regions.csv"], newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert rows == []
+
+
+def test_written_table_rows(tmp_path: Path) -> None:
+    mask = np.zeros((H, W), bool)
+    mask[0] = True
+    _scene(tmp_path / "ds", {"0000": mask}, smoky_offset=40)
+    img = _rgb(100)
+    img[mask] = 120
+    paths = write_region_split([_run(tmp_path / "run", {"0000": img})], {"s": tmp_path / "ds"}, tmp_path / "out")
+    with open(paths["per_scene_regions.csv"], newline="") as f:
+        rows = {r["region"]: r for r in csv.DictReader(f)}
+    assert float(rows["smoky"]["psnr"]) == pytest.approx(_db(20))
+    assert float(rows["smoky"]["psnr_input"]) == pytest.approx(_db(40))
+    assert "| s | Ours (Full) | 1 | 25 % | 22.11 / 16.09 |" in paths["per_scene_regions.md"].read_text()
+
+
+def test_run_at_reduced_width_is_compared_at_its_size(tmp_path: Path) -> None:
+    mask = np.zeros((H, W), bool)
+    mask[:2] = True  # top half smoky: whole 2x2 blocks
+    _scene(tmp_path / "ds", {"0000": mask}, smoky_offset=30)
+    img = np.full((H // 2, W // 2, 3), 105, np.uint8)
+    img[:1] = 100
+    scores = {s.region: s for s in score_run(_run(tmp_path / "run", {"0000": img}), tmp_path / "ds")}
+    assert scores["smoky"].pixel_share == pytest.approx(0.5)
+    assert scores["smoky"].psnr == pytest.approx(100.0)
+    assert scores["clear"].psnr == pytest.approx(_db(5))
+    odd = _run(tmp_path / "run_odd", {"0000": np.zeros((3, 5, 3), np.uint8)})
+    with pytest.raises(DatasetError, match="downscaled by a whole factor"):
+        score_run(odd, tmp_path / "ds")
