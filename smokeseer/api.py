@@ -25,6 +25,7 @@ from smokeseer.data import ModalityData, SceneData, load_scene
 from smokeseer.depth_prior import DepthPriorMaps, file_depth_prior, monocular_depth_prior, rendered_depth_prior
 from smokeseer.evaluate import heldout_psnr, score, score_validation, write_plys, write_renders
 from smokeseer.haze_lines import SmokeColourEstimate, estimate_smoke_colour
+from smokeseer.mask_floor import never_seen_clear
 from smokeseer.model import Placed, SceneModel, init_gaussians, render
 from smokeseer.splits import hold_out_validation
 from smokeseer.stage1 import Stage1Report, run_stage1
@@ -228,8 +229,18 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
         ctx.log_line("stage 3: skipped (deformable-3dgs baseline has one deformable set)")
     else:
         smoke_pts = _sample(scene.rgb, cfg.stage3.smoke_points, b, rng) if switches.use_smoke else None
+        rgb_depth = (rendered_depth_prior(s2.gaussians, views_of(scene.rgb, scene.rgb.indices("train"), dev), "rgb")
+                     if switches.use_smoke and (cfg.stage3.smoke_color == "haze-lines" or floor_gated(cfg, switches))
+                     else None)
+        if floor_gated(cfg, switches):
+            switches.mask_floor = mask_floor_pixels(scene.rgb, rgb_depth)
+            note = (f"mask floor on {100 * switches.mask_floor.mean() / max(_masked_share(scene.rgb), 1e-12):.0f} % "
+                    "of the masked training pixels: the rest are seen smoke-free from another training view "
+                    "(loss.mask_floor_where=never-clear)")
+            switches.notes.append(note)
+            ctx.log_line(f"stage 3: {note}")
         if switches.use_smoke and cfg.stage3.smoke_color == "haze-lines":
-            smoke_colour = haze_line_smoke_colour(cfg, s2.gaussians, scene.rgb, dev)
+            smoke_colour = haze_line_smoke_colour(cfg, rgb_depth, scene.rgb)
             switches.smoke_colour = smoke_colour.colour
             ctx.log_line(f"stage 3: smoke colour from haze lines: {smoke_colour.describe()}")
             note = smoke_colour_note(cfg, smoke_colour)
@@ -278,16 +289,33 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
     return doc
 
 
-def haze_line_smoke_colour(cfg: TrainConfig, geometry: Any, rgb: ModalityData,
-                           dev: torch.device) -> SmokeColourEstimate:
+def haze_line_smoke_colour(cfg: TrainConfig, depth: DepthPriorMaps, rgb: ModalityData) -> SmokeColourEstimate:
     """The smoke colour where the training RGB frames' observation lines meet, with Stage 2's
-    geometry rendered as depth at each of those frames saying which pixels see the same point."""
+    geometry rendered as depth at each of those frames (``depth``) saying which pixels see the
+    same point."""
     idx = rgb.indices("train")
-    depth = rendered_depth_prior(geometry, views_of(rgb, idx, dev), "rgb")
     frames = [rgb.frames[i] for i in idx]
     return estimate_smoke_colour(rgb.images[idx], depth.maps.cpu().numpy(), depth.valid.cpu().numpy(),
                                  np.stack([f.viewmat for f in frames]), np.stack([f.K for f in frames]),
                                  np.random.default_rng(cfg.seed + 2))
+
+
+def floor_gated(cfg: TrainConfig, switches: Stage3Switches) -> bool:
+    """Whether the mask floor is limited to pixels never seen smoke-free (needs masks and smoke)."""
+    return cfg.loss.mask_floor_where == "never-clear" and switches.use_smoke and switches.use_masks
+
+
+def _masked_share(rgb: ModalityData) -> float:
+    return float((rgb.masks[rgb.indices("train")] > 0.5).mean())
+
+
+def mask_floor_pixels(rgb: ModalityData, depth: DepthPriorMaps) -> np.ndarray:
+    """The training frames' pixels where the mask floor acts (``smokeseer.mask_floor``), with
+    Stage 2's geometry rendered as depth at the same cameras."""
+    idx = rgb.indices("train")
+    frames = [rgb.frames[i] for i in idx]
+    return never_seen_clear(rgb.masks[idx], depth.maps.cpu().numpy(), depth.valid.cpu().numpy(),
+                            np.stack([f.viewmat for f in frames]), np.stack([f.K for f in frames]))
 
 
 def smoke_colour_note(cfg: TrainConfig, estimate: SmokeColourEstimate) -> str | None:

@@ -28,6 +28,7 @@ MODES: tuple[str, ...] = (
 PROFILES: tuple[str, ...] = ("quick", "standard", "paper")
 SMOKE_COLOR_SOURCES: tuple[str, ...] = ("learned", "haze-lines")
 DEPTH_PIXELS: tuple[str, ...] = ("all", "smoky", "smoke-weighted")
+MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear")
 LPIPS_NETS: tuple[str, ...] = ("alex", "vgg")
 
 
@@ -59,6 +60,10 @@ class LossWeights:
     1 is the paper's plain L1). It sets how much of a dense smoke's darkening the surface may
     absorb: at 0.4 a pixel whose smoke is 0.8 opaque can be explained by half that smoke over a
     darker surface (benchmarks/results/standard/README.md, the dense excavator)."""
+    mask_floor_where: str = "all"
+    """Which masked pixels the floor acts on (``smokeseer/mask_floor.py``): "all", or
+    "never-clear", those whose surface point no other training view sees smoke-free, so that
+    thin smoke over a surface seen clear elsewhere is not forced up to the floor."""
 
 
 @dataclass
@@ -252,6 +257,9 @@ class TrainConfig:
         if self.loss.depth_pixels != "all" and self.depth_camera != "rgb":
             raise ValueError(f"loss.depth_pixels: {self.loss.depth_pixels!r} needs depth_camera=rgb "
                              "(the smoke render and masks belong to the RGB frames)")
+        if self.loss.mask_floor_where not in MASK_FLOOR_WHERE:
+            raise ValueError(f"loss.mask_floor_where: {self.loss.mask_floor_where!r} is not one of "
+                             f"{', '.join(MASK_FLOOR_WHERE)}")
         if not 0.0 < self.loss.mask_alpha_floor <= 1.0:
             raise ValueError(f"loss.mask_alpha_floor: must be in (0, 1], got {self.loss.mask_alpha_floor}")
         if self.validation_every < 0 or self.validation_every == 1:
@@ -325,7 +333,10 @@ def _standard() -> TrainConfig:
     thermal curve is half histogram-equalised, half linear: under the linear range a warm object
     crowds the scene into a sliver and Stage 2 barely covers the views, fully equalised the warm
     smoke stands out in thermal (validation: forest 26.4 linear, 24.7 equalised, 28.7 half;
-    food_plate 16.5, 18.5, 17.2)."""
+    food_plate 16.5, 18.5, 17.2). The mask term's floor acts only where no other training view
+    sees the surface smoke-free: everywhere, it forced thin smoke up to 0.4 and the smoke took the
+    scene's colours; nowhere (0.02), house and food_plate gained 1.2-2.4 dB and forest and room
+    lost 1.5-2.3 (docs/method.md, "mask alignment")."""
     s2 = Stage2Config(
         iterations=3000,
         init_points=5000,
@@ -345,7 +356,7 @@ def _standard() -> TrainConfig:
     deform = DeformConfig(depth=6, width=128, skip_layer=3, warmup_iterations=500, predict_rotation_scale=True)
     return TrainConfig(profile="standard", max_width=0, thermal_scale="equalised", thermal_equalised_share=0.5,
                        sh_degree=2, sh_increase_every=800, stage2=s2, stage3=s3, deform=deform,
-                       checkpoint_every=500, depth_prior="none")
+                       loss=LossWeights(mask_floor_where="never-clear"), checkpoint_every=500, depth_prior="none")
 
 
 def _paper() -> TrainConfig:

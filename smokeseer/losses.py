@@ -98,13 +98,17 @@ def depth_consistency(depth: Tensor, prior: Tensor, valid: Tensor, relative: boo
     return error / target.abs().mean().clamp_min(1e-12) if relative else error
 
 
-def mask_alignment(smoke_alpha: Tensor, mask: Tensor, floor: float) -> Tensor:
+def mask_alignment(smoke_alpha: Tensor, mask: Tensor, floor: float, floor_where: Tensor | None = None) -> Tensor:
     """L1 between the accumulated smoke alpha and the smoke mask, where smoke alpha at or above
     ``floor`` counts as 1 inside the mask (``loss.mask_alpha_floor``; the public code's threshold is 0.4).
 
     Why: a mask says where smoke is, not how dense it is. A plain L1 drives smoke alpha to 1 in
     every masked pixel; where the mask covers the whole frame (the chair and brick_toy bench
     scenes) the smoke then hides the surface and the surface-only render fails (chair: 15.3 dB
-    with the plain L1, 20.7 dB without the term). Outside the mask it still pulls alpha to 0."""
-    counted = torch.where((mask > 0.5) & (smoke_alpha >= floor), torch.ones_like(smoke_alpha), smoke_alpha)
+    with the plain L1, 20.7 dB without the term). Outside the mask it still pulls alpha to 0.
+
+    ``floor_where`` (bool, like the mask): inside the mask but outside it, any alpha counts as full
+    smoke, so only the push to zero outside the mask is left (``loss.mask_floor_where``)."""
+    full = smoke_alpha >= floor if floor_where is None else (smoke_alpha >= floor) | ~floor_where
+    counted = torch.where((mask > 0.5) & full, torch.ones_like(smoke_alpha), smoke_alpha)
     return (counted - mask).abs().mean()

@@ -47,6 +47,9 @@ class Stage3Switches:
     smoke_colour: np.ndarray | None = None
     """The fixed RGB smoke colour (``stage3.smoke_color=haze-lines``, set once Stage 2 has given the
     geometry), or None when the smoke Gaussians learn their colours."""
+    mask_floor: np.ndarray | None = None
+    """(training RGB frames, H, W) bool: where the mask term's floor acts
+    (``loss.mask_floor_where=never-clear``, set once Stage 2 has given the geometry); None: everywhere."""
 
 
 def loss_weights(cfg: TrainConfig) -> dict[str, float]:
@@ -159,6 +162,8 @@ class Stage3Problem(StageProblem):
         self.rgb_imgs = torch.as_tensor(rgb.images[rgb_idx], device=dev)
         self.masks = (torch.as_tensor(rgb.masks[rgb_idx], device=dev)
                       if switches.use_masks and rgb.masks is not None and model.smoke is not None else None)
+        self.mask_floor = (torch.as_tensor(switches.mask_floor, device=dev)
+                           if self.masks is not None and switches.mask_floor is not None else None)
         self.th_views: list = []
         self.th_imgs = None
         self._held_surface: torch.Tensor | None = None
@@ -209,7 +214,8 @@ class Stage3Problem(StageProblem):
                 terms["mono"] = monochromaticity(col)
             if self.masks is not None and weights["mask"] > 0:
                 terms["mask"] = mask_alignment(out.subset_alphas[0, ..., 0], self.masks[k],
-                                               cfg.loss.mask_alpha_floor)
+                                               cfg.loss.mask_alpha_floor,
+                                               None if self.mask_floor is None else self.mask_floor[k])
             if self.th_imgs is not None and weights["thermal_smoke_opacity"] > 0:
                 terms["thermal_smoke_opacity"] = torch.sigmoid(model.smoke["opacity_thermal"]).mean()
         if self.depth_on:
