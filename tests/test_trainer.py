@@ -216,22 +216,30 @@ def test_surface_under_smoke_gets_no_update_when_asked(tmp_path: Path) -> None:
 
 def test_mask_alpha_floor_reaches_the_mask_term(splat: Path, tmp_path: Path,
                                                monkeypatch: pytest.MonkeyPatch) -> None:
-    """loss.mask_alpha_floor is the floor Stage 3's mask term uses (default 0.4, the public code's)."""
+    """loss.mask_alpha_floor is the floor Stage 3's mask term uses (default 0.4, the public code's),
+    and loss.mask_floor_where=never-clear hands it a per-pixel map of the mask's shape (said in
+    stages.notes); by default it acts on every masked pixel."""
     import smokeseer.stage3 as stage3
 
-    seen: list[float] = []
+    seen: list[tuple[float, tuple[int, ...] | None]] = []
     term = stage3.mask_alignment
 
-    def recording(alpha: torch.Tensor, mask: torch.Tensor, floor: float) -> torch.Tensor:
-        seen.append(floor)
-        return term(alpha, mask, floor)
+    def recording(alpha: torch.Tensor, mask: torch.Tensor, floor: float,
+                  floor_where: torch.Tensor | None = None) -> torch.Tensor:
+        assert floor_where is None or (floor_where.dtype == torch.bool and floor_where.shape == mask.shape)
+        seen.append((floor, None if floor_where is None else tuple(floor_where.shape)))
+        return term(alpha, mask, floor, floor_where)
 
     monkeypatch.setattr(stage3, "mask_alignment", recording)
-    for floor in (None, 0.9):
+    for name, extra, expected in (("default", [], 0.4), ("floor", ["--set", "loss.mask_alpha_floor=0.9"], 0.9),
+                                  ("gated", ["--set", "loss.mask_floor_where=never-clear"], 0.4)):
         seen.clear()
-        extra = [] if floor is None else ["--set", f"loss.mask_alpha_floor={floor}"]
-        assert main([str(splat), "--out", str(tmp_path / f"run-{floor}")] + TINY + extra) == 0
-        assert seen and set(seen) == {0.4 if floor is None else floor}
+        assert main([str(splat), "--out", str(tmp_path / name)] + TINY + extra) == 0
+        assert seen and {f for f, _ in seen} == {expected}
+        gated = {shape is not None for _, shape in seen}
+        assert gated == {name == "gated"}
+        notes = json.loads((tmp_path / name / "metrics.json").read_text())["stages"]["notes"]
+        assert any("mask floor on" in n for n in notes) == (name == "gated")
 
 
 @pytest.mark.slow
