@@ -336,7 +336,7 @@ def _standard() -> TrainConfig:
     food_plate 16.5, 18.5, 17.2). The mask term's floor acts only where no other training view
     sees the surface smoke-free: everywhere, it forced thin smoke up to 0.4 and the smoke took the
     scene's colours; nowhere (0.02), house and food_plate gained 1.2-2.4 dB and forest and room
-    lost 1.5-2.3 (docs/method.md, "mask alignment")."""
+    lost 1.8-2.3 (docs/method.md, "mask alignment")."""
     s2 = Stage2Config(
         iterations=3000,
         init_points=5000,

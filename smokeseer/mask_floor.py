@@ -5,7 +5,7 @@ full smoke and pushes lower alpha up. That push is what keeps a surface that is 
 dense smoke from absorbing the smoke (room: the surface would take the smoke's colour). Where
 the smoke is thin it forces smoke that is not there, and the smoke Gaussians then carry the
 scene's own colours over a surface left unconstrained (food_plate's clearing frames, house's
-thin plume: validation +2.4 and +1.2 dB with the floor at 0.02, but room and forest lose 1.5-2 dB).
+thin plume: validation +2.4 and +1.2 dB with the floor at 0.02, but room and forest lose 1.8-2.3 dB).
 The floor is only needed where the images cannot separate surface from smoke: a surface point
 that some other training view sees smoke-free has its colour pinned there, and the render loss
 can set the smoke over it. So with ``never-clear`` the floor acts only on masked pixels whose
