@@ -20,14 +20,14 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from contracts.imageio import read_png  # noqa: E402
 from eval.regions import pooled_psnr  # noqa: E402
+from smokeseer.data import image01, read_png  # noqa: E402
 
 COLUMNS = ("clean truth", "smoky input", "surface", "smoke (render)", "|surface - clean| x 4")
 
 
 def _rgb(path: Path) -> np.ndarray:
-    return read_png(path).astype(np.float64) / 255.0
+    return image01(read_png(path))
 
 
 def panels(dataset: Path, run: Path, stem: str) -> tuple[list[np.ndarray], float, float]:

@@ -21,15 +21,13 @@ import math
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
-import numpy as np
 
 from contracts.atomic import atomic_path, write_text
 from contracts.dataset_format import PASS_FILES, file_path
 from contracts.errors import DatasetError
-from contracts.imageio import read_png
 from contracts.metrics import PSNR_CAP_DB
 from eval.runs import VARIANTS, RunResult
-from smokeseer.data import box_downscale
+from smokeseer.data import box_downscale, image01, read_png
 
 log = logging.getLogger(__name__)
 
@@ -61,12 +59,6 @@ def pooled_psnr(sq_error_sum: float, count: int) -> float:
     return 10.0 * math.log10(1.0 / max(sq_error_sum / count, 10 ** (-PSNR_CAP_DB / 10)))
 
 
-def _image(path: Path) -> np.ndarray:
-    if not path.is_file():
-        raise DatasetError(f"{path}: missing file")
-    return read_png(path).astype(np.float64) / 255.0
-
-
 def score_run(result: RunResult, dataset: Path) -> list[RegionScore]:
     """The region split of one finished run: its saved surface renders (renders/surface/STEM.png)
     against the source dataset's clean frames, with the smoky input and smoke mask of the same
@@ -78,11 +70,11 @@ def score_run(result: RunResult, dataset: Path) -> list[RegionScore]:
     sums = {r: [0.0, 0.0, 0] for r in REGIONS}  # method sq error, input sq error, pixels
     for render in renders:
         stem = render.stem
-        pred = _image(render)
-        clean = _image(file_path(dataset, CLEAN, stem))
+        pred = image01(read_png(render))
+        clean = image01(read_png(file_path(dataset, CLEAN, stem)))
         factor = clean.shape[1] // pred.shape[1]
-        smoky = box_downscale(_image(file_path(dataset, SMOKY, stem)), factor)
-        mask = box_downscale(read_png(file_path(dataset, MASK, stem)) / 255.0, factor) >= 0.5
+        smoky = box_downscale(image01(read_png(file_path(dataset, SMOKY, stem))), factor)
+        mask = box_downscale(image01(read_png(file_path(dataset, MASK, stem))), factor) >= 0.5
         clean = box_downscale(clean, factor)
         if not (pred.shape == clean.shape == smoky.shape and mask.shape == clean.shape[:2]):
             raise DatasetError(f"{render}: {pred.shape[1]}x{pred.shape[0]} render is not the dataset's frame {stem} "
