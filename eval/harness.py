@@ -242,7 +242,9 @@ def run_task(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int, prep_
 
 
 def _train_run(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int) -> RunResult:
-    """Train and evaluate one run from scratch; any exception becomes a failed record with its error."""
+    """Train and evaluate one run; any exception becomes a failed record with its error. A folder
+    left by an interrupted or failed attempt is kept: its name holds the config hash, so its
+    checkpoints were written with these settings and the trainer resumes from them."""
     for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[var] = str(threads)
     if "torch" in sys.modules:
@@ -251,8 +253,6 @@ def _train_run(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int) -> 
                     run_dir=run_dir, config_hash=spec.hash(), dataset=spec.dataset)
     t0 = time.perf_counter()
     try:
-        if Path(run_dir).exists():
-            shutil.rmtree(run_dir)
         Path(run_dir).parent.mkdir(parents=True, exist_ok=True)
         train_fn(Path(spec.dataset), Path(run_dir), spec.mode, profile=spec.profile, seed=spec.seed,
                  overrides=dict(spec.overrides))

@@ -66,7 +66,7 @@ def tiny_generate(preset: str, out: Path, **overrides: Any) -> Path:
 def identity_train(dataset: Path, out: Path, mode: str, profile: str = "quick", seed: int = 0,
                    overrides: dict[str, Any] | None = None) -> dict[str, Any]:
     """Reconstruction = the smoky input itself; metrics computed for real on the test split."""
-    out.mkdir(parents=True)
+    out.mkdir(parents=True, exist_ok=True)
     with open(out.parent / "calls.log", "a") as f:
         f.write(f"{mode} {seed}\n")
     if mode == "no-mask":
@@ -242,6 +242,32 @@ def test_overlapping_invocations_share_a_run(tmp_path: Path) -> None:
     assert _calls(tmp_path / "out") == 1
     assert results[0].metrics["psnr"] == results[1].metrics["psnr"]
     assert json.loads((Path(run_dir) / "harness.json").read_text())["status"] == "ok"
+
+
+def checkpointing_train(dataset: Path, out: Path, mode: str, profile: str = "quick", seed: int = 0,
+                        overrides: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Like the trainer: resumes from out/checkpoints, and its first attempt stops half-way."""
+    checkpoint = out / "checkpoints" / "stage3.pt"
+    if not checkpoint.is_file():
+        checkpoint.parent.mkdir(parents=True)
+        checkpoint.write_text("iteration 1500")
+        raise RuntimeError("interrupted half-way (injected)")
+    (out / "resumed_at.txt").write_text(checkpoint.read_text())
+    return identity_train(dataset, out, mode, profile, seed, overrides)
+
+
+def test_a_stopped_run_resumes_from_its_checkpoints(tmp_path: Path) -> None:
+    """The folder of a run that stopped before finishing is kept for the next invocation, so
+    the trainer resumes from its checkpoints (the harness used to delete it and start over)."""
+    ds = write_tiny_dataset(tmp_path / "ds", "alpha")
+    spec = RunSpec("alpha", "full", "full", 0, "quick", {}, str(ds), "h", "code")
+    run_dir = spec.run_dir(tmp_path / "out")
+    first = harness.run_task(spec, str(run_dir), checkpointing_train, 1)
+    assert first.status == "failed" and "half-way" in first.error
+    second = harness.run_task(spec, str(run_dir), checkpointing_train, 1)
+    assert second.status == "ok" and not second.cached
+    assert (run_dir / "resumed_at.txt").read_text() == "iteration 1500"
+    assert json.loads((run_dir / "harness.json").read_text())["status"] == "ok"
 
 
 def slow_generate(preset: str, out: Path, **overrides: Any) -> Path:
