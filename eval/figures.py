@@ -149,7 +149,7 @@ def write_qualitative_grid(results: list[RunResult], datasets: dict[str, Path], 
                 if ok:
                     img = _load_rgb(Path(ok[0].run_dir) / "renders" / "surface" / f"{stem}.png")
                 elif mine:
-                    why = "run failed"
+                    why = "not trained yet" if all(r.status == "pending" for r in mine) else "run failed"
             if img is None:
                 ax.set_facecolor("0.8")
                 ax.text(0.5, 0.5, why, ha="center", va="center", transform=ax.transAxes, fontsize=8)

@@ -99,6 +99,8 @@ class HarnessConfig:
     lpips_net: str = "alex"
     lpips_weights: str | None = None
     lpips_heads: str | None = None
+    finished_only: bool = False
+    """Table the runs already finished in ``out``; generate, dehaze and train nothing (the rest are pending)."""
 
     def __post_init__(self) -> None:
         if self.ablations is None:
@@ -395,15 +397,20 @@ def plan_dehazed(cfg: HarnessConfig, sources: list[DatasetJob]) -> list[DatasetJ
     return jobs
 
 
-def produce_datasets(ex: _Executor, jobs: list[DatasetJob], desc: str) -> None:
-    """Run every job that is not cached; a job whose source failed fails without running."""
+def produce_datasets(ex: _Executor, jobs: list[DatasetJob], desc: str, finished_only: bool = False) -> None:
+    """Run every job that is not cached; a job whose source failed fails without running; with
+    ``finished_only`` a job not yet done stays pending."""
     pending = []
     for job in jobs:
         o = job.outcome
         if job.source is not None and job.source.status != "ok":
-            o.status, o.error = "failed", "source dataset unavailable"
+            o.status, o.error = ("pending", "source dataset pending") if job.source.status == "pending" \
+                else ("failed", "source dataset unavailable")
             continue
         if job.make is None:
+            continue
+        if finished_only:
+            o.status, o.error = "pending", "not produced yet (--finished-only)"
             continue
         Path(o.path).parent.mkdir(parents=True, exist_ok=True)
 
@@ -463,6 +470,10 @@ class Plan:
         todo_dh = sum(j.make is not None for j in self.dehazed)
         todo = len(self.runs) - self.cached_runs
         est = self.estimated_seconds(cfg.workers)
+        if cfg.finished_only:
+            return (f"plan: {len(cfg.scenes)} scene(s) x {len(cfg.variants())} variant(s) x {len(cfg.seeds)} seed(s) "
+                    f"= {len(self.runs)} runs; --finished-only: tabling the {self.cached_runs} finished, "
+                    f"{todo} pending (nothing is generated, dehazed or trained); output {Path(cfg.out).resolve()}")
         return (f"plan: {len(cfg.scenes)} scene(s) x {len(cfg.variants())} variant(s) x {len(cfg.seeds)} seed(s) "
                 f"= {len(self.runs)} runs ({self.cached_runs} cached, {todo} to train); "
                 f"{todo_ds} dataset(s) to generate, {todo_dh} to dehaze; profile {cfg.profile}, "
@@ -491,12 +502,15 @@ def _line(r: RunResult) -> str:
     if r.status == "ok":
         tag = "cached" if r.cached else "ok"
         return f"[{tag:>6}] {head}: PSNR {r.metrics.get('psnr', float('nan')):.2f} dB, {r.wall_time_s:.1f} s"
+    if r.status == "pending":
+        return f"[pending] {head}: {r.error}"
     return f"[FAILED] {head}: {r.error.splitlines()[0] if r.error else 'unknown error'}"
 
 
 def execute_runs(cfg: HarnessConfig, ex: _Executor, specs: list[RunSpec], train_fn: TrainFn,
                  datasets: dict[str, DatasetOutcome], dehazed: dict[str, DatasetOutcome]) -> list[RunResult]:
-    """Collect cached runs, run the rest; a run whose dataset failed is failed, not skipped."""
+    """Collect cached runs, run the rest (or, with ``finished_only``, list them as pending); a run
+    whose dataset failed is failed, not skipped."""
     results: list[RunResult] = []
     jobs = []
     threads = max(1, (os.cpu_count() or 1) // cfg.workers)
@@ -506,16 +520,19 @@ def execute_runs(cfg: HarnessConfig, ex: _Executor, specs: list[RunSpec], train_
         ds = dehazed[spec.scene] if VARIANTS[spec.variant].dehazer else datasets[spec.scene]
         prep = ds.wall_time_s if VARIANTS[spec.variant].dehazer else 0.0
         if ds.status != "ok":
-            r = RunResult(spec.scene, spec.variant, spec.seed, "failed", str(run_dir), spec.hash(), ds.path,
-                          error=f"dataset ({ds.kind}) failed: {ds.error.splitlines()[0] if ds.error else ''}")
+            r = RunResult(spec.scene, spec.variant, spec.seed, "pending" if ds.status == "pending" else "failed",
+                          str(run_dir), spec.hash(), ds.path,
+                          error=f"dataset ({ds.kind}) {ds.status}: {ds.error.splitlines()[0] if ds.error else ''}")
             results.append(r)
             bar.write(_line(r))
             bar.update(1)
             continue
         cached = finished_run(spec, run_dir)
-        if cached is not None:
-            results.append(cached)
-            bar.write(_line(cached))
+        if cached is not None or cfg.finished_only:
+            r = cached or RunResult(spec.scene, spec.variant, spec.seed, "pending", str(run_dir), spec.hash(),
+                                    spec.dataset, error="not trained yet (--finished-only)")
+            results.append(r)
+            bar.write(_line(r))
             bar.update(1)
             continue
 
@@ -559,8 +576,8 @@ def regenerate(cfg: HarnessConfig, train_fn: TrainFn = default_train,
     dehazed = {j.outcome.scene: j.outcome for j in plan.dehazed}
     with open_executor(cfg.workers, cfg.scheduler) as ex:
         log.info("executing on %s", ex.description)
-        produce_datasets(ex, plan.datasets, "datasets")
-        produce_datasets(ex, plan.dehazed, "dehaze")
+        produce_datasets(ex, plan.datasets, "datasets", cfg.finished_only)
+        produce_datasets(ex, plan.dehazed, "dehaze", cfg.finished_only)
         results = execute_runs(cfg, ex, plan.runs, train_fn, datasets, dehazed)
         backend = ex.description
     statuses = sorted({str(r.metrics.get("lpips_status", "")) for r in results if r.status == "ok"} - {""})

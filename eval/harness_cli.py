@@ -93,6 +93,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lpips-weights", default=None, help="backbone .pth (torchvision layout) or its folder")
     p.add_argument("--lpips-heads", default=None, help="LPIPS v0.1 heads .pth, or an lpips wheel")
     p.add_argument("--dry-run", action="store_true", help="print the plan (runs, estimated time) and stop")
+    p.add_argument("--finished-only", action="store_true",
+                   help="write the tables from the runs already finished in --out, beside an invocation still "
+                        "training there; generate, dehaze and train nothing (the rest are listed as pending)")
     return p
 
 
@@ -132,6 +135,7 @@ def config_from_args(args: argparse.Namespace) -> HarnessConfig:
         profile=args.profile, train_overrides=train, gen_overrides=gen, datasets=datasets,
         dehazer=args.dehazer, workers=args.workers, scheduler=args.scheduler,
         lpips_net=args.lpips_net, lpips_weights=args.lpips_weights, lpips_heads=args.lpips_heads,
+        finished_only=args.finished_only,
     )
     from eval.dehaze import available_dehazers
 
@@ -152,8 +156,10 @@ def main(argv: list[str] | None = None) -> int:
     results, paths = regenerate(cfg, dry_run=args.dry_run)
     if args.dry_run:
         return 0
-    failed = sum(r.status != "ok" for r in results)
-    print(f"wrote {len(paths)} files to {Path(cfg.out).resolve()}; {len(results) - failed} runs ok, {failed} failed")
+    failed = sum(r.status == "failed" for r in results)
+    pending = sum(r.status == "pending" for r in results)
+    print(f"wrote {len(paths)} files to {Path(cfg.out).resolve()}; {len(results) - failed - pending} runs ok, "
+          f"{failed} failed" + (f", {pending} pending" if pending else ""))
     for name in ("table1.md", "table2.md"):
         if name in paths:
             print(Path(paths[name]).read_text())

@@ -55,10 +55,13 @@ def _settings(cfg: "HarnessConfig", backend: str) -> list[tuple[str, Any]]:
 
 def write_report(cfg: "HarnessConfig", results: list[RunResult], datasets: list["DatasetOutcome"],
                  lpips_status: str, backend: str, wall_s: float, paths: dict[str, Path], out: Path) -> Path:
-    failed = [r for r in results if r.status != "ok"]
+    failed = [r for r in results if r.status == "failed"]
+    pending = sum(r.status == "pending" for r in results)
     lines = ["# regenerate-tables report", "",
-             f"{len(results)} runs: {len(results) - len(failed)} ok "
-             f"({sum(r.cached for r in results)} from cache), {len(failed)} failed; {wall_s:.1f} s wall.", "",
+             f"{len(results)} runs: {len(results) - len(failed) - pending} ok "
+             f"({sum(r.cached for r in results)} from cache), {len(failed)} failed"
+             + (f", {pending} pending (not trained yet: --finished-only)" if pending else "")
+             + f"; {wall_s:.1f} s wall.", "",
              "## Settings", ""]
     lines += [f"- **{k}**: {v}" for k, v in _settings(cfg, backend)]
     lines += [f"- **LPIPS**: {lpips_status}", ""]
@@ -77,7 +80,7 @@ def write_report(cfg: "HarnessConfig", results: list[RunResult], datasets: list[
     for r in failed:
         lines += [f"### {r.scene} / {r.variant} / seed {r.seed}", "", "```", r.error.strip() or "(no message)", "```", ""]
     for d in datasets:
-        if d.status != "ok":
+        if d.status == "failed":
             lines += [f"### dataset {d.scene} ({d.kind})", "", "```", d.error.strip() or "(no message)", "```", ""]
     lines += ["", "## Tables", ""]
     for name in ("table1.md", "table2.md", "per_scene_regions.md"):

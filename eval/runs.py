@@ -101,7 +101,7 @@ class RunResult:
     scene: str
     variant: str
     seed: int
-    status: str  # "ok" or "failed"
+    status: str  # "ok", "failed", or "pending" (not trained yet: a --finished-only invocation)
     run_dir: str
     config_hash: str
     dataset: str = ""

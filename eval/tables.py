@@ -92,7 +92,7 @@ def build_rows(results: list[RunResult], variants: list[str], metrics: Iterable[
             stats={m: seed_stat(_metric_values(mine, m)) for m in metrics},
             paper=VARIANTS[key].paper if key in VARIANTS else {},
             runs_ok=sum(r.status == "ok" for r in mine),
-            runs_failed=sum(r.status != "ok" for r in mine),
+            runs_failed=sum(r.status == "failed" for r in mine),
             runs_expected=len(scenes) * len(seeds),
             lpips_status="; ".join(statuses),
         ))
@@ -136,9 +136,10 @@ def _grid(rows: list[Row], cols: tuple[Column, ...], extra: tuple[Column, ...], 
     return header, body
 
 
-def _footnotes(rows: list[Row], n_scenes: int) -> list[str]:
+def _footnotes(rows: list[Row], n_scenes: int, n_finished: int) -> list[str]:
     seeds = max((s.n_seeds for r in rows for s in r.stats.values()), default=0)
-    notes = [f"Mean over {n_scenes} scene(s) per seed, then mean ± sample std over {seeds} seed(s) "
+    over = f"{n_scenes}" if n_finished == n_scenes else f"the finished runs of {n_finished} of {n_scenes}"
+    notes = [f"Mean over {over} scene(s) per seed, then mean ± sample std over {seeds} seed(s) "
              "(no ± with one seed). SSIM in the 3DGS convention (full zero-padded map). "
              "Paper columns: SmokeSeer paper, synthetic benchmark (its scenes, not ours)."]
     for r in rows:
@@ -147,8 +148,9 @@ def _footnotes(rows: list[Row], n_scenes: int) -> list[str]:
             dehazed = "; its Input PSNR is that of the dehazed frames" if v.dehazer else ""
             notes.append(f"{r.label}: {v.note}{dehazed}.")
         if r.runs_failed or r.runs_ok < r.runs_expected:
-            notes.append(f"† {r.label}: {r.runs_failed} failed, {r.runs_ok} of {r.runs_expected} runs "
-                         "averaged; see report.md for the errors.")
+            pending = r.runs_expected - r.runs_ok - r.runs_failed
+            notes.append(f"† {r.label}: {r.runs_failed} failed, " + (f"{pending} not trained yet, " if pending else "")
+                         + f"{r.runs_ok} of {r.runs_expected} runs averaged; see report.md.")
     return notes
 
 
@@ -196,6 +198,7 @@ def write_tables(results: list[RunResult], out_dir: Path) -> dict[str, Path]:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     n_scenes = len({r.scene for r in results})
+    n_finished = len({r.scene for r in results if r.status == "ok"})
     paths: dict[str, Path] = {}
     specs = (
         ("table1", "Table 1: methods", [k for k in METHODS], TABLE1_COLUMNS, TABLE1_EXTRA, "Method"),
@@ -206,7 +209,7 @@ def write_tables(results: list[RunResult], out_dir: Path) -> dict[str, Path]:
         if name == "table2" and not any(r.variant in ABLATIONS for r in results):
             continue
         rows = build_rows(results, variants, [c.metric for c in cols + extra])
-        notes = _footnotes(rows, n_scenes)
+        notes = _footnotes(rows, n_scenes, n_finished)
         header, body = _grid(rows, cols, extra, False, first)
         (out_dir / f"{name}.md").write_text(_markdown(header, body, title, notes))
         header_tex, body_tex = _grid(rows, cols, extra, True, first)
@@ -233,5 +236,5 @@ def _write_per_scene(results: list[RunResult], path: Path) -> Path:
                     s = seed_stat(_metric_values(mine, m))
                     w.writerow([scene, key, m, "" if s.mean is None else s.mean,
                                 "" if s.std is None else s.std, s.n_seeds,
-                                sum(r.status != "ok" for r in mine)])
+                                sum(r.status == "failed" for r in mine)])
     return path

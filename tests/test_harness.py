@@ -148,6 +148,36 @@ def test_pipeline_cache_and_failures(tmp_path: Path) -> None:
     assert not any(r.cached for r in results3)
 
 
+def test_finished_only_tables_the_finished_runs_and_trains_nothing(tmp_path: Path,
+                                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """Beside an invocation still training, --finished-only writes the tables from what has finished:
+    the rest are pending (no calls, no new dataset), counted apart from failures in the notes."""
+    regenerate(_cfg(tmp_path, scenes=["alpha"], methods=["full"], ablations=[], seeds=[0], workers=1),
+               train_fn=identity_train, generate_fn=tiny_generate)
+    n = _calls(tmp_path / "out")
+    cfg = _cfg(tmp_path, methods=["full", "rgb-only"], ablations=[], seeds=[0], workers=1, finished_only=True)
+    results, paths = regenerate(cfg, train_fn=identity_train, generate_fn=tiny_generate)
+    assert _calls(tmp_path / "out") == n
+    assert not list((tmp_path / "out" / "datasets").glob("beta-*"))
+    status = {(r.scene, r.variant): r.status for r in results}
+    assert status == {("alpha", "full"): "ok", ("alpha", "rgb-only"): "pending",
+                      ("beta", "full"): "pending", ("beta", "rgb-only"): "pending"}
+    assert all(r.cached for r in results if r.status == "ok")
+    rows = {row["variant"]: row for row in csv.DictReader(open(paths["table1.csv"])) if row["metric"] == "psnr"}
+    assert rows["full"]["runs_ok"] == "1" and rows["full"]["runs_failed"] == "0" and rows["full"]["runs_expected"] == "2"
+    t1 = paths["table1.md"].read_text()
+    assert "1/2 †" in t1 and "0 failed, 1 not trained yet, 1 of 2 runs averaged" in t1
+    assert "Mean over the finished runs of 1 of 2 scene(s) per seed" in t1
+    report = paths["report.md"].read_text()
+    assert "0 failed, 3 pending" in report and "None." in report  # pending runs are not failures
+
+    argv = ["--out", str(tmp_path / "out"), "--scenes", "alpha", "--dataset", f"alpha={tmp_path / 'ds'}",
+            "--methods", "full", "--no-ablations", "--seeds", "0,", "--finished-only"]
+    write_tiny_dataset(tmp_path / "ds", "alpha")
+    assert harness_cli.main(argv) == 0
+    assert "0 runs ok, 0 failed, 1 pending" in capsys.readouterr().out
+
+
 def test_changed_trainer_code_reruns(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     cfg = _cfg(tmp_path, methods=["full"], ablations=[], seeds=[0], workers=1)
     regenerate(cfg, train_fn=identity_train, generate_fn=tiny_generate)
