@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import argparse
 import cProfile
-import csv
 import io
 import json
 import os
@@ -57,6 +56,7 @@ if str(ROOT) not in sys.path:
 import torch  # noqa: E402
 
 from contracts.atomic import write_dataclass_csv  # noqa: E402
+from contracts.results_format import read_train_log  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 
@@ -103,11 +103,6 @@ class StageSpeed:
     run_cpu_s: float
     threads: int
     load_avg_1min: float
-
-
-def read_log(path: Path) -> list[dict[str, str]]:
-    with open(path, newline="") as f:
-        return list(csv.DictReader(f))
 
 
 def stage_speeds(rows: list[dict[str, str]], backend: str, wall: float, cpu: float) -> list[StageSpeed]:
@@ -158,7 +153,7 @@ def profile_backend(dataset: Path, backend: str, iterations: int, top: int) -> t
         train_and_evaluate(dataset, Path(tmp) / "run", profile="quick", seed=0, overrides=overrides)
         prof.disable()
         wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
-        rows = read_log(Path(tmp) / "run" / "train_log.csv")
+        rows = read_train_log(Path(tmp) / "run" / "train_log.csv")
     text = io.StringIO()
     stats = pstats.Stats(prof, stream=text)
     text.write(f"# backend={backend}, {iterations} iterations per stage, wall {wall:.1f} s, cpu {cpu:.1f} s, "
@@ -219,7 +214,7 @@ def run_curve(args: argparse.Namespace) -> None:
         described.add(run_description(Path(folder)))
         pts = [CurvePoint(label, int(r["stage"]), int(r["iteration"]), float(r["wall_s"]), args.metric,
                           float(r[args.metric]))
-               for r in read_log(Path(folder) / "train_log.csv") if r.get(args.metric)]
+               for r in read_train_log(Path(folder) / "train_log.csv") if r.get(args.metric)]
         if not pts:
             raise SystemExit(f"{folder}/train_log.csv: no {args.metric} entries")
         table += pts

@@ -14,6 +14,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from PIL import Image  # noqa: E402
 
+from contracts.results_format import read_train_log  # noqa: E402
 from eval.runs import VARIANTS, RunResult  # noqa: E402
 
 INPUT_COLUMNS = {"thermal": "Thermal input", "rgb": "RGB input", "gt": "Ground truth"}
@@ -29,12 +30,11 @@ def read_psnr_curve(result: RunResult) -> list[tuple[int, float, float, str]]:
     pts: list[tuple[int, float, float, str]] = []
     log = Path(result.run_dir) / "train_log.csv"
     if log.is_file():
-        with open(log, newline="") as f:
-            for row in csv.DictReader(f):
-                v = (row.get("test_psnr") or "").strip()
-                if v:
-                    pts.append((int(float(row["iteration"])), float(row["wall_s"]) + result.prep_time_s,
-                                float(v), "train_log"))
+        for row in read_train_log(log):
+            v = (row.get("test_psnr") or "").strip()
+            if v:
+                pts.append((int(float(row["iteration"])), float(row["wall_s"]) + result.prep_time_s,
+                            float(v), "train_log"))
     final = result.metrics.get("psnr")
     if final is not None:
         total = result.wall_time_s
