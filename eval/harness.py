@@ -31,10 +31,11 @@ from tqdm import tqdm
 
 from contracts.atomic import write_json
 from contracts.provenance import provenance
-from contracts.results_format import ResultsFormatError, read_metrics
+from contracts.results_format import ResultsFormatError, read_metrics, read_train_log
 from contracts.source import code_digest
 from eval.dehaze import dehaze_dataset, get_dehazer
 from eval.runs import ABLATIONS, METHODS, VARIANTS, RunResult, RunSpec, config_hash
+from eval.shared_stage2 import stage2_donors, stage2_sha, take_finished_stage2
 from smokeseer.config import LPIPS_NETS, PROFILES, make_config
 from smokeseer.stage3 import depth_term_on
 
@@ -229,18 +230,30 @@ def _folder_lock(folder: Path) -> Iterator[None]:
             fcntl.flock(fh, fcntl.LOCK_UN)
 
 
-def run_task(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int, prep_time_s: float = 0.0) -> RunResult:
+def run_task(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int, prep_time_s: float = 0.0,
+             stage2_donors: tuple[str, ...] = ()) -> RunResult:
     """Train and evaluate one run under its lock, and record it in harness.json before the lock
-    is released; a run another invocation finished meanwhile is returned as cached."""
+    is released; a run another invocation finished meanwhile is returned as cached. A run that
+    has not started takes a finished Stage 2 from one of ``stage2_donors`` when one has it."""
     with _folder_lock(Path(run_dir)):
         done = finished_run(spec, Path(run_dir))
         if done is not None:
             return done
+        donor = take_finished_stage2(Path(run_dir), list(stage2_donors), stage2_sha(spec)) if stage2_donors else ""
         res = _train_run(spec, run_dir, train_fn, threads)
         res.prep_time_s = prep_time_s
+        res.stage2_from = donor
         Path(run_dir).mkdir(parents=True, exist_ok=True)
         write_json(Path(run_dir) / "harness.json", res.to_json())
         return res
+
+
+def logged_wall_s(run_dir: Path) -> float:
+    """The wall time train_log.csv already holds (its last row's wall_s), 0 for a fresh folder:
+    the trainer's own total covers only the attempt that finishes."""
+    log_path = run_dir / "train_log.csv"
+    rows = read_train_log(log_path) if log_path.is_file() else []
+    return float(rows[-1]["wall_s"]) if rows and rows[-1].get("wall_s") else 0.0
 
 
 def _train_run(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int) -> RunResult:
@@ -254,6 +267,7 @@ def _train_run(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int) -> 
     res = RunResult(scene=spec.scene, variant=spec.variant, seed=spec.seed, status="failed",
                     run_dir=run_dir, config_hash=spec.hash(), dataset=spec.dataset)
     t0 = time.perf_counter()
+    res.logged_before_s = logged_wall_s(Path(run_dir))
     try:
         Path(run_dir).parent.mkdir(parents=True, exist_ok=True)
         train_fn(Path(spec.dataset), Path(run_dir), spec.mode, profile=spec.profile, seed=spec.seed,
@@ -275,7 +289,7 @@ def _train_run(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int) -> 
         res.metrics = dict(metrics)
         total = (out.get("wall_time_s") or {}).get("total")
         if isinstance(total, (int, float)):
-            res.wall_time_s = float(total)
+            res.wall_time_s = float(total) + res.logged_before_s
         res.status = "ok"
     except Exception as exc:
         res.wall_time_s = time.perf_counter() - t0
@@ -514,6 +528,7 @@ def execute_runs(cfg: HarnessConfig, ex: _Executor, specs: list[RunSpec], train_
     results: list[RunResult] = []
     jobs = []
     threads = max(1, (os.cpu_count() or 1) // cfg.workers)
+    donors = stage2_donors(specs, Path(cfg.out))
     bar = tqdm(total=len(specs), desc="runs", unit="run", file=sys.stderr)
     for spec in specs:
         run_dir = spec.run_dir(Path(cfg.out)).resolve()
@@ -546,7 +561,7 @@ def execute_runs(cfg: HarnessConfig, ex: _Executor, specs: list[RunSpec], train_
             results.append(r)
             bar.write(_line(r))
 
-        jobs.append((run_task, (spec, str(run_dir), train_fn, threads, prep), ok, fail))
+        jobs.append((run_task, (spec, str(run_dir), train_fn, threads, prep, tuple(donors[str(run_dir)])), ok, fail))
     if jobs:
         _drain(ex, jobs, bar)
     bar.close()

@@ -74,6 +74,12 @@ def write_report(cfg: "HarnessConfig", results: list[RunResult], datasets: list[
         p = r.metrics.get("psnr")
         lines.append(f"| {r.scene} | {r.variant} | {r.seed} | {r.status} | {r.cached} | {r.wall_time_s:.1f} | "
                      f"{'' if p is None else f'{p:.2f}'} | {r.config_hash[:12]} | `{r.run_dir}` |")
+    taken = [r for r in results if r.stage2_from]
+    if taken:
+        lines += ["", f"{len(taken)} run(s) took the finished Stage 2 of a run with the same Stage-2 settings "
+                  "instead of training it again (eval/shared_stage2.py; harness.json `stage2_from`); their "
+                  "seconds include that Stage 2's logged time: "
+                  + ", ".join(f"{r.scene}/{r.variant}/seed {r.seed}" for r in taken) + "."]
     lines += ["", "## Failures", ""]
     if not failed:
         lines.append("None.")

@@ -110,6 +110,11 @@ class RunResult:
     prep_time_s: float = 0.0  # per-scene preprocessing charged to the method (dehazing)
     error: str = ""
     cached: bool = False
+    logged_before_s: float = 0.0
+    """Wall seconds already in the run's train_log.csv when its last attempt started (earlier
+    attempts it resumed from, or the Stage 2 taken from ``stage2_from``); part of wall_time_s."""
+    stage2_from: str = ""
+    """The run folder whose finished Stage 2 this run took (eval/shared_stage2.py), or ""."""
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)

@@ -389,3 +389,38 @@ def test_table2_depth_row_differs_from_full() -> None:
     assert "no-depth" in harness.default_ablations("standard", {"depth_prior": "thermal-render"})
     cfg = HarnessConfig(out=Path("unused"), scenes=["demo"], profile="standard")
     assert cfg.ablations == standard
+
+
+def test_ablations_take_fulls_finished_stage2_and_end_as_if_they_trained_it(tmp_path: Path) -> None:
+    """The real trainer at a tiny budget: no-mask differs from Full in Stage 3 only, so it takes
+    Full's finished Stage 2 (one worker: Full first), and its model and scores are those of a
+    no-mask run that trained its own Stage 2; its wall time counts the Stage 2 it took."""
+    from tests.test_smokeseer_data import write_splat_dataset
+
+    ds = write_splat_dataset(tmp_path / "splat", n_rgb=8, n_thermal=6)
+    tiny = {"stage2.iterations": 12, "stage3.iterations": 12, "stage2.init_points": 300,
+            "stage3.smoke_points": 120, "log_every": 3, "stage3.test_every": 6, "checkpoint_every": 6,
+            "deform.warmup_iterations": 3, "progress": False}
+
+    def run(out: Path, methods: list[str], ablations: list[str]) -> dict[str, RunResult]:
+        cfg = HarnessConfig(out=out, scenes=["splat"], methods=methods, ablations=ablations, seeds=[0], workers=1,
+                            datasets={"splat": ds}, train_overrides=tiny)
+        results, paths = regenerate(cfg)
+        assert all(r.status == "ok" for r in results), [r.error for r in results]
+        taker = "no-mask" if "full" in methods else "full"  # Full, Table 2's reference, comes last when only added
+        assert f"instead of training it again (eval/shared_stage2.py; harness.json `stage2_from`); their seconds " \
+               f"include that Stage 2's logged time: splat/{taker}/seed 0." in paths["report.md"].read_text()
+        return {r.variant: r for r in results}
+
+    shared = run(tmp_path / "shared", ["full"], ["no-mask"])
+    alone = run(tmp_path / "alone", [], ["no-mask"])["no-mask"]
+    full, taker = shared["full"], shared["no-mask"]
+    assert taker.stage2_from == full.run_dir and full.stage2_from == "" and alone.stage2_from == ""
+    assert taker.logged_before_s > 0 and taker.wall_time_s > taker.logged_before_s
+    ply = Path("ply") / "surface.ply"
+    assert (Path(taker.run_dir) / ply).read_bytes() == (Path(alone.run_dir) / ply).read_bytes()
+    assert (Path(taker.run_dir) / ply).read_bytes() != (Path(full.run_dir) / ply).read_bytes()
+    assert taker.metrics["psnr"] == alone.metrics["psnr"]
+    stage2_rows = lambda r: [(x["iteration"], x["loss"]) for x in csv.DictReader(open(Path(r.run_dir) / "train_log.csv"))
+                             if x["stage"] == "2"]
+    assert stage2_rows(taker) == stage2_rows(full) == stage2_rows(alone)
