@@ -56,7 +56,7 @@ if str(ROOT) not in sys.path:
 import torch  # noqa: E402
 
 from contracts.atomic import write_dataclass_csv  # noqa: E402
-from contracts.results_format import read_train_log  # noqa: E402
+from contracts.train_log import read_train_log  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 

@@ -70,21 +70,6 @@ def read_metrics(run_dir: Path) -> dict[str, Any]:
     return doc
 
 
-def read_train_log(path: Path) -> list[dict[str, str]]:
-    """train_log.csv's rows, without those of an attempt that was interrupted and resumed from an
-    earlier checkpoint: a row whose (stage, iteration) does not come after the row before it starts
-    the resumed attempt, and the rows it repeats are dropped. The resumed rows' wall_s still counts
-    the discarded attempt's time (the run did spend it)."""
-    kept: list[dict[str, str]] = []
-    with open(path, newline="") as fh:
-        for row in csv.DictReader(fh):
-            key = (int(row["stage"]), int(float(row["iteration"])))
-            while kept and (int(kept[-1]["stage"]), int(float(kept[-1]["iteration"]))) >= key:
-                kept.pop()
-            kept.append(row)
-    return kept
-
-
 def validate_run_dir(run_dir: Path) -> dict[str, Any]:
     """Check metrics.json and, for an ``ok`` run, every output file; returns metrics.json."""
     run_dir = Path(run_dir)

@@ -14,7 +14,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from PIL import Image  # noqa: E402
 
-from contracts.results_format import read_train_log  # noqa: E402
+from contracts.train_log import read_train_log  # noqa: E402
 from eval.runs import VARIANTS, RunResult  # noqa: E402
 
 INPUT_COLUMNS = {"thermal": "Thermal input", "rgb": "RGB input", "gt": "Ground truth"}
@@ -43,6 +43,10 @@ def read_psnr_curve(result: RunResult) -> list[tuple[int, float, float, str]]:
     return pts
 
 
+PANELS_PER_ROW = 5
+"""Scenes per row of the PSNR-time figure: ten scenes in one row would be too narrow to read."""
+
+
 def write_psnr_vs_time(results: list[RunResult], out_dir: Path) -> tuple[Path, Path]:
     """psnr_vs_time.csv (every point) and .png (one panel per scene, one colour per method)."""
     out_dir = Path(out_dir)
@@ -61,8 +65,12 @@ def write_psnr_vs_time(results: list[RunResult], out_dir: Path) -> tuple[Path, P
     methods_only = [v for v in variants if v in VARIANTS and VARIANTS[v].table == "methods"]
     shown = set(methods_only or variants)  # ablations stay in the CSV; the plot compares methods
     colours = {v: plt.cm.tab10(i % 10) for i, v in enumerate(variants)}
-    fig, axes = plt.subplots(1, len(scenes), figsize=(4.2 * len(scenes), 3.4), squeeze=False)
-    for ax, scene in zip(axes[0], scenes):
+    cols = min(len(scenes), PANELS_PER_ROW)
+    rows = -(-len(scenes) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.4 * rows), squeeze=False)
+    for ax in axes.flat[len(scenes):]:
+        ax.set_visible(False)
+    for ax, scene in zip(axes.flat, scenes):
         labelled: set[str] = set()
         for (s, variant, seed), pts in sorted(curves.items()):
             if s != scene or not pts or variant not in shown:

@@ -31,7 +31,8 @@ from tqdm import tqdm
 
 from contracts.atomic import write_json
 from contracts.provenance import provenance
-from contracts.results_format import ResultsFormatError, read_metrics, read_train_log
+from contracts.results_format import ResultsFormatError, read_metrics
+from contracts.train_log import read_train_log
 from contracts.source import code_digest
 from eval.dehaze import dehaze_dataset, get_dehazer
 from eval.runs import ABLATIONS, METHODS, VARIANTS, RunResult, RunSpec, config_hash

@@ -14,7 +14,7 @@ import shutil
 from pathlib import Path
 
 from contracts.atomic import atomic_path, write_rows_csv
-from contracts.results_format import read_train_log
+from contracts.train_log import read_train_log
 from eval.runs import RunSpec
 from smokeseer.config import make_config
 

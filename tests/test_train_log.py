@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from contracts.results_format import read_train_log
+from contracts.train_log import read_train_log
 
 
 def test_rows_redone_after_a_resume_are_dropped(tmp_path: Path) -> None:
