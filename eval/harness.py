@@ -37,6 +37,7 @@ from contracts.source import code_digest
 from eval.dehaze import dehaze_dataset, get_dehazer
 from eval.runs import ABLATIONS, METHODS, VARIANTS, RunResult, RunSpec, config_hash
 from eval.shared_stage2 import stage2_donors, stage2_sha, take_finished_stage2
+from eval.twins import full_twins
 from smokeseer.config import LPIPS_NETS, PROFILES, make_config
 from smokeseer.stage3 import depth_term_on
 
@@ -515,8 +516,9 @@ def make_plan(cfg: HarnessConfig, generate_fn: GenerateFn) -> Plan:
 def _line(r: RunResult) -> str:
     head = f"{r.scene}/{r.variant} seed {r.seed}"
     if r.status == "ok":
-        tag = "cached" if r.cached else "ok"
-        return f"[{tag:>6}] {head}: PSNR {r.metrics.get('psnr', float('nan')):.2f} dB, {r.wall_time_s:.1f} s"
+        tag = "twin" if r.same_as else "cached" if r.cached else "ok"
+        twin = f" (the {r.same_as} run: {r.same_as_reason})" if r.same_as else ""
+        return f"[{tag:>6}] {head}: PSNR {r.metrics.get('psnr', float('nan')):.2f} dB, {r.wall_time_s:.1f} s{twin}"
     if r.status == "pending":
         return f"[pending] {head}: {r.error}"
     return f"[FAILED] {head}: {r.error.splitlines()[0] if r.error else 'unknown error'}"
@@ -524,12 +526,14 @@ def _line(r: RunResult) -> str:
 
 def execute_runs(cfg: HarnessConfig, ex: _Executor, specs: list[RunSpec], train_fn: TrainFn,
                  datasets: dict[str, DatasetOutcome], dehazed: dict[str, DatasetOutcome]) -> list[RunResult]:
-    """Collect cached runs, run the rest (or, with ``finished_only``, list them as pending); a run
-    whose dataset failed is failed, not skipped."""
+    """Collect cached runs and those a finished Full run stands for (eval/twins.py), run the rest
+    (or, with ``finished_only``, list them as pending); a run whose dataset failed is failed, not
+    skipped."""
     results: list[RunResult] = []
     jobs = []
     threads = max(1, (os.cpu_count() or 1) // cfg.workers)
     donors = stage2_donors(specs, Path(cfg.out))
+    twins = full_twins(specs, Path(cfg.out), finished_run)
     bar = tqdm(total=len(specs), desc="runs", unit="run", file=sys.stderr)
     for spec in specs:
         run_dir = spec.run_dir(Path(cfg.out)).resolve()
@@ -543,7 +547,7 @@ def execute_runs(cfg: HarnessConfig, ex: _Executor, specs: list[RunSpec], train_
             bar.write(_line(r))
             bar.update(1)
             continue
-        cached = finished_run(spec, run_dir)
+        cached = finished_run(spec, run_dir) or twins.get(str(run_dir))
         if cached is not None or cfg.finished_only:
             r = cached or RunResult(spec.scene, spec.variant, spec.seed, "pending", str(run_dir), spec.hash(),
                                     spec.dataset, error="not trained yet (--finished-only)")

@@ -80,6 +80,12 @@ def write_report(cfg: "HarnessConfig", results: list[RunResult], datasets: list[
                   "instead of training it again (eval/shared_stage2.py; harness.json `stage2_from`); their "
                   "seconds include that Stage 2's logged time: "
                   + ", ".join(f"{r.scene}/{r.variant}/seed {r.seed}" for r in taken) + "."]
+    twins = [r for r in results if r.same_as]
+    if twins:
+        lines += ["", f"{len(twins)} run(s) not trained because the finished run of another variant stands for "
+                  "them (eval/twins.py; their row above shows that run's folder and scores): "
+                  + "; ".join(f"{r.scene}/{r.variant}/seed {r.seed} = {r.same_as} ({r.same_as_reason})" for r in twins)
+                  + "."]
     lines += ["", "## Failures", ""]
     if not failed:
         lines.append("None.")

@@ -115,6 +115,10 @@ class RunResult:
     attempts it resumed from, or the Stage 2 taken from ``stage2_from``); part of wall_time_s."""
     stage2_from: str = ""
     """The run folder whose finished Stage 2 this run took (eval/shared_stage2.py), or ""."""
+    same_as: str = ""
+    """The variant whose finished run stands for this one, because this one would train exactly like
+    it (eval/twins.py; ``run_dir`` is then that run's folder), or ""."""
+    same_as_reason: str = ""
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)

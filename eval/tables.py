@@ -51,6 +51,9 @@ class Row:
     runs_failed: int
     runs_expected: int
     lpips_status: str
+    runs_same_as: int = 0
+    """Runs that a finished run of another variant stands for (eval/twins.py), and why."""
+    same_as_reason: str = ""
 
 
 def seed_stat(values_by_seed: dict[int, list[float]]) -> Stat:
@@ -95,6 +98,8 @@ def build_rows(results: list[RunResult], variants: list[str], metrics: Iterable[
             runs_failed=sum(r.status == "failed" for r in mine),
             runs_expected=len(scenes) * len(seeds),
             lpips_status="; ".join(statuses),
+            runs_same_as=sum(bool(r.same_as) for r in mine if r.status == "ok"),
+            same_as_reason="; ".join(sorted({r.same_as_reason for r in mine if r.same_as})),
         ))
     return rows
 
@@ -147,6 +152,9 @@ def _footnotes(rows: list[Row], n_scenes: int, n_finished: int) -> list[str]:
         if v is not None and v.note:
             dehazed = "; its Input PSNR is that of the dehazed frames" if v.dehazer else ""
             notes.append(f"{r.label}: {v.note}{dehazed}.")
+        if r.runs_same_as:
+            notes.append(f"{r.label}: {r.runs_same_as} of its {r.runs_ok} runs are Full's of the same scene and "
+                         f"seed, not trained: {r.same_as_reason}.")
         if r.runs_failed or r.runs_ok < r.runs_expected:
             pending = r.runs_expected - r.runs_ok - r.runs_failed
             notes.append(f"† {r.label}: {r.runs_failed} failed, " + (f"{pending} not trained yet, " if pending else "")
