@@ -476,22 +476,25 @@ class Plan:
     cached_runs: int
     seconds_per_run: float
     per_run_source: str
+    twins: dict[str, RunResult] = field(default_factory=dict)
+    """Runs a finished Full run stands for (eval/twins.py), by run folder; not counted in cached_runs."""
 
     def estimated_seconds(self, workers: int) -> float:
-        todo = len(self.runs) - self.cached_runs
+        todo = len(self.runs) - self.cached_runs - len(self.twins)
         return todo * self.seconds_per_run / max(workers, 1)
 
     def describe(self, cfg: HarnessConfig) -> str:
         todo_ds = sum(j.make is not None for j in self.datasets)
         todo_dh = sum(j.make is not None for j in self.dehazed)
-        todo = len(self.runs) - self.cached_runs
+        todo = len(self.runs) - self.cached_runs - len(self.twins)
         est = self.estimated_seconds(cfg.workers)
+        twins = f", {len(self.twins)} taken from Full's runs" if self.twins else ""
         if cfg.finished_only:
             return (f"plan: {len(cfg.scenes)} scene(s) x {len(cfg.variants())} variant(s) x {len(cfg.seeds)} seed(s) "
-                    f"= {len(self.runs)} runs; --finished-only: tabling the {self.cached_runs} finished, "
+                    f"= {len(self.runs)} runs; --finished-only: tabling the {self.cached_runs} finished{twins}, "
                     f"{todo} pending (nothing is generated, dehazed or trained); output {Path(cfg.out).resolve()}")
         return (f"plan: {len(cfg.scenes)} scene(s) x {len(cfg.variants())} variant(s) x {len(cfg.seeds)} seed(s) "
-                f"= {len(self.runs)} runs ({self.cached_runs} cached, {todo} to train); "
+                f"= {len(self.runs)} runs ({self.cached_runs} cached{twins}, {todo} to train); "
                 f"{todo_ds} dataset(s) to generate, {todo_dh} to dehaze; profile {cfg.profile}, "
                 f"{cfg.workers} worker(s); estimated {est / 3600:.1f} h of training "
                 f"({self.seconds_per_run:.0f} s per run, {self.per_run_source}); output {Path(cfg.out).resolve()}")
@@ -502,7 +505,8 @@ def make_plan(cfg: HarnessConfig, generate_fn: GenerateFn) -> Plan:
     dehazed = plan_dehazed(cfg, datasets)
     specs = plan_runs(cfg, {j.outcome.scene: j.outcome for j in datasets},
                       {j.outcome.scene: j.outcome for j in dehazed})
-    cached = [r for r in (finished_run(s, s.run_dir(Path(cfg.out)).resolve()) for s in specs) if r is not None]
+    dirs = [s.run_dir(Path(cfg.out)).resolve() for s in specs]
+    finished = {str(d) for s, d in zip(specs, dirs) if finished_run(s, d) is not None}
     past = [json.loads(p.read_text()).get("wall_time_s", 0.0)
             for p in (Path(cfg.out) / "runs").rglob("harness.json")] if (Path(cfg.out) / "runs").is_dir() else []
     past = [t for t in past if isinstance(t, (int, float)) and t > 0]
@@ -510,7 +514,8 @@ def make_plan(cfg: HarnessConfig, generate_fn: GenerateFn) -> Plan:
         per_run, source = float(np.mean(past)), f"mean of {len(past)} earlier run(s) in this folder"
     else:
         per_run, source = SECONDS_PER_RUN[cfg.profile], f"typical {cfg.profile}-profile run"
-    return Plan(datasets, dehazed, specs, len(cached), per_run, source)
+    twins = {d: r for d, r in full_twins(specs, Path(cfg.out), finished_run).items() if d not in finished}
+    return Plan(datasets, dehazed, specs, len(finished), per_run, source, twins)
 
 
 def _line(r: RunResult) -> str:
@@ -524,7 +529,7 @@ def _line(r: RunResult) -> str:
     return f"[FAILED] {head}: {r.error.splitlines()[0] if r.error else 'unknown error'}"
 
 
-def execute_runs(cfg: HarnessConfig, ex: _Executor, specs: list[RunSpec], train_fn: TrainFn,
+def execute_runs(cfg: HarnessConfig, ex: _Executor, plan: Plan, train_fn: TrainFn,
                  datasets: dict[str, DatasetOutcome], dehazed: dict[str, DatasetOutcome]) -> list[RunResult]:
     """Collect cached runs and those a finished Full run stands for (eval/twins.py), run the rest
     (or, with ``finished_only``, list them as pending); a run whose dataset failed is failed, not
@@ -532,8 +537,8 @@ def execute_runs(cfg: HarnessConfig, ex: _Executor, specs: list[RunSpec], train_
     results: list[RunResult] = []
     jobs = []
     threads = max(1, (os.cpu_count() or 1) // cfg.workers)
+    specs = plan.runs
     donors = stage2_donors(specs, Path(cfg.out))
-    twins = full_twins(specs, Path(cfg.out), finished_run)
     bar = tqdm(total=len(specs), desc="runs", unit="run", file=sys.stderr)
     for spec in specs:
         run_dir = spec.run_dir(Path(cfg.out)).resolve()
@@ -547,7 +552,7 @@ def execute_runs(cfg: HarnessConfig, ex: _Executor, specs: list[RunSpec], train_
             bar.write(_line(r))
             bar.update(1)
             continue
-        cached = finished_run(spec, run_dir) or twins.get(str(run_dir))
+        cached = finished_run(spec, run_dir) or plan.twins.get(str(run_dir))
         if cached is not None or cfg.finished_only:
             r = cached or RunResult(spec.scene, spec.variant, spec.seed, "pending", str(run_dir), spec.hash(),
                                     spec.dataset, error="not trained yet (--finished-only)")
@@ -598,7 +603,7 @@ def regenerate(cfg: HarnessConfig, train_fn: TrainFn = default_train,
         log.info("executing on %s", ex.description)
         produce_datasets(ex, plan.datasets, "datasets", cfg.finished_only)
         produce_datasets(ex, plan.dehazed, "dehaze", cfg.finished_only)
-        results = execute_runs(cfg, ex, plan.runs, train_fn, datasets, dehazed)
+        results = execute_runs(cfg, ex, plan, train_fn, datasets, dehazed)
         backend = ex.description
     statuses = sorted({str(r.metrics.get("lpips_status", "")) for r in results if r.status == "ok"} - {""})
     lpips_status = "; ".join(statuses) or "no finished run"
