@@ -522,8 +522,9 @@ def _line(r: RunResult) -> str:
     head = f"{r.scene}/{r.variant} seed {r.seed}"
     if r.status == "ok":
         tag = "twin" if r.same_as else "cached" if r.cached else "ok"
-        twin = f" (the {r.same_as} run: {r.same_as_reason})" if r.same_as else ""
-        return f"[{tag:>6}] {head}: PSNR {r.metrics.get('psnr', float('nan')):.2f} dB, {r.wall_time_s:.1f} s{twin}"
+        how = f" (the {r.same_as} run: {r.same_as_reason})" if r.same_as else \
+            f" (Stage 2 from {Path(r.stage2_from).parent.name}/{Path(r.stage2_from).name})" if r.stage2_from else ""
+        return f"[{tag:>6}] {head}: PSNR {r.metrics.get('psnr', float('nan')):.2f} dB, {r.wall_time_s:.1f} s{how}"
     if r.status == "pending":
         return f"[pending] {head}: {r.error}"
     return f"[FAILED] {head}: {r.error.splitlines()[0] if r.error else 'unknown error'}"
