@@ -10,7 +10,7 @@ import pytest
 
 from contracts.errors import DatasetError
 from contracts.imageio import write_png
-from eval.regions import score_run, write_region_split
+from eval.regions import BANDS, score_run, write_region_split
 from eval.runs import RunResult
 
 H, W = 4, 6
@@ -119,3 +119,31 @@ def test_run_at_reduced_width_is_compared_at_its_size(tmp_path: Path) -> None:
     odd = _run(tmp_path / "run_odd", {"0000": np.zeros((3, 5, 3), np.uint8)})
     with pytest.raises(DatasetError, match="downscaled by a whole factor"):
         score_run(odd, tmp_path / "ds")
+
+
+def test_bands_by_how_much_the_smoke_changes_a_pixel(tmp_path: Path) -> None:
+    """Columns changed by 0, 5, 6, 13, 26 and 60 levels fall in the bands below 0.02 (0 and 5/255),
+    0.02-0.05 (6/255), 0.05-0.1 (13/255), 0.1-0.2 (26/255) and over 0.2 (60/255); the method is
+    off by 3 levels everywhere except the 0.1-0.2 column, where it is exact."""
+    clean = _rgb(100)
+    smoky = clean.copy()
+    for col, change in enumerate((0, 5, 6, 13, 26, 60)):
+        smoky[:, col, 1] += np.uint8(change)  # one channel: the band goes by the largest
+    write_png(tmp_path / "ds" / "rgb" / "clean" / "0000.png", clean)
+    write_png(tmp_path / "ds" / "rgb" / "smoky" / "0000.png", smoky)
+    write_png(tmp_path / "ds" / "rgb" / "smoke_mask" / "0000.png", np.zeros((H, W), np.uint8))
+    render = _rgb(103)
+    render[:, 4] = 100
+    scores = {s.region: s for s in score_run(_run(tmp_path / "run", {"0000": render}), tmp_path / "ds")}
+    share = {b: scores[b].pixel_share for b in BANDS}
+    assert share == pytest.approx({BANDS[0]: 2 / 6, BANDS[1]: 1 / 6, BANDS[2]: 1 / 6, BANDS[3]: 1 / 6, BANDS[4]: 1 / 6})
+    assert scores[BANDS[0]].psnr_input == pytest.approx(10 * math.log10(3 * 2 / (25 / 255 ** 2)))
+    assert scores[BANDS[4]].psnr_input == pytest.approx(10 * math.log10(3 / (60 / 255) ** 2))
+    assert scores[BANDS[1]].psnr == pytest.approx(_db(3)) and scores[BANDS[3]].psnr == pytest.approx(100.0)
+    assert scores[BANDS[3]].error_share == 0.0
+    assert sum(scores[b].error_share for b in BANDS) == pytest.approx(1.0)
+    md = write_region_split([_run(tmp_path / "run", {"0000": render})], {"s": tmp_path / "ds"}, tmp_path / "out")
+    text = md["per_scene_regions.md"].read_text()
+    assert "## By how much the smoke changes a pixel" in text
+    assert "| change 0-0.02 | change 0.02-0.05 | change 0.05-0.1 | change 0.1-0.2 | change 0.2+ |" in text
+    assert "| s | Ours (Full) | 1 | 38.6 / 41.9 (33 %) | 38.6 / 37.3 (17 %) | 38.6 / 30.6 (17 %) | 100.0 / 24.6 (17 %) |" in text
