@@ -51,5 +51,6 @@ def full_twins(specs: list[RunSpec], out: Path,
             continue
         if reason:
             twins[str(spec.run_dir(out).resolve())] = replace(
-                done, variant=spec.variant, config_hash=spec.hash(), cached=True, same_as="full", same_as_reason=reason)
+                done, variant=spec.variant, config_hash=spec.hash(), cached=True, stage2_from="", same_as="full",
+                same_as_reason=reason)
     return twins
