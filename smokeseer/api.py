@@ -41,10 +41,9 @@ def _versions() -> dict[str, str]:
 
 
 def _sample(mod: ModalityData, n: int, bounds: Any, rng: np.random.Generator) -> np.ndarray:
-    idx = mod.indices("train")
-    f = [mod.frames[i] for i in idx]
-    return sample_in_view(bounds, n, np.stack([x.viewmat for x in f]), np.stack([x.K for x in f]),
-                          np.array([x.width for x in f]), np.array([x.height for x in f]), rng)
+    f = [mod.frames[i] for i in mod.indices("train")]
+    return sample_in_view(bounds, n, *mod.cameras("train"), np.array([x.width for x in f]),
+                          np.array([x.height for x in f]), rng)
 
 
 def switches_for(cfg: TrainConfig, scene: SceneData) -> Stage3Switches:
@@ -229,12 +228,13 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
         ctx.log_line("stage 3: skipped (deformable-3dgs baseline has one deformable set)")
     else:
         smoke_pts = _sample(scene.rgb, cfg.stage3.smoke_points, b, rng) if switches.use_smoke else None
+        gated = floor_gated(cfg, switches)
         rgb_depth = (rendered_depth_prior(s2.gaussians, views_of(scene.rgb, scene.rgb.indices("train"), dev), "rgb")
-                     if switches.use_smoke and (cfg.stage3.smoke_color == "haze-lines" or floor_gated(cfg, switches))
-                     else None)
-        if floor_gated(cfg, switches):
+                     if switches.use_smoke and (cfg.stage3.smoke_color == "haze-lines" or gated) else None)
+        if gated:
             switches.mask_floor = mask_floor_pixels(scene.rgb, rgb_depth)
-            note = (f"mask floor on {100 * switches.mask_floor.mean() / max(_masked_share(scene.rgb), 1e-12):.0f} % "
+            masked = int((scene.rgb.masks[scene.rgb.indices("train")] > 0.5).sum())
+            note = (f"mask floor on {100 * int(switches.mask_floor.sum()) / max(masked, 1):.0f} % "
                     "of the masked training pixels: the rest are seen smoke-free from another training view "
                     "(loss.mask_floor_where=never-clear)")
             switches.notes.append(note)
@@ -293,11 +293,8 @@ def haze_line_smoke_colour(cfg: TrainConfig, depth: DepthPriorMaps, rgb: Modalit
     """The smoke colour where the training RGB frames' observation lines meet, with Stage 2's
     geometry rendered as depth at each of those frames (``depth``) saying which pixels see the
     same point."""
-    idx = rgb.indices("train")
-    frames = [rgb.frames[i] for i in idx]
-    return estimate_smoke_colour(rgb.images[idx], depth.maps.cpu().numpy(), depth.valid.cpu().numpy(),
-                                 np.stack([f.viewmat for f in frames]), np.stack([f.K for f in frames]),
-                                 np.random.default_rng(cfg.seed + 2))
+    return estimate_smoke_colour(rgb.images[rgb.indices("train")], depth.maps.cpu().numpy(),
+                                 depth.valid.cpu().numpy(), *rgb.cameras("train"), np.random.default_rng(cfg.seed + 2))
 
 
 def floor_gated(cfg: TrainConfig, switches: Stage3Switches) -> bool:
@@ -305,17 +302,11 @@ def floor_gated(cfg: TrainConfig, switches: Stage3Switches) -> bool:
     return cfg.loss.mask_floor_where == "never-clear" and switches.use_smoke and switches.use_masks
 
 
-def _masked_share(rgb: ModalityData) -> float:
-    return float((rgb.masks[rgb.indices("train")] > 0.5).mean())
-
-
 def mask_floor_pixels(rgb: ModalityData, depth: DepthPriorMaps) -> np.ndarray:
     """The training frames' pixels where the mask floor acts (``smokeseer.mask_floor``), with
     Stage 2's geometry rendered as depth at the same cameras."""
-    idx = rgb.indices("train")
-    frames = [rgb.frames[i] for i in idx]
-    return never_seen_clear(rgb.masks[idx], depth.maps.cpu().numpy(), depth.valid.cpu().numpy(),
-                            np.stack([f.viewmat for f in frames]), np.stack([f.K for f in frames]))
+    return never_seen_clear(rgb.masks[rgb.indices("train")], depth.maps.cpu().numpy(), depth.valid.cpu().numpy(),
+                            *rgb.cameras("train"))
 
 
 def smoke_colour_note(cfg: TrainConfig, estimate: SmokeColourEstimate) -> str | None:

@@ -56,6 +56,11 @@ class ModalityData:
     def indices(self, split: str) -> list[int]:
         return [i for i, f in enumerate(self.frames) if f.split == split]
 
+    def cameras(self, split: str) -> tuple[np.ndarray, np.ndarray]:
+        """The split's world-to-camera matrices (N, 4, 4) and intrinsics (N, 3, 3), in ``indices`` order."""
+        frames = [self.frames[i] for i in self.indices(split)]
+        return np.stack([f.viewmat for f in frames]), np.stack([f.K for f in frames])
+
     @property
     def channels(self) -> int:
         return int(self.images.shape[-1])
