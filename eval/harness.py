@@ -208,12 +208,14 @@ def finished_dataset(path: Path, h: str) -> float | None:
 
 
 def finished_run(spec: RunSpec, run_dir: Path) -> RunResult | None:
-    """The cached record of a run that finished with exactly this config, else None."""
+    """The cached record of a run that finished with exactly this config, else None. Its paths
+    are where the run lies now: a committed --out folder (data/README.md) or a moved one was
+    recorded on another machine or in another checkout."""
     rec = _read_json(run_dir / "harness.json")
     if rec and rec.get("status") == "ok" and rec.get("config_hash") == spec.hash() \
             and (run_dir / "metrics.json").is_file():
         r = RunResult.from_json(rec)
-        r.cached = True
+        r.cached, r.run_dir, r.dataset = True, str(run_dir), spec.dataset
         return r
     return None
 

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import csv
 import json
+import shutil
+import subprocess
 import time
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
@@ -25,6 +27,7 @@ from eval.harness import HarnessConfig, regenerate
 from contracts.metrics import psnr, ssim_3dgs
 from contracts.provenance import provenance
 from contracts.results_format import RESULTS_FORMAT, RESULTS_FORMAT_VERSION
+from eval.regions import MASK
 from eval.runs import RunSpec
 from generator.profiles import get_profile
 
@@ -424,3 +427,54 @@ def test_ablations_take_fulls_finished_stage2_and_end_as_if_they_trained_it(tmp_
     stage2_rows = lambda r: [(x["iteration"], x["loss"]) for x in csv.DictReader(open(Path(r.run_dir) / "train_log.csv"))
                              if x["stage"] == "2"]
     assert stage2_rows(taker) == stage2_rows(full) == stage2_rows(alone)
+
+
+def heavy_identity_train(dataset: Path, out: Path, mode: str, profile: str = "quick", seed: int = 0,
+                         overrides: dict[str, Any] | None = None) -> dict[str, Any]:
+    """identity_train that also leaves what the real trainer leaves and no table reads."""
+    status = identity_train(dataset, out, mode, profile, seed, overrides)
+    for heavy in ("checkpoints/stage3.pt", "ply/surface.ply", "renders/composite/0001.png", "renders/smoke/0001.png"):
+        (out / heavy).parent.mkdir(parents=True, exist_ok=True)
+        (out / heavy).write_bytes(b"\0" * 64)
+    return status
+
+
+def test_a_committed_out_folder_serves_its_finished_runs_on_a_fresh_clone(tmp_path: Path) -> None:
+    """data/README.md: the project's .gitignore keeps each run's record, metrics, log and surface
+    renders and drops checkpoints, PLYs and the dehazed copies; a fresh clone of that commit, with
+    the original folder gone, tables every run without training one, from the clone's own files."""
+    git = ["git", "-c", "user.name=test", "-c", "user.email=test@example.com"]
+    repo, clone = tmp_path / "repo", tmp_path / "clone"
+    repo.mkdir()
+    shutil.copyfile(Path(__file__).parents[1] / ".gitignore", repo / ".gitignore")
+    ds = write_tiny_dataset(repo / "data/standard/alpha", "alpha")
+    for png in sorted((ds / "rgb/clean").glob("*.png")):
+        (ds / MASK.folder).mkdir(parents=True, exist_ok=True)
+        Image.fromarray(np.full((24, 32), 255, np.uint8)).save(ds / MASK.folder / png.name)
+
+    def cfg(root: Path) -> HarnessConfig:
+        return HarnessConfig(out=root / "data/tables_standard", scenes=["alpha"], methods=["full", "imgdehaze-dcp"],
+                             ablations=[], seeds=[0], workers=1, datasets={"alpha": root / "data/standard/alpha"})
+
+    first, _ = regenerate(cfg(repo), train_fn=heavy_identity_train)
+    assert [r.status for r in first] == ["ok", "ok"]
+    subprocess.run([*git, "init", "-q", str(repo)], check=True)
+    subprocess.run([*git, "-C", str(repo), "add", "-A"], check=True)
+    subprocess.run([*git, "-C", str(repo), "commit", "-q", "-m", "runs"], check=True)
+    subprocess.run([*git, "clone", "-q", str(repo), str(clone)], check=True)
+    shutil.rmtree(repo)
+
+    out = clone / "data/tables_standard"
+    kept = {p.relative_to(out).as_posix().split("/", 4)[-1] for p in (out / "runs").rglob("*") if p.is_file()}
+    assert {"harness.json", "metrics.json", "train_log.csv", "renders/surface/0001.png"} <= kept
+    assert not {k for k in kept if k.startswith(("checkpoints", "ply", "renders/composite", "renders/smoke"))}
+    assert not (out / "datasets").exists() and not (out / "table1.md").exists()
+    calls = _calls(out)
+    results, paths = regenerate(cfg(clone), train_fn=heavy_identity_train)
+    assert _calls(out) == calls
+    assert [(r.status, r.cached) for r in results] == [("ok", True), ("ok", True)]
+    assert [r.metrics["psnr"] for r in results] == [r.metrics["psnr"] for r in first]
+    assert all(Path(r.run_dir).is_relative_to(out) and Path(r.run_dir).is_dir() for r in results)
+    regions = list(csv.DictReader(open(paths["per_scene_regions.csv"])))
+    assert {row["variant"] for row in regions} == {"full", "imgdehaze-dcp"}
+    assert "skipped" not in paths["per_scene_regions.md"].read_text().lower()
