@@ -7,15 +7,15 @@
 # calls reuse what earlier ones trained. Only scenes whose standard dataset exists are used, in
 # the benchmark's order, so scenes generated meanwhile join at the next call.
 #
-#   bash benchmarks/standard_tables.sh [DATASETS_ROOT] [OUT]      (defaults: runs/standard runs/tables_standard)
+#   bash benchmarks/standard_tables.sh [DATASETS_ROOT] [OUT]      (defaults: data/standard data/tables_standard)
 #   bash benchmarks/standard_tables.sh ... --finished-only        tables from what has finished, train nothing
 #
 # OUT then holds Table 1 (table1.*, per_scene.csv, figure3, psnr_vs_time, report.md) from the last
 # call and Table 2 (table2.*, per_scene_table2.csv, figure5_ablations.png) from the second.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-root=${1:-runs/standard}
-out=${2:-runs/tables_standard}
+root=${1:-data/standard}
+out=${2:-data/tables_standard}
 extra=("${@:3}")
 scenes=()
 datasets=()
@@ -26,7 +26,7 @@ for s in house room forest food_plate excavator rover chair plant brick_toy mach
     fi
 done
 if [[ ${#scenes[@]} -eq 0 ]]; then
-    echo "standard_tables.sh: no standard dataset under $root (run generate-benchmark --profile standard first)" >&2
+    echo "standard_tables.sh: no standard dataset under $root (run generate-benchmark --profile standard --out $root first)" >&2
     exit 2
 fi
 list=$(IFS=,; echo "${scenes[*]}")
