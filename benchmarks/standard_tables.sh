@@ -8,15 +8,17 @@
 # the benchmark's order, so scenes generated meanwhile join at the next call.
 #
 #   bash benchmarks/standard_tables.sh [DATASETS_ROOT] [OUT]      (defaults: data/standard data/tables_standard)
-#   bash benchmarks/standard_tables.sh ... --finished-only        tables from what has finished, train nothing
+#   bash benchmarks/standard_tables.sh [DATASETS_ROOT] [OUT] --finished-only   tables from what has finished, train nothing
 #
 # OUT then holds Table 1 (table1.*, per_scene.csv, figure3, psnr_vs_time, report.md) from the last
 # call and Table 2 (table2.*, per_scene_table2.csv, figure5_ablations.png) from the second.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-root=${1:-data/standard}
-out=${2:-data/tables_standard}
-extra=("${@:3}")
+root=data/standard
+out=data/tables_standard
+if [[ $# -gt 0 && $1 != --* ]]; then root=$1; shift; fi
+if [[ $# -gt 0 && $1 != --* ]]; then out=$1; shift; fi
+extra=("$@")
 scenes=()
 datasets=()
 for s in house room forest food_plate excavator rover chair plant brick_toy machine; do
