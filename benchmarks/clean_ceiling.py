@@ -16,13 +16,13 @@ reach there (per_scene_regions.md).
 from __future__ import annotations
 
 import argparse
-import json
 import subprocess
 import sys
 from pathlib import Path
 
 from contracts.atomic import write_rows_csv
 from contracts.errors import DatasetError
+from contracts.results_format import read_metrics
 from eval.clean_ceiling import derive_clean_dataset, smoky_input_psnr
 from eval.regions import score_run
 from eval.runs import RunResult
@@ -30,14 +30,13 @@ from eval.runs import RunResult
 
 def train(dataset: Path, run_dir: Path, profile: str, seed: int, threads: int) -> dict:
     """The RGB-only run on the derived dataset (resumed from its checkpoints if interrupted)."""
-    metrics = run_dir / "metrics.json"
-    if not metrics.is_file():
+    if not (run_dir / "metrics.json").is_file():
         cmd = [str(Path(sys.executable).with_name("train-and-evaluate")), str(dataset), "--mode", "rgb-only",
                "--profile", profile, "--seed", str(seed), "--threads", str(threads), "--out", str(run_dir),
                "--no-progress"]
         print("running:", " ".join(cmd), flush=True)
         subprocess.run(cmd, check=True)
-    return json.loads(metrics.read_text())
+    return read_metrics(run_dir)
 
 
 def main() -> None:
@@ -57,11 +56,12 @@ def main() -> None:
             derived = derive_clean_dataset(src, args.out / src.name / "dataset")
         except (DatasetError, ValueError) as exc:
             sys.exit(f"clean_ceiling: {exc}")
-        m = train(derived, args.out / src.name / "run", args.profile, args.seed, args.threads)
+        run_dir = args.out / src.name / "run"
+        m = train(derived, run_dir, args.profile, args.seed, args.threads)
         val = m.get("validation") or {}
         input_test, input_val = smoky_input_psnr(src.name, args.profile, args.tables)
         regions = {r.region: r for r in score_run(
-            RunResult(src.name, "clean-ceiling", args.seed, "ok", str(args.out / src.name / "run"), ""), src)}
+            RunResult(src.name, "clean-ceiling", args.seed, "ok", str(run_dir), ""), src)}
         rows.append({
             "scene": src.name, "profile": args.profile, "seed": args.seed,
             "ceiling_test_psnr": round(m["metrics"]["psnr"], 3),
