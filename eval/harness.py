@@ -104,6 +104,10 @@ class HarnessConfig:
     lpips_heads: str | None = None
     finished_only: bool = False
     """Table the runs already finished in ``out``; generate, dehaze and train nothing (the rest are pending)."""
+    device: str = "cpu"
+    """Torch device the runs train on. Like the thread count, it is not part of a run's cache key
+    (the method and settings are the same; the float rounding differs): each run records it in
+    harness.json and its config.json, and the report lists it."""
 
     def __post_init__(self) -> None:
         if self.ablations is None:
@@ -128,6 +132,13 @@ class HarnessConfig:
             raise ValueError(f"profile: must be one of {', '.join(PROFILES)}, got {self.profile!r}")
         if self.workers < 1:
             raise ValueError(f"workers: must be >= 1, got {self.workers}")
+        if self.device.split(":")[0] not in ("cpu", "cuda"):
+            raise ValueError(f"device: must be cpu, cuda or cuda:N, got {self.device!r}")
+        if self.device != "cpu" and not self.finished_only:
+            import torch
+
+            if not torch.cuda.is_available():
+                raise ValueError(f"device: {self.device} asked for, but torch {torch.__version__} sees no CUDA device")
         if self.lpips_net not in LPIPS_NETS:
             raise ValueError(f"lpips_net: must be one of {', '.join(LPIPS_NETS)}, got {self.lpips_net!r}")
         for scene, path in self.datasets.items():
@@ -235,7 +246,7 @@ def _folder_lock(folder: Path) -> Iterator[None]:
 
 
 def run_task(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int, prep_time_s: float = 0.0,
-             stage2_donors: tuple[str, ...] = ()) -> RunResult:
+             stage2_donors: tuple[str, ...] = (), device: str = "cpu") -> RunResult:
     """Train and evaluate one run under its lock, and record it in harness.json before the lock
     is released; a run another invocation finished meanwhile is returned as cached. A run that
     has not started takes a finished Stage 2 from one of ``stage2_donors`` when one has it."""
@@ -244,7 +255,7 @@ def run_task(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int, prep_
         if done is not None:
             return done
         donor = take_finished_stage2(Path(run_dir), list(stage2_donors), stage2_sha(spec)) if stage2_donors else ""
-        res = _train_run(spec, run_dir, train_fn, threads)
+        res = _train_run(spec, run_dir, train_fn, threads, device)
         res.prep_time_s = prep_time_s
         res.stage2_from = donor
         Path(run_dir).mkdir(parents=True, exist_ok=True)
@@ -260,7 +271,7 @@ def logged_wall_s(run_dir: Path) -> float:
     return float(rows[-1]["wall_s"]) if rows and rows[-1].get("wall_s") else 0.0
 
 
-def _train_run(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int) -> RunResult:
+def _train_run(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int, device: str = "cpu") -> RunResult:
     """Train and evaluate one run; any exception becomes a failed record with its error. A folder
     left by an interrupted or failed attempt is kept: its name holds the config hash, so its
     checkpoints were written with these settings and the trainer resumes from them."""
@@ -269,13 +280,13 @@ def _train_run(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int) -> 
     if "torch" in sys.modules:
         sys.modules["torch"].set_num_threads(threads)
     res = RunResult(scene=spec.scene, variant=spec.variant, seed=spec.seed, status="failed",
-                    run_dir=run_dir, config_hash=spec.hash(), dataset=spec.dataset)
+                    run_dir=run_dir, config_hash=spec.hash(), dataset=spec.dataset, device=device)
     t0 = time.perf_counter()
     res.logged_before_s = logged_wall_s(Path(run_dir))
     try:
         Path(run_dir).parent.mkdir(parents=True, exist_ok=True)
         train_fn(Path(spec.dataset), Path(run_dir), spec.mode, profile=spec.profile, seed=spec.seed,
-                 overrides=dict(spec.overrides))
+                 overrides={**spec.overrides, "device": device})
         res.wall_time_s = time.perf_counter() - t0
         try:
             out = read_metrics(Path(run_dir))
@@ -574,7 +585,8 @@ def execute_runs(cfg: HarnessConfig, ex: _Executor, plan: Plan, train_fn: TrainF
             results.append(r)
             bar.write(_line(r))
 
-        jobs.append((run_task, (spec, str(run_dir), train_fn, threads, prep, tuple(donors[str(run_dir)])), ok, fail))
+        jobs.append((run_task, (spec, str(run_dir), train_fn, threads, prep, tuple(donors[str(run_dir)]), cfg.device),
+                     ok, fail))
     if jobs:
         _drain(ex, jobs, bar)
     bar.close()

@@ -73,6 +73,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scheduler", default=None,
                    help='Dask scheduler address (tcp://host:8786), or "local" for a Dask LocalCluster; '
                         "default: a local process pool")
+    p.add_argument("--device", default="cpu",
+                   help="torch device the runs train on: cpu or cuda[:N] (recorded per run, not part of its cache "
+                        "key; on CUDA the trainer rasterizes with gsplat where it is installed, else the torch backend)")
     p.add_argument("--dataset", action="append", default=[], metavar="SCENE=PATH",
                    help="use an existing dataset for a scene instead of generating it")
     p.add_argument("--dehazer", default="dcp", help="dehazer for the ImgDehaze baseline")
@@ -135,7 +138,7 @@ def config_from_args(args: argparse.Namespace) -> HarnessConfig:
         profile=args.profile, train_overrides=train, gen_overrides=gen, datasets=datasets,
         dehazer=args.dehazer, workers=args.workers, scheduler=args.scheduler,
         lpips_net=args.lpips_net, lpips_weights=args.lpips_weights, lpips_heads=args.lpips_heads,
-        finished_only=args.finished_only,
+        finished_only=args.finished_only, device=args.device,
     )
     from eval.dehaze import available_dehazers
 

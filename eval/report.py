@@ -42,7 +42,7 @@ def _settings(cfg: "HarnessConfig", backend: str) -> list[tuple[str, Any]]:
         ("generator overrides", cfg.gen_overrides or "none"),
         ("dataset seed", cfg.dataset_seed),
         ("dehazer", f"{cfg.dehazer} {asdict(DarkChannelPrior()) if cfg.dehazer == 'dcp' else ''}"),
-        ("execution", backend),
+        ("execution", f"{backend}, training on {cfg.device}"),
         ("LPIPS", f"{cfg.lpips_net}, weights {cfg.lpips_weights or 'from the default search ($TORCH_HOME, ~/.cache/torch)'}"),
         ("output folder", str(Path(cfg.out).resolve())),
         ("versions", ", ".join(f"{p} {_version(p)}" for p in ("smokeseer-synth", "torch", "numpy", "bpy"))
@@ -68,11 +68,11 @@ def write_report(cfg: "HarnessConfig", results: list[RunResult], datasets: list[
     lines += ["## Datasets", "", "| scene | kind | status | cached | seconds | path |", "|---|---|---|---|---|---|"]
     lines += [f"| {d.scene} | {d.kind} | {d.status} | {d.cached} | {d.wall_time_s:.1f} | `{d.path}` |"
               for d in datasets]
-    lines += ["", "## Runs", "", "| scene | variant | seed | status | cached | seconds | PSNR | config hash | run dir |",
-              "|---|---|---|---|---|---|---|---|---|"]
+    lines += ["", "## Runs", "", "| scene | variant | seed | status | cached | device | seconds | PSNR | config hash | run dir |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         p = r.metrics.get("psnr")
-        lines.append(f"| {r.scene} | {r.variant} | {r.seed} | {r.status} | {r.cached} | {r.wall_time_s:.1f} | "
+        lines.append(f"| {r.scene} | {r.variant} | {r.seed} | {r.status} | {r.cached} | {r.device} | {r.wall_time_s:.1f} | "
                      f"{'' if p is None else f'{p:.2f}'} | {r.config_hash[:12]} | `{r.run_dir}` |")
     taken = [r for r in results if r.stage2_from]
     if taken:

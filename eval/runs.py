@@ -119,6 +119,8 @@ class RunResult:
     """The variant whose finished run stands for this one, because this one would train exactly like
     it (eval/twins.py; ``run_dir`` is then that run's folder), or ""."""
     same_as_reason: str = ""
+    device: str = "cpu"
+    """The torch device it trained on (not part of the cache key; see HarnessConfig.device)."""
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)

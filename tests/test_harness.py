@@ -181,6 +181,38 @@ def test_finished_only_tables_the_finished_runs_and_trains_nothing(tmp_path: Pat
     assert "0 runs ok, 0 failed, 1 pending" in capsys.readouterr().out
 
 
+def train_recording_device(dataset: Path, out: Path, mode: str, profile: str = "quick", seed: int = 0,
+                           overrides: dict[str, Any] | None = None) -> dict[str, Any]:
+    """identity_train that also logs the device it was handed (workers are separate processes)."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with open(out.parent / "devices.log", "a") as f:
+        f.write(f"{(overrides or {}).get('device', 'missing')}\n")
+    return identity_train(dataset, out, mode, profile, seed, overrides)
+
+
+def test_device_reaches_the_trainer_and_is_recorded_but_not_keyed(tmp_path: Path,
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """--device goes to the trainer as its `device` override and into harness.json and the report;
+    the cache key is the CPU one, so a finished run is found whichever device made it."""
+    base = dict(scenes=["alpha"], methods=["full"], ablations=[], seeds=[0], workers=1)
+    monkeypatch.setattr("torch.cuda.is_available", lambda: True)  # the fake trainer needs no GPU
+    results, paths = regenerate(_cfg(tmp_path, device="cuda:1", **base), train_fn=train_recording_device,
+                                generate_fn=tiny_generate)
+    devices = tmp_path / "out" / "runs" / "alpha" / "full" / "devices.log"
+    assert devices.read_text().split() == ["cuda:1"]
+    (run,) = results
+    assert run.status == "ok" and run.device == "cuda:1"
+    assert json.loads((Path(run.run_dir) / "harness.json").read_text())["device"] == "cuda:1"
+    assert "| cuda:1 |" in paths["report.md"].read_text()
+    again, _ = regenerate(_cfg(tmp_path, **base), train_fn=train_recording_device, generate_fn=tiny_generate)
+    assert devices.read_text().split() == ["cuda:1"] and again[0].cached and again[0].device == "cuda:1"
+    with pytest.raises(ValueError, match="device"):
+        _cfg(tmp_path, device="gpu", **base).validate()
+    monkeypatch.setattr("torch.cuda.is_available", lambda: False)
+    with pytest.raises(ValueError, match="sees no CUDA device"):
+        _cfg(tmp_path, device="cuda", **base).validate()
+
+
 def test_changed_trainer_code_reruns(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     cfg = _cfg(tmp_path, methods=["full"], ablations=[], seeds=[0], workers=1)
     regenerate(cfg, train_fn=identity_train, generate_fn=tiny_generate)
