@@ -11,13 +11,13 @@ fits no smoke Gaussians; its dataset.json says all this under ``derived_from``.
 """
 from __future__ import annotations
 
-import json
 import os
 import shutil
 from pathlib import Path
 
 from contracts.atomic import write_json
 from contracts.dataset_format import PASS_FILES, validate_dataset
+from contracts.results_format import read_metrics
 
 SMOKY_RGB = PASS_FILES[("rgb", "smoky")][0].folder
 CLEAN_RGB = PASS_FILES[("rgb", "clean")][0].folder
@@ -60,9 +60,10 @@ def derive_clean_dataset(src: Path, dst: Path) -> Path:
 
 def smoky_input_psnr(scene: str, profile: str, table_runs: Path) -> tuple[float | None, float | None]:
     """The smoky input's (test, validation) PSNR from any finished table run of the scene at this
-    profile (the input does not depend on method or seed); (None, None) where there is none."""
+    profile (the input does not depend on method or seed); (None, None) where there is none. A
+    metrics.json that breaks the results contract raises ResultsFormatError naming it."""
     for path in sorted(table_runs.glob(f"{scene}/*/seed*/metrics.json")):
-        doc = json.loads(path.read_text())
-        if doc.get("profile") == profile and doc.get("status") == "ok":
+        doc = read_metrics(path.parent)
+        if doc["profile"] == profile and doc["status"] == "ok":
             return doc["metrics"]["psnr_input"], (doc.get("validation") or {}).get("psnr_input")
     return None, None

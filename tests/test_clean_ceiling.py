@@ -8,6 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from contracts.results_format import (METRIC_KEYS, PROVENANCE_KEYS, RESULTS_FORMAT, RESULTS_FORMAT_VERSION,
+                                      ResultsFormatError)
 from eval.clean_ceiling import derive_clean_dataset, smoky_input_psnr
 from smokeseer.data import load_scene
 
@@ -41,9 +43,16 @@ def test_smoky_input_psnr_reads_a_finished_run_of_the_profile(tmp_path: Path) ->
     def run(method: str, profile: str, status: str, psnr_input: float) -> None:
         folder = tmp_path / "house" / method / "seed0-abc"
         folder.mkdir(parents=True)
-        (folder / "metrics.json").write_text(json.dumps({
-            "profile": profile, "status": status, "metrics": {"psnr_input": psnr_input},
-            "validation": {"psnr_input": psnr_input - 1}}))
+        doc = {"format": RESULTS_FORMAT, "format_version": RESULTS_FORMAT_VERSION, "scene": "house",
+               "dataset": "data/standard/house", "method": method, "profile": profile, "seed": 0,
+               "status": status, "provenance": {k: None for k in PROVENANCE_KEYS},
+               "wall_time_s": {"total": 1.0}, "versions": {}, "config_sha256": "0" * 64}
+        if status == "ok":
+            doc["metrics"] = {**{k: None for k in METRIC_KEYS}, "psnr_input": psnr_input, "lpips_status": "skipped"}
+            doc["validation"] = {"psnr_input": psnr_input - 1}
+        else:
+            doc["error"] = "diverged"
+        (folder / "metrics.json").write_text(json.dumps(doc))
 
     assert smoky_input_psnr("house", "standard", tmp_path) == (None, None)
     run("full", "quick", "ok", 20.0)
@@ -51,3 +60,6 @@ def test_smoky_input_psnr_reads_a_finished_run_of_the_profile(tmp_path: Path) ->
     assert smoky_input_psnr("house", "standard", tmp_path) == (None, None)
     run("rgb-only", "standard", "ok", 31.0)
     assert smoky_input_psnr("house", "standard", tmp_path) == (31.0, 30.0)
+    (tmp_path / "house" / "full" / "seed0-abc" / "metrics.json").write_text(json.dumps({"profile": "standard"}))
+    with pytest.raises(ResultsFormatError, match=r"full/seed0-abc/metrics\.json: missing field 'format'"):
+        smoky_input_psnr("house", "standard", tmp_path)
