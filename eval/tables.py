@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import csv
 import math
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable
@@ -141,12 +142,16 @@ def _grid(rows: list[Row], cols: tuple[Column, ...], extra: tuple[Column, ...], 
     return header, body
 
 
-def _footnotes(rows: list[Row], n_scenes: int, n_finished: int) -> list[str]:
+def _footnotes(rows: list[Row], n_scenes: int, n_finished: int, devices: dict[str, int]) -> list[str]:
     seeds = max((s.n_seeds for r in rows for s in r.stats.values()), default=0)
     over = f"{n_scenes}" if n_finished == n_scenes else f"the finished runs of {n_finished} of {n_scenes}"
     notes = [f"Mean over {over} scene(s) per seed, then mean ± sample std over {seeds} seed(s) "
              "(no ± with one seed). SSIM in the 3DGS convention (full zero-padded map). "
              "Paper columns: SmokeSeer paper, synthetic benchmark (its scenes, not ours)."]
+    if len(devices) > 1:
+        counts = ", ".join(f"{n} on {d}" for d, n in sorted(devices.items()))
+        notes.append(f"The runs were trained on more than one device ({counts}); the settings are the same, "
+                     "the float rounding differs. report.md gives each run's.")
     for r in rows:
         v = VARIANTS.get(r.variant)
         if v is not None and v.note:
@@ -217,7 +222,8 @@ def write_tables(results: list[RunResult], out_dir: Path) -> dict[str, Path]:
         if name == "table2" and not any(r.variant in ABLATIONS for r in results):
             continue
         rows = build_rows(results, variants, [c.metric for c in cols + extra])
-        notes = _footnotes(rows, n_scenes, n_finished)
+        devices = Counter(r.device for r in results if r.variant in variants and r.status == "ok")
+        notes = _footnotes(rows, n_scenes, n_finished, dict(devices))
         header, body = _grid(rows, cols, extra, False, first)
         (out_dir / f"{name}.md").write_text(_markdown(header, body, title, notes))
         header_tex, body_tex = _grid(rows, cols, extra, True, first)

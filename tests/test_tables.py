@@ -91,6 +91,15 @@ def test_estimated_stage1_row_sits_beside_ground_truth_full_in_table1(tmp_path: 
     assert "Ours (Full, estimated" not in paths["table2.md"].read_text()
 
 
+def test_a_table_of_runs_from_two_devices_says_so(tmp_path: Path) -> None:
+    assert "more than one device" not in write_tables(FIXTURE, tmp_path)["table1.md"].read_text()
+    mixed = [RunResult(**{**r.to_json(), "device": "cuda"}) if r.seed == 1 and r.variant == "full" else r
+             for r in FIXTURE]
+    paths = write_tables(mixed, tmp_path)
+    assert "more than one device (5 on cpu, 2 on cuda)" in paths["table1.md"].read_text()
+    assert "more than one device (6 on cpu, 2 on cuda)" in paths["table2.md"].read_text()
+
+
 def test_no_table2_without_ablations(tmp_path: Path) -> None:
     paths = write_tables([r for r in FIXTURE if r.variant != "no-depth"], tmp_path)
     assert "table2.md" not in paths and not (tmp_path / "table2.md").exists()
