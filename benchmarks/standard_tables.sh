@@ -11,7 +11,8 @@
 #   bash benchmarks/standard_tables.sh [DATASETS_ROOT] [OUT] --finished-only   tables from what has finished, train nothing
 #
 # OUT then holds Table 1 (table1.*, per_scene.csv, figure3, psnr_vs_time, report.md) from the last
-# call and Table 2 (table2.*, per_scene_table2.csv, figure5_ablations.png) from the second.
+# call, Table 1 at seed 0 alone (table1_seed0.*, per_scene_seed0.csv) from the first, and Table 2
+# (table2.*, per_scene_table2.csv, figure5_ablations.png) from the second.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=data/standard
@@ -38,6 +39,9 @@ run() {
     .venv/bin/regenerate-tables "$@" || [[ $? -eq 1 ]]  # 1: tables written, some runs failed (report.md)
 }
 run "${common[@]}" --methods full,rgb-only,imgdehaze-dcp --seeds 0, --no-ablations
+for f in table1.md table1.tex table1.csv per_scene.csv; do  # seed 0 alone: every scene on the same seed
+    cp "$out/$f" "$out/${f%.*}_seed0.${f##*.}"
+done
 run "${common[@]}" --methods full --seeds 0, --ablations
 cp "$out/per_scene.csv" "$out/per_scene_table2.csv"  # the next call rewrites per_scene.csv for Table 1's runs
 run "${common[@]}" --methods full,rgb-only,imgdehaze-dcp --seeds 3 --no-ablations

@@ -11,7 +11,7 @@ from __future__ import annotations
 import csv
 import math
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable
 
@@ -55,6 +55,8 @@ class Row:
     runs_same_as: int = 0
     """Runs that a finished run of another variant stands for (eval/twins.py), and why."""
     same_as_reason: str = ""
+    scenes_by_seed: dict[int, int] = field(default_factory=dict)
+    """Finished runs (scenes) each seed's mean is taken over."""
 
 
 def seed_stat(values_by_seed: dict[int, list[float]]) -> Stat:
@@ -101,6 +103,7 @@ def build_rows(results: list[RunResult], variants: list[str], metrics: Iterable[
             lpips_status="; ".join(statuses),
             runs_same_as=sum(bool(r.same_as) for r in mine if r.status == "ok"),
             same_as_reason="; ".join(sorted({r.same_as_reason for r in mine if r.same_as})),
+            scenes_by_seed=dict(sorted(Counter(r.seed for r in mine if r.status == "ok").items())),
         ))
     return rows
 
@@ -157,6 +160,10 @@ def _footnotes(rows: list[Row], n_scenes: int, n_finished: int, devices: dict[st
         if v is not None and v.note:
             dehazed = "; its Input PSNR is that of the dehazed frames" if v.dehazer else ""
             notes.append(f"{r.label}: {v.note}{dehazed}.")
+        if len(set(r.scenes_by_seed.values())) > 1:
+            per_seed = ", ".join(f"seed {k}: {n}" for k, n in r.scenes_by_seed.items())
+            notes.append(f"{r.label}: its seeds are means over different numbers of scenes ({per_seed}), so its ± "
+                         "mixes the spread between scenes with the spread between seeds; per_scene.csv has each scene.")
         if r.runs_same_as:
             notes.append(f"{r.label}: {r.runs_same_as} of its {r.runs_ok} runs are Full's of the same scene and "
                          f"seed, not trained: {r.same_as_reason}.")

@@ -56,6 +56,8 @@ def test_table1_and_table2_contents(tmp_path: Path) -> None:
     assert "| Ours (RGB only) | 16.00 ± 0.00 |" in md and "3/4 †" in md
     assert "0.335 ± 0.021" in md  # LPIPS: seed means 0.35, 0.32
     assert "1 failed, 3 of 4 runs averaged" in md
+    assert "Ours (RGB only): its seeds are means over different numbers of scenes (seed 0: 2, seed 1: 1)" in md
+    assert "Ours (Full): its seeds are means" not in md
     assert "ImgDehaze" not in md  # no runs of it: no made-up row
     rows = {(r["variant"], r["metric"]): r for r in csv.DictReader(open(paths["table1.csv"]))}
     assert float(rows[("full", "psnr")]["mean"]) == pytest.approx(21.5)
