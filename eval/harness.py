@@ -134,6 +134,9 @@ class HarnessConfig:
             raise ValueError(f"workers: must be >= 1, got {self.workers}")
         if self.device.split(":")[0] not in ("cpu", "cuda"):
             raise ValueError(f"device: must be cpu, cuda or cuda:N, got {self.device!r}")
+        if "device" in self.train_overrides:
+            raise ValueError("train_overrides: 'device' is set with --device (recorded per run, not keyed), "
+                             "not with --set device=...")
         if self.device != "cpu" and not self.finished_only:
             import torch
 
@@ -271,7 +274,7 @@ def logged_wall_s(run_dir: Path) -> float:
     return float(rows[-1]["wall_s"]) if rows and rows[-1].get("wall_s") else 0.0
 
 
-def _train_run(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int, device: str = "cpu") -> RunResult:
+def _train_run(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int, device: str) -> RunResult:
     """Train and evaluate one run; any exception becomes a failed record with its error. A folder
     left by an interrupted or failed attempt is kept: its name holds the config hash, so its
     checkpoints were written with these settings and the trainer resumes from them."""

@@ -208,6 +208,8 @@ def test_device_reaches_the_trainer_and_is_recorded_but_not_keyed(tmp_path: Path
     assert devices.read_text().split() == ["cuda:1"] and again[0].cached and again[0].device == "cuda:1"
     with pytest.raises(ValueError, match="device"):
         _cfg(tmp_path, device="gpu", **base).validate()
+    with pytest.raises(ValueError, match="set with --device"):
+        _cfg(tmp_path, train_overrides={"device": "cuda"}, **base).validate()
     monkeypatch.setattr("torch.cuda.is_available", lambda: False)
     with pytest.raises(ValueError, match="sees no CUDA device"):
         _cfg(tmp_path, device="cuda", **base).validate()
