@@ -72,7 +72,8 @@ def write_report(cfg: "HarnessConfig", results: list[RunResult], datasets: list[
               "|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         p = r.metrics.get("psnr")
-        lines.append(f"| {r.scene} | {r.variant} | {r.seed} | {r.status} | {r.cached} | {r.device} | {r.wall_time_s:.1f} | "
+        device = "—" if r.status == "pending" else r.device  # a pending run has not trained anywhere yet
+        lines.append(f"| {r.scene} | {r.variant} | {r.seed} | {r.status} | {r.cached} | {device} | {r.wall_time_s:.1f} | "
                      f"{'' if p is None else f'{p:.2f}'} | {r.config_hash[:12]} | `{r.run_dir}` |")
     taken = [r for r in results if r.stage2_from]
     if taken:

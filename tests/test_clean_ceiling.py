@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from contracts.results_format import (METRIC_KEYS, PROVENANCE_KEYS, RESULTS_FORMAT, RESULTS_FORMAT_VERSION,
-                                      ResultsFormatError)
+from contracts.results_format import ResultsFormatError
 from eval.clean_ceiling import derive_clean_dataset, smoky_input_psnr
 from smokeseer.data import load_scene
+from tests.results_builder import write_metrics
 
 
 def test_derived_dataset_trains_on_the_clean_frames(demo_dataset: Path, tmp_path: Path) -> None:
@@ -41,18 +41,9 @@ def test_a_dataset_without_clean_frames_is_refused(demo_dataset: Path, tmp_path:
 
 def test_smoky_input_psnr_reads_a_finished_run_of_the_profile(tmp_path: Path) -> None:
     def run(method: str, profile: str, status: str, psnr_input: float) -> None:
-        folder = tmp_path / "house" / method / "seed0-abc"
-        folder.mkdir(parents=True)
-        doc = {"format": RESULTS_FORMAT, "format_version": RESULTS_FORMAT_VERSION, "scene": "house",
-               "dataset": "data/standard/house", "method": method, "profile": profile, "seed": 0,
-               "status": status, "provenance": {k: None for k in PROVENANCE_KEYS},
-               "wall_time_s": {"total": 1.0}, "versions": {}, "config_sha256": "0" * 64}
-        if status == "ok":
-            doc["metrics"] = {**{k: None for k in METRIC_KEYS}, "psnr_input": psnr_input, "lpips_status": "skipped"}
-            doc["validation"] = {"psnr_input": psnr_input - 1}
-        else:
-            doc["error"] = "diverged"
-        (folder / "metrics.json").write_text(json.dumps(doc))
+        write_metrics(tmp_path / "house" / method / "seed0-abc", scene="house", method=method, profile=profile,
+                      seed=0, status=status, metrics={"psnr_input": psnr_input},
+                      **({"validation": {"psnr_input": psnr_input - 1}} if status == "ok" else {}))
 
     assert smoky_input_psnr("house", "standard", tmp_path) == (None, None)
     run("full", "quick", "ok", 20.0)

@@ -26,7 +26,7 @@ from eval import harness, harness_cli
 from eval.harness import HarnessConfig, regenerate
 from contracts.metrics import psnr, ssim_3dgs
 from contracts.provenance import provenance
-from contracts.results_format import RESULTS_FORMAT, RESULTS_FORMAT_VERSION
+from tests.results_builder import write_metrics
 from eval.regions import MASK
 from eval.runs import RunSpec
 from generator.profiles import get_profile
@@ -90,14 +90,11 @@ def identity_train(dataset: Path, out: Path, mode: str, profile: str = "quick", 
         w.writerow(["iteration", "stage", "wall_s", "loss", "test_psnr"])
         w.writerow([0, 3, 0.5, 1.0, ""])
         w.writerow([10, 3, 1.0, 0.5, f"{np.mean(ps) - 1:.4f}"])
-    metrics = {"format": RESULTS_FORMAT, "format_version": RESULTS_FORMAT_VERSION, "scene": dataset.name,
-               "dataset": str(dataset), "method": mode, "profile": profile, "seed": seed, "status": "ok",
-               "provenance": provenance("eval.runs", 1), "versions": {}, "config_sha256": "identity",
-               "metrics": {"psnr": float(np.mean(ps)) + seed, "ssim": float(np.mean(ss)), "lpips": None,
+    write_metrics(out, scene=dataset.name, method=mode, profile=profile, seed=seed, dataset=str(dataset),
+                  provenance=provenance("eval.runs", 1), config_sha256="identity", wall_time_s={"total": 1.5},
+                  metrics={"psnr": float(np.mean(ps)) + seed, "ssim": float(np.mean(ss)),
                            "lpips_status": "skipped: no weights", "psnr_input": float(np.mean(ps)),
-                           "depth_absrel": 0.1, "depth_rmse": 0.2, "mask_iou": None},
-               "wall_time_s": {"total": 1.5}}
-    (out / "metrics.json").write_text(json.dumps(metrics))
+                           "depth_absrel": 0.1, "depth_rmse": 0.2})
     return {"status": "ignored: the harness reads the run folder"}
 
 
@@ -173,6 +170,8 @@ def test_finished_only_tables_the_finished_runs_and_trains_nothing(tmp_path: Pat
     assert "Mean over the finished runs of 1 of 2 scene(s) per seed" in t1
     report = paths["report.md"].read_text()
     assert "0 failed, 3 pending" in report and "None." in report  # pending runs are not failures
+    assert "| alpha | rgb-only | 0 | pending | False | — |" in report  # not trained, so on no device
+    assert "| alpha | full | 0 | ok | True | cpu |" in report
 
     argv = ["--out", str(tmp_path / "out"), "--scenes", "alpha", "--dataset", f"alpha={tmp_path / 'ds'}",
             "--methods", "full", "--no-ablations", "--seeds", "0,", "--finished-only"]
