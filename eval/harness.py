@@ -37,6 +37,7 @@ from contracts.source import code_digest
 from eval.dehaze import dehaze_dataset, get_dehazer
 from eval.runs import ABLATIONS, METHODS, VARIANTS, RunResult, RunSpec, config_hash
 from eval.shared_stage2 import stage2_donors, stage2_sha, take_finished_stage2
+from eval.sources import sources_sha256
 from eval.twins import full_twins
 from smokeseer.config import LPIPS_NETS, PROFILES, make_config
 from smokeseer.stage3 import depth_term_on
@@ -283,7 +284,8 @@ def _train_run(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int, dev
     if "torch" in sys.modules:
         sys.modules["torch"].set_num_threads(threads)
     res = RunResult(scene=spec.scene, variant=spec.variant, seed=spec.seed, status="failed",
-                    run_dir=run_dir, config_hash=spec.hash(), dataset=spec.dataset, device=device)
+                    run_dir=run_dir, config_hash=spec.hash(), dataset=spec.dataset, device=device,
+                    code_digest=spec.code, sources_sha256=sources_sha256(TRAINER_ENTRY))
     t0 = time.perf_counter()
     res.logged_before_s = logged_wall_s(Path(run_dir))
     try:

@@ -12,6 +12,7 @@ import logging
 import sys
 from pathlib import Path
 
+from eval.adopt import adopt_runs
 from eval.harness import DEFAULT_OUT, HarnessConfig, default_workers, regenerate
 from eval.runs import ABLATIONS, METHODS
 from generator.cli import parse_size
@@ -95,6 +96,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lpips-net", choices=LPIPS_NETS, default="alex", help="LPIPS backbone the trainer scores with")
     p.add_argument("--lpips-weights", default=None, help="backbone .pth (torchvision layout) or its folder")
     p.add_argument("--lpips-heads", default=None, help="LPIPS v0.1 heads .pth, or an lpips wheel")
+    p.add_argument("--adopt-from", type=Path, default=None, metavar="DIR",
+                   help="first adopt the finished runs of this plan found in another --out folder whose keys "
+                        "differ only by the trainer's code digest (another Python); see docs/scale-out.md")
     p.add_argument("--dry-run", action="store_true", help="print the plan (runs, estimated time) and stop")
     p.add_argument("--finished-only", action="store_true",
                    help="write the tables from the runs already finished in --out, beside an invocation still "
@@ -156,6 +160,14 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"regenerate-tables: error: {exc}", file=sys.stderr)
         return 2
+    if args.adopt_from is not None:
+        if not (args.adopt_from / "runs").is_dir():
+            print(f"regenerate-tables: error: adopt_from: {args.adopt_from} has no runs/ folder", file=sys.stderr)
+            return 2
+        for a in adopt_runs(cfg, args.adopt_from, dry_run=args.dry_run):
+            verb = ("would adopt" if args.dry_run else "adopted") if a.adopted else "not adopted"
+            print(f"[{verb}] {a.scene}/{a.variant}/seed {a.seed}" + (f" from {a.source}" if a.adopted else f": {a.reason}"),
+                  file=sys.stderr)
     results, paths = regenerate(cfg, dry_run=args.dry_run)
     if args.dry_run:
         return 0

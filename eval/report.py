@@ -87,6 +87,11 @@ def write_report(cfg: "HarnessConfig", results: list[RunResult], datasets: list[
                   "them (eval/twins.py; their row above shows that run's folder and scores): "
                   + "; ".join(f"{r.scene}/{r.variant}/seed {r.seed} = {r.same_as} ({r.same_as_reason})" for r in twins)
                   + "."]
+    adopted = [r for r in results if r.adopted_from]
+    if adopted:
+        lines += ["", f"{len(adopted)} run(s) were trained under another key and adopted (eval/adopt.py; "
+                  "harness.json `adopted_from` says from where and what was checked): "
+                  + "; ".join(f"{r.scene}/{r.variant}/seed {r.seed} on {r.device}" for r in adopted) + "."]
     lines += ["", "## Failures", ""]
     if not failed:
         lines.append("None.")

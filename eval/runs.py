@@ -121,6 +121,13 @@ class RunResult:
     same_as_reason: str = ""
     device: str = "cpu"
     """The torch device it trained on (not part of the cache key; see HarnessConfig.device)."""
+    code_digest: str = ""
+    """The trainer code digest in its cache key (RunSpec.code); "" in records older than the field."""
+    sources_sha256: str = ""
+    """eval.sources.sources_sha256 of the trainer where it trained: unlike the digest, independent
+    of the Python version, so a run made under another Python can be adopted (eval/adopt.py)."""
+    adopted_from: str = ""
+    """Where a run trained under another key came from, and what was checked (eval/adopt.py), or ""."""
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)

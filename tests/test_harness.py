@@ -511,3 +511,45 @@ def test_a_committed_out_folder_serves_its_finished_runs_on_a_fresh_clone(tmp_pa
     regions = list(csv.DictReader(open(paths["per_scene_regions.csv"])))
     assert {row["variant"] for row in regions} == {"full", "imgdehaze-dcp"}
     assert "skipped" not in paths["per_scene_regions.md"].read_text().lower()
+
+
+def test_adopt_from_takes_only_runs_that_differ_by_the_python_digest(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    """Runs trained where the trainer's digest differs, as under another Python, are adopted when
+    their key with that digest is this plan's and their trainer sources equal this checkout's;
+    a run whose sources differ, or a plan with other settings, adopts nothing."""
+    from eval.adopt import adopt_runs
+
+    write_tiny_dataset(tmp_path / "ds", "alpha")
+    elsewhere, here = tmp_path / "elsewhere", tmp_path / "here"
+    real_digest = harness.code_digest
+    monkeypatch.setattr(harness, "code_digest",
+                        lambda *entries: "other-python" if entries == (harness.TRAINER_ENTRY,) else real_digest(*entries))
+    made = regenerate(_cfg(tmp_path, out=elsewhere, scenes=["alpha"], datasets={"alpha": tmp_path / "ds"},
+                           methods=["full", "rgb-only"], ablations=[], seeds=[0], workers=1),
+                      train_fn=identity_train, generate_fn=tiny_generate)[0]
+    monkeypatch.undo()
+    assert {r.status for r in made} == {"ok"}
+    tampered = next((elsewhere / "runs/alpha/rgb-only").glob("seed0-*/harness.json"))
+    rec = json.loads(tampered.read_text())
+    assert rec["code_digest"] == "other-python" and len(rec["sources_sha256"]) == 64
+    tampered.write_text(json.dumps({**rec, "sources_sha256": "f" * 64}))
+
+    other = _cfg(tmp_path, out=here, scenes=["alpha"], datasets={"alpha": tmp_path / "ds"}, methods=["full"],
+                 ablations=[], seeds=[0], workers=1, lpips_net="vgg")
+    (refused,) = adopt_runs(other, elsewhere)
+    assert not refused.adopted and "settings or dataset differ" in refused.reason and not here.exists()
+
+    argv = ["--out", str(here), "--scenes", "alpha", "--dataset", f"alpha={tmp_path / 'ds'}", "--methods",
+            "full,rgb-only", "--no-ablations", "--seeds", "0,", "--adopt-from", str(elsewhere), "--finished-only"]
+    assert harness_cli.main(argv) == 0
+    err = capsys.readouterr().err
+    assert "[adopted] alpha/full/seed 0 from" in err
+    assert "[not adopted] alpha/rgb-only/seed 0:" in err and "field 'sources_sha256' differs" in err
+    runs = {r["variant"]: r for r in json.loads((here / "results.json").read_text())["runs"]}
+    assert runs["full"]["status"] == "ok" and runs["full"]["cached"] and runs["rgb-only"]["status"] == "pending"
+    assert "trainer digest other-py" in runs["full"]["adopted_from"] and runs["full"]["code_digest"] != "other-python"
+    source_full = next((elsewhere / "runs/alpha/full").glob("seed0-*"))
+    assert (Path(runs["full"]["run_dir"]) / "metrics.json").read_bytes() == (source_full / "metrics.json").read_bytes()
+    assert "1 run(s) were trained under another key and adopted" in (here / "report.md").read_text()
+    assert not list(here.rglob(".*.adopting")) and _calls(here) == 0
