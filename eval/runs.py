@@ -36,7 +36,8 @@ METHODS: dict[str, Variant] = {
                 {"psnr": 15.08, "ssim": 0.38, "lpips": 0.326}),
         Variant("full", "Ours (Full)", "full", "methods",
                 {"psnr": 19.92, "ssim": 0.76, "lpips": 0.247},
-                note="Stage 1 (smoke masks, thermal-to-RGB registration) read from the generator's ground truth"),
+                note="Stage 1 (smoke masks, thermal-to-RGB registration) read from the generator's ground truth; "
+                     "at the standard profile the mask floor acts where its smoke alpha reaches 0.4"),
         Variant("full-estimated", "Ours (Full, estimated Stage 1)", "full", "methods", {},
                 note="Stage 1 estimated from the frames without downloaded weights (trainer setting "
                      "stage1=estimate, docs/real-captures.md); the paper reports no such row",

@@ -21,7 +21,7 @@ from contracts.provenance import provenance
 from contracts.results_format import RESULTS_FORMAT, RESULTS_FORMAT_VERSION
 from smokeseer.cameras import sample_in_view
 from smokeseer.config import TrainConfig, make_config
-from smokeseer.data import ModalityData, SceneData, load_scene
+from smokeseer.data import ModalityData, SceneData, load_scene, load_smoke_alpha
 from smokeseer.depth_prior import DepthPriorMaps, file_depth_prior, monocular_depth_prior, rendered_depth_prior
 from smokeseer.evaluate import heldout_psnr, score, score_validation, write_plys, write_renders
 from smokeseer.haze_lines import SmokeColourEstimate, estimate_smoke_colour
@@ -109,6 +109,8 @@ class PreparedRun:
     provenance: dict[str, Any]
     """Taken before training: a commit made or a file edited during a long run must not be
     credited with its result."""
+    mask_floor_where: str = "all"
+    """The pixels the mask floor acts on in this run (``mask_floor_rule``)."""
 
 
 def prepare(dataset: Path, mode: str = "full", profile: str = "quick", seed: int = 0,
@@ -128,7 +130,9 @@ def prepare(dataset: Path, mode: str = "full", profile: str = "quick", seed: int
     hold_out_validation(scene.rgb, cfg.validation_every)
     report = run_stage1(cfg, scene)
     check_depth_files(cfg, scene)
-    return PreparedRun(cfg, dataset, scene, report, switches_for(cfg, scene), time.perf_counter() - t, code)
+    switches = switches_for(cfg, scene)
+    floor_where = mask_floor_rule(cfg, switches, scene, report)
+    return PreparedRun(cfg, dataset, scene, report, switches, time.perf_counter() - t, code, floor_where)
 
 
 def train_and_evaluate(dataset: Path, out: Path, mode: str = "full", profile: str = "quick", seed: int = 0,
@@ -228,15 +232,21 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
         ctx.log_line("stage 3: skipped (deformable-3dgs baseline has one deformable set)")
     else:
         smoke_pts = _sample(scene.rgb, cfg.stage3.smoke_points, b, rng) if switches.use_smoke else None
-        gated = floor_gated(cfg, switches)
+        floor_where = prep.mask_floor_where
         rgb_depth = (rendered_depth_prior(s2.gaussians, views_of(scene.rgb, scene.rgb.indices("train"), dev), "rgb")
-                     if switches.use_smoke and (cfg.stage3.smoke_color == "haze-lines" or gated) else None)
-        if gated:
-            switches.mask_floor = mask_floor_pixels(scene.rgb, rgb_depth)
-            masked = int((scene.rgb.masks[scene.rgb.indices("train")] > 0.5).sum())
-            note = (f"mask floor on {100 * int(switches.mask_floor.sum()) / max(masked, 1):.0f} % "
-                    "of the masked training pixels: the rest are seen smoke-free from another training view "
-                    "(loss.mask_floor_where=never-clear)")
+                     if switches.use_smoke and (cfg.stage3.smoke_color == "haze-lines" or floor_where == "never-clear")
+                     else None)
+        if floor_where != "all":
+            train = scene.rgb.indices("train")
+            masked = scene.rgb.masks[train] > 0.5
+            if floor_where == "dense":
+                switches.mask_floor = masked & (load_smoke_alpha(scene, train) >= cfg.loss.mask_alpha_floor)
+                rest = "the rest is thinner smoke by the generator's smoke alpha (loss.mask_floor_where=dense)"
+            else:
+                switches.mask_floor = mask_floor_pixels(scene.rgb, rgb_depth)
+                rest = "the rest are seen smoke-free from another training view (loss.mask_floor_where=never-clear)"
+            note = (f"mask floor on {100 * int(switches.mask_floor.sum()) / max(int(masked.sum()), 1):.0f} % "
+                    f"of the masked training pixels: {rest}")
             switches.notes.append(note)
             ctx.log_line(f"stage 3: {note}")
         if switches.use_smoke and cfg.stage3.smoke_color == "haze-lines":
@@ -297,9 +307,21 @@ def haze_line_smoke_colour(cfg: TrainConfig, depth: DepthPriorMaps, rgb: Modalit
                                  depth.valid.cpu().numpy(), *rgb.cameras("train"), np.random.default_rng(cfg.seed + 2))
 
 
-def floor_gated(cfg: TrainConfig, switches: Stage3Switches) -> bool:
-    """Whether the mask floor is limited to pixels never seen smoke-free (needs masks and smoke)."""
-    return cfg.loss.mask_floor_where == "never-clear" and switches.use_smoke and switches.use_masks
+def mask_floor_rule(cfg: TrainConfig, switches: Stage3Switches, scene: SceneData, report: Stage1Report) -> str:
+    """The pixels the mask floor acts on in this run: "all", "never-clear" or "dense" (needs masks
+    and smoke). "dense" reads the generator's true smoke alpha, so it holds only where Stage 1's
+    masks are that dataset's own; elsewhere the run uses "never-clear" and says so in ``switches.notes``."""
+    where = cfg.loss.mask_floor_where
+    if where == "all" or not (switches.use_smoke and switches.use_masks):
+        return "all"
+    if where == "dense" and not (report.masks == "dataset" and scene.synthetic
+                                 and "smoke_alpha" in scene.meta.get("passes", {}).get("rgb", [])):
+        note = (f"mask floor: loss.mask_floor_where=dense needs the generator's smoke alpha behind Stage 1's masks, "
+                f"but the masks are {report.masks!r} masks of a "
+                f"{'synthetic' if scene.synthetic else 'captured'} scene; the floor acts where never seen clear instead")
+        switches.notes.append(note)
+        return "never-clear"
+    return where
 
 
 def mask_floor_pixels(rgb: ModalityData, depth: DepthPriorMaps) -> np.ndarray:

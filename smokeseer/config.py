@@ -28,7 +28,7 @@ MODES: tuple[str, ...] = (
 PROFILES: tuple[str, ...] = ("quick", "standard", "paper")
 SMOKE_COLOR_SOURCES: tuple[str, ...] = ("learned", "haze-lines")
 DEPTH_PIXELS: tuple[str, ...] = ("all", "smoky", "smoke-weighted")
-MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear")
+MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "dense")
 LPIPS_NETS: tuple[str, ...] = ("alex", "vgg")
 
 
@@ -61,9 +61,12 @@ class LossWeights:
     absorb: at 0.4 a pixel whose smoke is 0.8 opaque can be explained by half that smoke over a
     darker surface (benchmarks/results/standard/README.md, the dense excavator)."""
     mask_floor_where: str = "all"
-    """Which masked pixels the floor acts on (``smokeseer/mask_floor.py``): "all", or
+    """Which masked pixels the floor acts on (``smokeseer/mask_floor.py``): "all";
     "never-clear", those whose surface point no other training view sees smoke-free, so that
-    thin smoke over a surface seen clear elsewhere is not forced up to the floor."""
+    thin smoke over a surface seen clear elsewhere is not forced up to the floor; or "dense",
+    those whose true smoke alpha (the generator's ``rgb/smoke_alpha``, read like the masks in
+    Stage 1) reaches the floor, so thin smoke is never forced up (masks from anywhere else:
+    "never-clear", with a note)."""
 
 
 @dataclass
@@ -356,7 +359,7 @@ def _standard() -> TrainConfig:
     deform = DeformConfig(depth=6, width=128, skip_layer=3, warmup_iterations=500, predict_rotation_scale=True)
     return TrainConfig(profile="standard", max_width=0, thermal_scale="equalised", thermal_equalised_share=0.5,
                        sh_degree=2, sh_increase_every=800, stage2=s2, stage3=s3, deform=deform,
-                       loss=LossWeights(mask_floor_where="never-clear"), checkpoint_every=500, depth_prior="none")
+                       loss=LossWeights(mask_floor_where="dense"), checkpoint_every=500, depth_prior="none")
 
 
 def _paper() -> TrainConfig:

@@ -373,6 +373,23 @@ def all_or_none(files: list[Path], kind: str, none_note: str, notes: list[str]) 
     return True
 
 
+def load_smoke_alpha(scene: SceneData, indices: list[int]) -> np.ndarray:
+    """The generator's true RGB smoke alpha (``rgb/smoke_alpha``, channel A) of the given frames,
+    area-averaged to the training resolution like the masks; DatasetError names a missing file."""
+    rgb = scene.rgb
+    height, width = rgb.images.shape[1:3]
+    maps = []
+    for i in indices:
+        path = scene.path / "rgb" / "smoke_alpha" / f"{rgb.frames[i].file_stem}.exr"
+        alpha = read_exr(path, "A")
+        factor = alpha.shape[1] // width
+        small = box_downscale(alpha, max(factor, 1))
+        if small.shape[:2] != (height, width):
+            raise DatasetError(f"{path}: {alpha.shape[1]}x{alpha.shape[0]} does not scale to the frames' {width}x{height}")
+        maps.append(small)
+    return np.stack(maps).astype(np.float32)
+
+
 def load_masks(files: list[Path], factor: int, what: str, notes: list[str]) -> np.ndarray | None:
     """Binary smoke masks (> half scale = smoke) for every frame, or None with a note when the
     folder has none."""

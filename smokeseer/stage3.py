@@ -49,7 +49,7 @@ class Stage3Switches:
     geometry), or None when the smoke Gaussians learn their colours."""
     mask_floor: np.ndarray | None = None
     """(training RGB frames, H, W) bool: where the mask term's floor acts
-    (``loss.mask_floor_where=never-clear``, set once Stage 2 has given the geometry); None: everywhere."""
+    (``loss.mask_floor_where`` never-clear, set once Stage 2 has given the geometry, or dense); None: everywhere."""
 
 
 def loss_weights(cfg: TrainConfig) -> dict[str, float]:

@@ -6,9 +6,13 @@ import numpy as np
 import pytest
 import torch
 
+from smokeseer.api import mask_floor_rule, switches_for
 from smokeseer.config import make_config
+from smokeseer.data import load_scene, load_smoke_alpha, read_exr
 from smokeseer.losses import mask_alignment
 from smokeseer.mask_floor import never_seen_clear
+from smokeseer.stage1 import run_stage1
+from tests.test_smokeseer_data import write_splat_dataset
 
 N = 20
 
@@ -60,5 +64,32 @@ def test_mask_term_without_floor_keeps_only_the_push_to_zero() -> None:
 
 
 def test_bad_setting_names_the_field() -> None:
-    with pytest.raises(ValueError, match="loss.mask_floor_where: 'sometimes' is not one of all, never-clear"):
+    with pytest.raises(ValueError, match="loss.mask_floor_where: 'sometimes' is not one of all, never-clear, dense"):
         make_config("full", "quick", overrides={"loss.mask_floor_where": "sometimes"})
+
+
+def test_dense_floor_reads_the_true_alpha_at_the_training_resolution(tmp_path) -> None:
+    """load_smoke_alpha is the EXR's alpha averaged over 2x2 blocks when the frames are halved
+    (48 -> 24 px wide), computed here with a plain reshape."""
+    scene = load_scene(write_splat_dataset(tmp_path / "ds", n_rgb=4, n_thermal=3), max_width=24)
+    assert scene.rgb.images.shape[1:3] == (18, 24)
+    got = load_smoke_alpha(scene, [1, 3])
+    for row, i in zip(got, (1, 3)):
+        full = read_exr(tmp_path / "ds" / "rgb" / "smoke_alpha" / f"{i:04d}.exr", "A")
+        np.testing.assert_allclose(row, full.reshape(18, 2, 24, 2).mean(axis=(1, 3)), rtol=1e-6)
+    assert got.dtype == np.float32 and 0 < got.max() <= 1
+
+
+def test_dense_floor_needs_the_generators_masks(tmp_path) -> None:
+    """With Stage 1's masks from the dataset the rule is "dense"; with estimated masks the true
+    alpha would say more than the masks do, so the run keeps "never-clear" and notes it."""
+    ds = write_splat_dataset(tmp_path / "ds", n_rgb=4, n_thermal=3)
+    for stage1, expected in (("ground-truth", "dense"), ("estimate", "never-clear")):
+        cfg = make_config("full", "quick", overrides={"loss.mask_floor_where": "dense", "stage1": stage1})
+        scene = load_scene(ds, cfg.max_width)
+        report = run_stage1(cfg, scene)
+        switches = switches_for(cfg, scene)
+        assert mask_floor_rule(cfg, switches, scene, report) == expected
+        assert any("needs the generator's smoke alpha" in n for n in switches.notes) == (expected == "never-clear")
+    plain = make_config("full", "quick")
+    assert mask_floor_rule(plain, switches_for(plain, scene), scene, report) == "all"

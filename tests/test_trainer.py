@@ -217,8 +217,8 @@ def test_surface_under_smoke_gets_no_update_when_asked(tmp_path: Path) -> None:
 def test_mask_alpha_floor_reaches_the_mask_term(splat: Path, tmp_path: Path,
                                                monkeypatch: pytest.MonkeyPatch) -> None:
     """loss.mask_alpha_floor is the floor Stage 3's mask term uses (default 0.4, the public code's),
-    and loss.mask_floor_where=never-clear hands it a per-pixel map of the mask's shape (said in
-    stages.notes); by default it acts on every masked pixel."""
+    and loss.mask_floor_where=never-clear or dense hands it a per-pixel map of the mask's shape
+    (said in stages.notes); by default it acts on every masked pixel."""
     import smokeseer.stage3 as stage3
 
     seen: list[tuple[float, tuple[int, ...] | None]] = []
@@ -232,14 +232,16 @@ def test_mask_alpha_floor_reaches_the_mask_term(splat: Path, tmp_path: Path,
 
     monkeypatch.setattr(stage3, "mask_alignment", recording)
     for name, extra, expected in (("default", [], 0.4), ("floor", ["--set", "loss.mask_alpha_floor=0.9"], 0.9),
-                                  ("gated", ["--set", "loss.mask_floor_where=never-clear"], 0.4)):
+                                  ("gated", ["--set", "loss.mask_floor_where=never-clear"], 0.4),
+                                  ("dense", ["--set", "loss.mask_floor_where=dense"], 0.4)):
         seen.clear()
         assert main([str(splat), "--out", str(tmp_path / name)] + TINY + extra) == 0
         assert seen and {f for f, _ in seen} == {expected}
         gated = {shape is not None for _, shape in seen}
-        assert gated == {name == "gated"}
+        assert gated == {name in ("gated", "dense")}
         notes = json.loads((tmp_path / name / "metrics.json").read_text())["stages"]["notes"]
-        assert any("mask floor on" in n for n in notes) == (name == "gated")
+        assert any("mask floor on" in n for n in notes) == (name in ("gated", "dense"))
+        assert any("loss.mask_floor_where=dense)" in n for n in notes) == (name == "dense")
 
 
 @pytest.mark.slow
