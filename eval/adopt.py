@@ -67,7 +67,7 @@ def _check(spec: RunSpec, record_path: Path, local_sources: str) -> str:
         return str(exc)
     if digest != spec.code and rec.get("sources_sha256") != local_sources:
         return (f"{record_path}: field 'sources_sha256' differs from this checkout's trainer sources "
-                f"({str(rec.get('sources_sha256'))[:12] or 'missing'} != {local_sources[:12]})")
+                f"({str(rec.get('sources_sha256') or 'missing')[:12]} != {local_sources[:12]})")
     return ""
 
 
