@@ -7,7 +7,7 @@ it is provably the run this plan asks for:
 
 - its record's ``config_hash`` is this plan's key for the same scene, variant and seed with only
   the code digest replaced by the one it recorded (so method, settings, profile and dataset
-  content are equal), and it is a finished run by the harness's own test;
+  content are equal), its status is ``ok`` and its metrics.json passes the results contract;
 - its trainer sources (``eval.sources.sources_sha256``, raw bytes, Python-independent) equal
   this checkout's.
 
@@ -59,8 +59,6 @@ def _check(spec: RunSpec, record_path: Path, local_sources: str) -> str:
     theirs = replace(spec, code=digest)
     if rec.get("config_hash") != theirs.hash():
         return f"{record_path}: field 'config_hash' is not this plan's key with its digest (settings or dataset differ)"
-    if finished_run(theirs, record_path.parent) is None:
-        return f"{record_path.parent}: not a finished run (metrics.json missing)"
     try:
         read_metrics(record_path.parent)
     except ResultsFormatError as exc:

@@ -26,10 +26,10 @@ from eval import harness, harness_cli
 from eval.harness import HarnessConfig, regenerate
 from contracts.metrics import psnr, ssim_3dgs
 from contracts.provenance import provenance
-from tests.results_builder import write_metrics
 from eval.regions import MASK
 from eval.runs import RunSpec
 from generator.profiles import get_profile
+from tests.results_builder import write_metrics
 
 
 def write_tiny_dataset(root: Path, scene: str, seed: int = 0, frames: int = 4) -> Path:
