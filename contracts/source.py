@@ -141,7 +141,7 @@ def code_fingerprint(path: Path) -> str:
     return _parse(ModuleSource("", Path(path), False)).fingerprint
 
 
-def _package_data(module: ModuleSource) -> list[Path]:
+def package_data(module: ModuleSource) -> list[Path]:
     """Non-Python files that ship with a package (kernel sources, presets), below its folder but
     outside its sub-packages."""
     root = module.path.parent
@@ -163,7 +163,7 @@ def _computed_digest(*roots: str, root: Path = PROJECT_ROOT) -> str:
     for module in module_closure(*roots, root=root):
         h.update(f"{module.name}\0{_parse(module).fingerprint}\0".encode())
         if module.is_package:
-            for f in _package_data(module):
+            for f in package_data(module):
                 h.update(f"{module.name}/{f.relative_to(module.path.parent).as_posix()}\0".encode())
                 h.update(f.read_bytes())
     return h.hexdigest()

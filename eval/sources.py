@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import hashlib
 
-from contracts.source import PROJECT_ROOT, _package_data, module_closure
+from contracts.source import PROJECT_ROOT, module_closure, package_data
 
 
 def sources_sha256(*entries: str) -> str:
@@ -20,6 +20,6 @@ def sources_sha256(*entries: str) -> str:
     for module in module_closure(*entries):
         h.update(f"{module.name}\0".encode() + module.path.read_bytes() + b"\0")
         if module.is_package:
-            for f in _package_data(module):
+            for f in package_data(module):
                 h.update(f"{f.relative_to(PROJECT_ROOT).as_posix()}\0".encode() + f.read_bytes() + b"\0")
     return h.hexdigest()

@@ -47,15 +47,17 @@ def _sample(mod: ModalityData, n: int, bounds: Any, rng: np.random.Generator) ->
 
 
 def switches_for(cfg: TrainConfig, scene: SceneData) -> Stage3Switches:
-    """Leave out what the data does not need: no smoke in the masks → no smoke Gaussians;
-    static smoke → no deformation network; no thermal → rgb-only. Priors the data cannot
+    """Leave out what the data does not need: no smoke in the masks → no smoke Gaussians and no
+    deformation network; static smoke → no deformation network; no thermal → rgb-only. Priors the data cannot
     support are named in ``notes``."""
     masks = scene.rgb.masks
     smoke_seen = scene.smoke_present and (masks is None or bool((masks[scene.rgb.indices("train")] > 0).any()))
+    deformable = cfg.mode == "deformable-3dgs"
+    use_smoke = smoke_seen and not deformable
     return Stage3Switches(
         use_thermal=scene.thermal is not None and cfg.mode not in ("rgb-only", "deformable-3dgs"),
-        use_smoke=smoke_seen and cfg.mode != "deformable-3dgs",
-        use_deform=not scene.smoke_static,
+        use_smoke=use_smoke,
+        use_deform=deformable or (use_smoke and not scene.smoke_static),
         use_masks=masks is not None,
         smoke_threshold=scene.mask_threshold,
         notes=(dropped_term_notes(cfg, masks is not None) if cfg.mode != "deformable-3dgs" else [])

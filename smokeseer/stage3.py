@@ -40,6 +40,8 @@ class Stage3Switches:
     use_thermal: bool
     use_smoke: bool
     use_deform: bool
+    """Whether a deformation network trains: the smoke's (moving smoke only), or the
+    deformable-3dgs baseline's single set. A run without smoke Gaussians has none."""
     use_masks: bool
     smoke_threshold: float
     """Rendered smoke alpha above this counts as smoke: the dataset's mask threshold."""

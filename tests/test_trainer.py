@@ -141,6 +141,7 @@ def test_other_modes_run(splat: Path, tmp_path: Path, mode: str) -> None:
     assert doc["method"] == mode and math.isfinite(doc["metrics"]["psnr"])
     if mode == "deformable-3dgs":
         assert doc["stages"]["smoke_gaussians"] == 0 and doc["metrics"]["mask_iou"] is None
+        assert doc["stages"]["deformation"] is True  # its one set deforms
         assert doc["stages"]["geometry_modality"] == "rgb"
     if mode == "rgb-only":
         assert doc["stages"]["geometry_modality"] == "rgb"
@@ -280,6 +281,8 @@ def test_no_smoke_and_opaque_smoke_train_without_nan(tmp_path: Path, smoke: str)
     assert doc["status"] == "ok"
     if smoke == "none":
         assert doc["stages"]["smoke_gaussians"] == 0 and doc["metrics"]["mask_iou"] is None
+        assert doc["stages"]["deformation"] is False  # no smoke, so no smoke deformation network
+        assert doc["stages"]["deformation"] is False
     else:
         assert doc["stages"]["smoke_gaussians"] > 0 and doc["stages"]["deformation"] is False
         assert torch.load(run / "checkpoints" / "stage3.pt", weights_only=False)["deform"] is None
