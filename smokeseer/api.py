@@ -48,8 +48,8 @@ def _sample(mod: ModalityData, n: int, bounds: Any, rng: np.random.Generator) ->
 
 def switches_for(cfg: TrainConfig, scene: SceneData) -> Stage3Switches:
     """Leave out what the data does not need: no smoke in the masks → no smoke Gaussians and no
-    deformation network; static smoke → no deformation network; no thermal → rgb-only. Priors the data cannot
-    support are named in ``notes``."""
+    deformation network; static smoke → no deformation network; no thermal → rgb-only. Priors
+    the data cannot support are named in ``notes``."""
     masks = scene.rgb.masks
     smoke_seen = scene.smoke_present and (masks is None or bool((masks[scene.rgb.indices("train")] > 0).any()))
     deformable = cfg.mode == "deformable-3dgs"
