@@ -12,17 +12,13 @@ Full at the same seed and view. Numbers come from each run's metrics.json ``per_
 
 from __future__ import annotations
 
-import csv
-import logging
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 
-from contracts.atomic import atomic_path, write_text
 from contracts.results_format import ResultsFormatError, read_metrics
+from eval.regions import format_value, write_split_files
 from eval.runs import VARIANTS, RunResult
-
-log = logging.getLogger(__name__)
 
 REFERENCE = "full"
 """The method the others are counted against, view by view."""
@@ -111,10 +107,6 @@ def _mean(values: list[float]) -> float:
     return sum(vals) / len(vals) if vals else math.nan
 
 
-def _fmt(x: float) -> str:
-    return "-" if math.isnan(x) else f"{x:.2f}"
-
-
 def _summary(scores: list[ViewScore], skipped: list[str]) -> str:
     lines = ["# Per test view: which views each method wins", "",
              "Per scene and method: the mean over test views of each view's PSNR (Table 1's measure), the "
@@ -129,17 +121,17 @@ def _summary(scores: list[ViewScore], skipped: list[str]) -> str:
     for (scene, variant), m in summaries.items():
         label = VARIANTS[variant].label if variant in VARIANTS else variant
         versus = "-" if m.above_reference is None else f"{m.above_reference}/{m.paired_views}"
-        lines.append(f"| {scene} | {label} | {m.seeds} | {_fmt(m.mean_of_views)} | {_fmt(m.pooled)} "
-                     f"| {_fmt(m.input_mean_of_views)} / {_fmt(m.input_pooled)} | {m.above_input}/{m.views} "
+        lines.append(f"| {scene} | {label} | {m.seeds} | {format_value(m.mean_of_views)} | {format_value(m.pooled)} "
+                     f"| {format_value(m.input_mean_of_views)} / {format_value(m.input_pooled)} | {m.above_input}/{m.views} "
                      f"| {versus} |")
     lines += ["", "## Mean over scenes", "",
               "| method | scenes | mean of views | pooled | input: mean of views / pooled |", "|---|---|---|---|---|"]
     for variant in sorted({v for _, v in keys}):
         rows = [m for (_, v), m in summaries.items() if v == variant]
         label = VARIANTS[variant].label if variant in VARIANTS else variant
-        lines.append(f"| {label} | {len(rows)} | {_fmt(_mean([m.mean_of_views for m in rows]))} "
-                     f"| {_fmt(_mean([m.pooled for m in rows]))} | {_fmt(_mean([m.input_mean_of_views for m in rows]))}"
-                     f" / {_fmt(_mean([m.input_pooled for m in rows]))} |")
+        lines.append(f"| {label} | {len(rows)} | {format_value(_mean([m.mean_of_views for m in rows]))} "
+                     f"| {format_value(_mean([m.pooled for m in rows]))} | {format_value(_mean([m.input_mean_of_views for m in rows]))}"
+                     f" / {format_value(_mean([m.input_pooled for m in rows]))} |")
     if skipped:
         lines += ["", "Left out (said in the log too):", ""] + [f"- {s}" for s in skipped]
     return "\n".join(lines) + "\n"
@@ -150,13 +142,4 @@ def write_per_view(results: list[RunResult], out_dir: Path) -> dict[str, Path]:
     metrics.json cannot be read is left out, with one log line and a line in the summary."""
     skipped: list[str] = []
     scores = view_scores(results, skipped)
-    for line in skipped:
-        log.info("per-view split skipped: %s", line)
-    out_dir = Path(out_dir)
-    csv_path, md_path = out_dir / "per_view.csv", out_dir / "per_view.md"
-    with atomic_path(csv_path) as tmp, open(tmp, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=[f.name for f in fields(ViewScore)])
-        writer.writeheader()
-        writer.writerows(asdict(s) for s in scores)
-    write_text(md_path, _summary(scores, skipped))
-    return {"per_view.csv": csv_path, "per_view.md": md_path}
+    return write_split_files(out_dir, "per_view", ViewScore, scores, _summary(scores, skipped), skipped)

@@ -26,6 +26,7 @@ import logging
 import math
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -104,7 +105,8 @@ def score_run(result: RunResult, dataset: Path) -> list[RegionScore]:
             for region, (err, err_in, count) in sums.items()]
 
 
-def _fmt(x: float, digits: int = 2) -> str:
+def format_value(x: float, digits: int = 2) -> str:
+    """A table cell: the number at ``digits`` decimals, "-" for NaN (an empty region or no view)."""
     return "-" if math.isnan(x) else f"{x:.{digits}f}"
 
 
@@ -125,10 +127,10 @@ def _summary(scores: list[RegionScore], skipped: list[str]) -> str:
             return _mean(mine[region], attr)
 
         label = VARIANTS[variant].label if variant in VARIANTS else variant
-        lines.append(f"| {scene} | {label} | {len(mine['smoky'])} | {_fmt(100 * mean('smoky', 'pixel_share'), 0)} % "
-                     f"| {_fmt(mean('smoky', 'psnr'))} / {_fmt(mean('smoky', 'psnr_input'))} "
-                     f"| {_fmt(mean('clear', 'psnr'))} / {_fmt(mean('clear', 'psnr_input'))} "
-                     f"| {_fmt(100 * mean('clear', 'error_share'), 0)} % |")
+        lines.append(f"| {scene} | {label} | {len(mine['smoky'])} | {format_value(100 * mean('smoky', 'pixel_share'), 0)} % "
+                     f"| {format_value(mean('smoky', 'psnr'))} / {format_value(mean('smoky', 'psnr_input'))} "
+                     f"| {format_value(mean('clear', 'psnr'))} / {format_value(mean('clear', 'psnr_input'))} "
+                     f"| {format_value(100 * mean('clear', 'error_share'), 0)} % |")
     lines += ["", "## By how much the smoke changes a pixel", "",
               "Pixels banded by |smoky - clean| (largest channel) in each test frame; per band the method's "
               "PSNR / the input's, and the band's share of the test pixels. A method beats doing nothing "
@@ -137,8 +139,8 @@ def _summary(scores: list[RegionScore], skipped: list[str]) -> str:
     for scene, variant in keys:
         mine = {b: [s for s in scores if (s.scene, s.variant, s.region) == (scene, variant, b)] for b in BANDS}
         label = VARIANTS[variant].label if variant in VARIANTS else variant
-        cells = [f"{_fmt(_mean(mine[b], 'psnr'), 1)} / {_fmt(_mean(mine[b], 'psnr_input'), 1)} "
-                 f"({_fmt(100 * _mean(mine[b], 'pixel_share'), 0)} %)" for b in BANDS]
+        cells = [f"{format_value(_mean(mine[b], 'psnr'), 1)} / {format_value(_mean(mine[b], 'psnr_input'), 1)} "
+                 f"({format_value(100 * _mean(mine[b], 'pixel_share'), 0)} %)" for b in BANDS]
         lines.append(f"| {scene} | {label} | {len(mine[BANDS[0]])} | " + " | ".join(cells) + " |")
     if skipped:
         lines += ["", "Not split (said in the log too):", ""] + [f"- {s}" for s in skipped]
@@ -169,13 +171,20 @@ def write_region_split(results: list[RunResult], datasets: dict[str, Path], out_
                 scores += score_run(r, Path(dataset))
             except DatasetError as exc:
                 skipped.append(f"{r.scene} {r.variant} seed {r.seed}: {exc}")
+    return write_split_files(out_dir, "per_scene_regions", RegionScore, scores, _summary(scores, skipped), skipped)
+
+
+def write_split_files(out_dir: Path, name: str, row_type: type, rows: list[Any], summary: str,
+                      skipped: list[str]) -> dict[str, Path]:
+    """NAME.csv (one row per dataclass in ``rows``, a header even when there is none) and NAME.md
+    (``summary``), both atomic; each line of ``skipped`` goes to the log too."""
     for line in skipped:
-        log.info("region split skipped: %s", line)
+        log.info("%s: skipped %s", name, line)
     out_dir = Path(out_dir)
-    csv_path, md_path = out_dir / "per_scene_regions.csv", out_dir / "per_scene_regions.md"
+    csv_path, md_path = out_dir / f"{name}.csv", out_dir / f"{name}.md"
     with atomic_path(csv_path) as tmp, open(tmp, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=[f.name for f in fields(RegionScore)])
+        writer = csv.DictWriter(fh, fieldnames=[f.name for f in fields(row_type)])
         writer.writeheader()
-        writer.writerows(asdict(s) for s in scores)
-    write_text(md_path, _summary(scores, skipped))
-    return {"per_scene_regions.csv": csv_path, "per_scene_regions.md": md_path}
+        writer.writerows(asdict(r) for r in rows)
+    write_text(md_path, summary)
+    return {f"{name}.csv": csv_path, f"{name}.md": md_path}
