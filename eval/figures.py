@@ -15,7 +15,7 @@ import numpy as np  # noqa: E402
 from PIL import Image  # noqa: E402
 
 from contracts.train_log import read_train_log  # noqa: E402
-from eval.runs import VARIANTS, RunResult  # noqa: E402
+from eval.runs import VARIANTS, RunResult, variant_label  # noqa: E402
 
 INPUT_COLUMNS = {"thermal": "Thermal input", "rgb": "RGB input", "gt": "Ground truth"}
 
@@ -77,7 +77,7 @@ def write_psnr_vs_time(results: list[RunResult], out_dir: Path) -> tuple[Path, P
                 continue
             t = [p[1] for p in pts]
             y = [p[2] for p in pts]
-            label = VARIANTS[variant].label if variant in VARIANTS else variant
+            label = variant_label(variant)
             ax.plot(t, y, "-", color=colours[variant], alpha=0.85,
                     label=None if variant in labelled else label)
             labelled.add(variant)
@@ -164,7 +164,7 @@ def write_qualitative_grid(results: list[RunResult], datasets: dict[str, Path], 
             else:
                 ax.imshow(img, cmap=cmap, vmin=0, vmax=1, interpolation="nearest")
             if i == 0:
-                ax.set_title(INPUT_COLUMNS.get(col) or (VARIANTS[col].label if col in VARIANTS else col), fontsize=8)
+                ax.set_title(INPUT_COLUMNS.get(col) or variant_label(col), fontsize=8)
             if j == 0:
                 ax.set_ylabel(f"{scene}\nframe {stem}", fontsize=8)
     fig.suptitle(title, fontsize=10)

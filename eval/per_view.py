@@ -17,8 +17,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from contracts.results_format import ResultsFormatError, read_metrics
-from eval.regions import format_value, write_split_files
-from eval.runs import VARIANTS, RunResult
+from eval.regions import format_value, pooled_psnr, write_split_files
+from eval.runs import VARIANTS, RunResult, variant_label
 
 REFERENCE = "full"
 """The method the others are counted against, view by view."""
@@ -37,12 +37,10 @@ class ViewScore:
     psnr_input: float
 
 
-def pooled_psnr(psnrs: list[float]) -> float:
+def pooled_over_views(psnrs: list[float]) -> float:
     """PSNR of the mean of the views' squared errors, each recovered from its PSNR on [0, 1]
-    images; NaN when there is no view."""
-    if not psnrs:
-        return math.nan
-    return -10.0 * math.log10(sum(10 ** (-p / 10) for p in psnrs) / len(psnrs))
+    images (capped and NaN-when-empty as eval.regions.pooled_psnr)."""
+    return pooled_psnr(sum(10 ** (-p / 10) for p in psnrs), len(psnrs))
 
 
 def view_scores(results: list[RunResult], skipped: list[str] | None = None) -> list[ViewScore]:
@@ -92,9 +90,9 @@ def summarise(scores: list[ViewScore], scene: str, variant: str) -> MethodSummar
     return MethodSummary(
         seeds=len(seeds),
         mean_of_views=_mean([_mean([s.psnr for s in v]) for v in by_seed.values()]),
-        pooled=_mean([pooled_psnr([s.psnr for s in v]) for v in by_seed.values()]),
+        pooled=_mean([pooled_over_views([s.psnr for s in v]) for v in by_seed.values()]),
         input_mean_of_views=_mean([s.psnr_input for s in by_seed[seeds[0]]]),
-        input_pooled=pooled_psnr([s.psnr_input for s in by_seed[seeds[0]]]),
+        input_pooled=pooled_over_views([s.psnr_input for s in by_seed[seeds[0]]]),
         above_input=sum(s.psnr > s.psnr_input for s in mine),
         views=len(mine),
         above_reference=None if variant == REFERENCE or not paired
@@ -119,19 +117,19 @@ def _summary(scores: list[ViewScore], skipped: list[str]) -> str:
     keys = sorted({(s.scene, s.variant) for s in scores})
     summaries = {k: summarise(scores, *k) for k in keys}
     for (scene, variant), m in summaries.items():
-        label = VARIANTS[variant].label if variant in VARIANTS else variant
+        label = variant_label(variant)
         versus = "-" if m.above_reference is None else f"{m.above_reference}/{m.paired_views}"
-        lines.append(f"| {scene} | {label} | {m.seeds} | {format_value(m.mean_of_views)} | {format_value(m.pooled)} "
-                     f"| {format_value(m.input_mean_of_views)} / {format_value(m.input_pooled)} | {m.above_input}/{m.views} "
-                     f"| {versus} |")
+        lines.append(f"| {scene} | {label} | {m.seeds} | {format_value(m.mean_of_views)} "
+                     f"| {format_value(m.pooled)} | {format_value(m.input_mean_of_views)} "
+                     f"/ {format_value(m.input_pooled)} | {m.above_input}/{m.views} | {versus} |")
     lines += ["", "## Mean over scenes", "",
               "| method | scenes | mean of views | pooled | input: mean of views / pooled |", "|---|---|---|---|---|"]
     for variant in sorted({v for _, v in keys}):
         rows = [m for (_, v), m in summaries.items() if v == variant]
-        label = VARIANTS[variant].label if variant in VARIANTS else variant
-        lines.append(f"| {label} | {len(rows)} | {format_value(_mean([m.mean_of_views for m in rows]))} "
-                     f"| {format_value(_mean([m.pooled for m in rows]))} | {format_value(_mean([m.input_mean_of_views for m in rows]))}"
-                     f" / {format_value(_mean([m.input_pooled for m in rows]))} |")
+        label = variant_label(variant)
+        cells = [format_value(_mean([getattr(m, attr) for m in rows]))
+                 for attr in ("mean_of_views", "pooled", "input_mean_of_views", "input_pooled")]
+        lines.append(f"| {label} | {len(rows)} | {cells[0]} | {cells[1]} | {cells[2]} / {cells[3]} |")
     if skipped:
         lines += ["", "Left out (said in the log too):", ""] + [f"- {s}" for s in skipped]
     return "\n".join(lines) + "\n"

@@ -34,7 +34,7 @@ from contracts.atomic import atomic_path, write_text
 from contracts.dataset_format import PASS_FILES, file_path
 from contracts.errors import DatasetError
 from contracts.metrics import PSNR_CAP_DB
-from eval.runs import VARIANTS, RunResult
+from eval.runs import RunResult, variant_label
 from smokeseer.data import box_downscale, image01, read_png
 
 log = logging.getLogger(__name__)
@@ -126,8 +126,9 @@ def _summary(scores: list[RegionScore], skipped: list[str]) -> str:
         def mean(region: str, attr: str) -> float:
             return _mean(mine[region], attr)
 
-        label = VARIANTS[variant].label if variant in VARIANTS else variant
-        lines.append(f"| {scene} | {label} | {len(mine['smoky'])} | {format_value(100 * mean('smoky', 'pixel_share'), 0)} % "
+        label = variant_label(variant)
+        lines.append(f"| {scene} | {label} | {len(mine['smoky'])} "
+                     f"| {format_value(100 * mean('smoky', 'pixel_share'), 0)} % "
                      f"| {format_value(mean('smoky', 'psnr'))} / {format_value(mean('smoky', 'psnr_input'))} "
                      f"| {format_value(mean('clear', 'psnr'))} / {format_value(mean('clear', 'psnr_input'))} "
                      f"| {format_value(100 * mean('clear', 'error_share'), 0)} % |")
@@ -138,7 +139,7 @@ def _summary(scores: list[RegionScore], skipped: list[str]) -> str:
               "| scene | method | seeds | " + " | ".join(BANDS) + " |", "|---|---|---|" + "---|" * len(BANDS)]
     for scene, variant in keys:
         mine = {b: [s for s in scores if (s.scene, s.variant, s.region) == (scene, variant, b)] for b in BANDS}
-        label = VARIANTS[variant].label if variant in VARIANTS else variant
+        label = variant_label(variant)
         cells = [f"{format_value(_mean(mine[b], 'psnr'), 1)} / {format_value(_mean(mine[b], 'psnr_input'), 1)} "
                  f"({format_value(100 * _mean(mine[b], 'pixel_share'), 0)} %)" for b in BANDS]
         lines.append(f"| {scene} | {label} | {len(mine[BANDS[0]])} | " + " | ".join(cells) + " |")

@@ -63,6 +63,11 @@ ABLATIONS: dict[str, Variant] = {
 VARIANTS: dict[str, Variant] = {**METHODS, **ABLATIONS}
 
 
+def variant_label(key: str) -> str:
+    """The row label of a table variant; an unknown key (an older run folder) stands for itself."""
+    return VARIANTS[key].label if key in VARIANTS else key
+
+
 def config_hash(obj: Any) -> str:
     """SHA-256 of canonical JSON: the cache key of a dataset or run."""
     return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()

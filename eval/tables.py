@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable
 
-from eval.runs import ABLATIONS, METHODS, VARIANTS, RunResult
+from eval.runs import ABLATIONS, METHODS, VARIANTS, RunResult, variant_label
 
 
 @dataclass(frozen=True)
@@ -94,7 +94,7 @@ def build_rows(results: list[RunResult], variants: list[str], metrics: Iterable[
             continue
         statuses = sorted({str(r.metrics.get("lpips_status", "")) for r in mine if r.status == "ok"} - {""})
         rows.append(Row(
-            variant=key, label=VARIANTS[key].label if key in VARIANTS else key,
+            variant=key, label=variant_label(key),
             stats={m: seed_stat(_metric_values(mine, m)) for m in metrics},
             paper=VARIANTS[key].paper if key in VARIANTS else {},
             runs_ok=sum(r.status == "ok" for r in mine),

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from eval.per_view import pooled_psnr, summarise, view_scores, write_per_view
+from eval.per_view import pooled_over_views, summarise, view_scores, write_per_view
 from eval.runs import RunResult
 from tests.results_builder import write_metrics
 
@@ -21,11 +21,11 @@ def _run(root: Path, variant: str, seed: int, views: dict[str, tuple[float, floa
     return RunResult(scene, variant, seed, "ok", str(folder), "hash")
 
 
-def test_pooled_psnr_weighs_the_worst_view() -> None:
+def test_pooled_over_views_weighs_the_worst_view() -> None:
     # MSEs 0.1 and 0.001: the mean of PSNRs is 20 dB, the pooled PSNR that of MSE 0.0505.
-    assert pooled_psnr([10.0, 30.0]) == pytest.approx(-10 * math.log10(0.0505))
-    assert pooled_psnr([25.0, 25.0]) == pytest.approx(25.0)
-    assert math.isnan(pooled_psnr([]))
+    assert pooled_over_views([10.0, 30.0]) == pytest.approx(-10 * math.log10(0.0505))
+    assert pooled_over_views([25.0, 25.0]) == pytest.approx(25.0)
+    assert math.isnan(pooled_over_views([]))
 
 
 def test_views_counted_against_input_and_full_at_the_same_seed(tmp_path: Path) -> None:
@@ -36,7 +36,7 @@ def test_views_counted_against_input_and_full_at_the_same_seed(tmp_path: Path) -
     scores = view_scores([full, rgb, rgb_seed1])
     m_full, m_rgb = summarise(scores, "s", "full"), summarise(scores, "s", "rgb-only")
     assert m_full.mean_of_views == pytest.approx(21.5) and m_rgb.mean_of_views == pytest.approx((22.5 + 40) / 2)
-    assert m_full.pooled == pytest.approx(pooled_psnr([18.0, 25.0]))
+    assert m_full.pooled == pytest.approx(pooled_over_views([18.0, 25.0]))
     assert m_full.above_input == 1 and m_full.above_reference is None
     # RGB-only beats the input on 0004 at seed 0 and on both views at seed 1; beats Full on 0036 only,
     # and seed 1 has no Full run to be paired with.
@@ -44,7 +44,7 @@ def test_views_counted_against_input_and_full_at_the_same_seed(tmp_path: Path) -
     assert (m_rgb.above_reference, m_rgb.paired_views) == (1, 2)
     assert m_full.input_mean_of_views == pytest.approx(22.5)
     # The mean of views ranks RGB-only's seed 0 first (22.5 > 21.5); pooling ranks Full first.
-    assert pooled_psnr([18.0, 25.0]) > pooled_psnr([12.0, 33.0])
+    assert pooled_over_views([18.0, 25.0]) > pooled_over_views([12.0, 33.0])
 
 
 def test_dehazing_baseline_is_floored_by_the_smoky_input(tmp_path: Path) -> None:
