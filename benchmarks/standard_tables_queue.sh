@@ -1,0 +1,42 @@
+#!/usr/bin/env bash
+# Issue 16's standard-profile runs as a work queue, one run per regenerate-tables call, for filling
+# the tables over several sessions with two of these side by side (one core each). The queue is
+# standard_tables.sh's order cut into single runs: Table 1 at seed 0, Table 2's ablations at seed
+# 0, then Table 1 at seeds 1 and 2. A worker claims a step by creating its folder under
+# CLAIMS (mkdir is atomic; the step's log goes there), so two workers never train the same run;
+# cached steps cost seconds.
+# A worker stops before its next step once CLAIMS/STOP exists. An interrupted run resumes from its
+# checkpoint when its step's claim folder is removed and a worker reaches it again. Afterwards,
+# `bash benchmarks/standard_tables.sh --finished-only` writes the tables.
+#
+#   bash benchmarks/standard_tables_queue.sh NAME [CLAIMS]     (CLAIMS default: runs/claims)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+name=${1:?usage: standard_tables_queue.sh NAME [CLAIMS]}
+claims=${2:-runs/claims}
+root=data/standard
+out=data/tables_standard
+mkdir -p "$claims"
+order=(house room forest food_plate excavator rover chair plant brick_toy machine)
+scenes=()
+for s in "${order[@]}"; do [[ -f "$root/$s/dataset.json" ]] && scenes+=("$s"); done
+steps=()
+for s in "${scenes[@]}"; do for m in full rgb-only imgdehaze-dcp; do steps+=("$s $m 0 -"); done; done
+for s in "${scenes[@]}"; do for a in no-smoke-alpha no-smoke-color no-mono no-mask stage2-depth; do steps+=("$s full 0 $a"); done; done
+for seed in 1 2; do
+    for s in "${scenes[@]}"; do for m in full rgb-only imgdehaze-dcp; do steps+=("$s $m $seed -"); done; done
+done
+for step in "${steps[@]}"; do
+    if [[ -e "$claims/STOP" ]]; then echo "[$name] $(date -u +%FT%TZ) STOP found, leaving"; exit 0; fi
+    read -r scene method seed ablation <<< "$step"
+    claim="$claims/$(echo "$step" | md5sum | cut -c1-12)"
+    mkdir "$claim" 2>/dev/null || continue
+    if [[ $ablation == - ]]; then which=(--no-ablations); else which=(--ablations --ablation-list "$ablation"); fi
+    echo "[$name] $(date -u +%FT%TZ) start $step"
+    t0=$SECONDS
+    rc=0
+    .venv/bin/regenerate-tables --profile standard --workers 1 --scenes "$scene" --dataset "$scene=$root/$scene" \
+        --methods "$method" --seeds "$seed," "${which[@]}" --out "$out" > "$claim/log" 2>&1 || rc=$?
+    echo "[$name] $(date -u +%FT%TZ) done $step rc=$rc $((SECONDS - t0)) s"
+done
+echo "[$name] $(date -u +%FT%TZ) queue empty"
