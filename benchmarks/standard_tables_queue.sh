@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # Issue 16's standard-profile runs as a work queue, one run per regenerate-tables call, for filling
-# the tables over several sessions with two of these side by side (one core each). The queue is
+# the tables over several sessions with two of these side by side. Each call says --workers 2, as
+# standard_tables.sh does, so that its one run trains on one thread (the harness gives a run
+# cores/workers threads) like every other run of the tables. The queue is
 # standard_tables.sh's order cut into single runs: Table 1 at seed 0, Table 2's ablations at seed
 # 0, then Table 1 at seeds 1 and 2. A worker claims a step by creating its folder under
 # CLAIMS (mkdir is atomic; the step's log goes there), so two workers never train the same run;
@@ -35,7 +37,7 @@ for step in "${steps[@]}"; do
     echo "[$name] $(date -u +%FT%TZ) start $step"
     t0=$SECONDS
     rc=0
-    .venv/bin/regenerate-tables --profile standard --workers 1 --scenes "$scene" --dataset "$scene=$root/$scene" \
+    .venv/bin/regenerate-tables --profile standard --workers 2 --scenes "$scene" --dataset "$scene=$root/$scene" \
         --methods "$method" --seeds "$seed," "${which[@]}" --out "$out" > "$claim/log" 2>&1 || rc=$?
     echo "[$name] $(date -u +%FT%TZ) done $step rc=$rc $((SECONDS - t0)) s"
 done
