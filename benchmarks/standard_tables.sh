@@ -21,14 +21,10 @@ out=data/tables_standard
 if [[ $# -gt 0 && $1 != --* ]]; then root=$1; shift; fi
 if [[ $# -gt 0 && $1 != --* ]]; then out=$1; shift; fi
 extra=("$@")
-scenes=()
+source benchmarks/standard_scenes.sh
+mapfile -t scenes < <(standard_scenes "$root")
 datasets=()
-for s in house room forest food_plate excavator rover chair plant brick_toy machine; do
-    if [[ -f "$root/$s/dataset.json" ]]; then
-        scenes+=("$s")
-        datasets+=(--dataset "$s=$root/$s")
-    fi
-done
+for s in "${scenes[@]}"; do datasets+=(--dataset "$s=$root/$s"); done
 if [[ ${#scenes[@]} -eq 0 ]]; then
     echo "standard_tables.sh: no standard dataset under $root (run generate-benchmark --profile standard --out $root first)" >&2
     exit 2
