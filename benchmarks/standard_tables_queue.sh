@@ -4,8 +4,8 @@
 # standard_tables.sh does, so that its one run trains on one thread (the harness gives a run
 # cores/workers threads) like every other run of the tables. The queue is
 # standard_tables.sh's order cut into single runs: Table 1 at seed 0, Table 2's ablations at seed
-# 0 (the harness's default list for the standard profile), then Table 1 at seeds 1 and 2. A worker claims a step by creating its folder under
-# CLAIMS (mkdir is atomic; the step's log goes there), so two workers never train the same run;
+# 0 (the harness's default list for the standard profile), then Table 1 at seeds 1 and 2.
+# A worker claims a step by creating its folder under CLAIMS (mkdir is atomic; the step's log goes there), so two workers never train the same run;
 # cached steps cost seconds.
 # A worker stops before its next step once CLAIMS/STOP exists. An interrupted run resumes from its
 # checkpoint when its step's claim folder is removed and a worker reaches it again. Afterwards,
@@ -23,11 +23,12 @@ source benchmarks/standard_scenes.sh
 mapfile -t scenes < <(standard_scenes "$root")
 mapfile -t ablations < <(.venv/bin/python -c \
     "from eval.harness import default_ablations; print(*default_ablations('standard', {}), sep='\n')")
+table1_methods=(full rgb-only imgdehaze-dcp)
 steps=()
-for s in "${scenes[@]}"; do for m in full rgb-only imgdehaze-dcp; do steps+=("$s $m 0 -"); done; done
+for s in "${scenes[@]}"; do for m in "${table1_methods[@]}"; do steps+=("$s $m 0 -"); done; done
 for s in "${scenes[@]}"; do for a in "${ablations[@]}"; do steps+=("$s full 0 $a"); done; done
 for seed in 1 2; do
-    for s in "${scenes[@]}"; do for m in full rgb-only imgdehaze-dcp; do steps+=("$s $m $seed -"); done; done
+    for s in "${scenes[@]}"; do for m in "${table1_methods[@]}"; do steps+=("$s $m $seed -"); done; done
 done
 for step in "${steps[@]}"; do
     if [[ -e "$claims/STOP" ]]; then echo "[$name] $(date -u +%FT%TZ) STOP found, leaving"; exit 0; fi
