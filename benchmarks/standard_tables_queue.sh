@@ -5,8 +5,8 @@
 # cores/workers threads) like every other run of the tables. The queue is
 # standard_tables.sh's order cut into single runs: Table 1 at seed 0, Table 2's ablations at seed
 # 0 (the harness's default list for the standard profile), then Table 1 at seeds 1 and 2.
-# A worker claims a step by creating its folder under CLAIMS (mkdir is atomic; the step's log goes there), so two workers never train the same run;
-# cached steps cost seconds.
+# A worker claims a step by creating its folder under CLAIMS (mkdir is atomic; the step's log
+# goes there), so two workers never train the same run; cached steps cost seconds.
 # A worker stops before its next step once CLAIMS/STOP exists. An interrupted run resumes from its
 # checkpoint when its step's claim folder is removed and a worker reaches it again. Afterwards,
 # `bash benchmarks/standard_tables.sh --finished-only` writes the tables.
