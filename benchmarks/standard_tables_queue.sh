@@ -23,13 +23,15 @@ source benchmarks/standard_scenes.sh
 mapfile -t scenes < <(standard_scenes "$root")
 mapfile -t ablations < <(.venv/bin/python -c \
     "from eval.harness import default_ablations; print(*default_ablations('standard', {}), sep='\n')")
-table1_methods=(full rgb-only imgdehaze-dcp)
 steps=()
-for s in "${scenes[@]}"; do for m in "${table1_methods[@]}"; do steps+=("$s $m 0 -"); done; done
+add_table1_steps() {  # add_table1_steps SEED: every scene's three Table 1 methods at SEED
+    local s m
+    for s in "${scenes[@]}"; do for m in full rgb-only imgdehaze-dcp; do steps+=("$s $m $1 -"); done; done
+}
+add_table1_steps 0
 for s in "${scenes[@]}"; do for a in "${ablations[@]}"; do steps+=("$s full 0 $a"); done; done
-for seed in 1 2; do
-    for s in "${scenes[@]}"; do for m in "${table1_methods[@]}"; do steps+=("$s $m $seed -"); done; done
-done
+add_table1_steps 1
+add_table1_steps 2
 for step in "${steps[@]}"; do
     if [[ -e "$claims/STOP" ]]; then echo "[$name] $(date -u +%FT%TZ) STOP found, leaving"; exit 0; fi
     read -r scene method seed ablation <<< "$step"
