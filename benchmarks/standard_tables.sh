@@ -10,10 +10,10 @@
 #   bash benchmarks/standard_tables.sh [DATASETS_ROOT] [OUT]      (defaults: data/standard data/tables_standard)
 #   bash benchmarks/standard_tables.sh [DATASETS_ROOT] [OUT] --finished-only   tables from what has finished, train nothing
 #
-# OUT then holds Table 1 (table1.*, per_scene.csv, per_scene_regions.*, per_view.*, figure3,
-# psnr_vs_time, report.md) from the last call, Table 1 at seed 0 alone (table1_seed0.*,
+# OUT then holds Table 1 (table1.*, per_scene.csv, per_scene_regions.*, per_view.*, claims.*,
+# figure3, psnr_vs_time, report.md) from the last call, Table 1 at seed 0 alone (table1_seed0.*,
 # per_scene_seed0.csv) from the first, and Table 2 (table2.*, per_scene_table2.csv,
-# figure5_ablations.png) from the second.
+# claims_table2.*, figure5_ablations.png) from the second.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=data/standard
@@ -40,5 +40,7 @@ for f in table1.md table1.tex table1.csv per_scene.csv; do  # seed 0 alone: ever
     cp "$out/$f" "$out/${f%.*}_seed0.${f##*.}"
 done
 run "${common[@]}" --methods full --seeds 0, --ablations
-cp "$out/per_scene.csv" "$out/per_scene_table2.csv"  # the next call rewrites per_scene.csv for Table 1's runs
+for f in per_scene.csv claims.md claims.csv; do  # the next call rewrites these for Table 1's runs
+    cp "$out/$f" "$out/${f%.*}_table2.${f##*.}"
+done
 run "${common[@]}" --methods full,rgb-only,imgdehaze-dcp --seeds 3 --no-ablations

@@ -120,6 +120,11 @@ def test_pipeline_cache_and_failures(tmp_path: Path) -> None:
     assert report.count("/ no-mask / seed") == 4 and "no-mask diverged (injected)" in report
     t2 = paths["table2.md"].read_text()
     assert "| w/o mask | — |" in t2 and "0/4 †" in t2
+    # the claims check leaves the failed ablation's seeds out and says so, in its file and the report
+    claims = {row["claim"]: row for row in csv.DictReader(open(paths["claims.csv"]))}
+    no_mask = claims["w/o mask ≤ Ours (Full) on the mean over scenes"]
+    assert no_mask["holds"] == "not yet" and no_mask["left_out"] == "seed 0: 2 of 4 runs; seed 1: 2 of 4 runs"
+    assert "# The claims, checked on the finished runs" in report
 
     # numbers in the table are the runs' numbers: Full PSNR = mean over seeds of scene means
     full = [r for r in results if r.variant == "full"]
