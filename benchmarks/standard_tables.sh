@@ -11,9 +11,9 @@
 #   bash benchmarks/standard_tables.sh [DATASETS_ROOT] [OUT] --finished-only   tables from what has finished, train nothing
 #
 # OUT then holds Table 1 (table1.*, per_scene.csv, per_scene_regions.*, per_view.*, claims.*,
-# figure3, psnr_vs_time, report.md) from the last call, Table 1 at seed 0 alone (table1_seed0.*,
-# per_scene_seed0.csv) from the first, and Table 2 (table2.*, per_scene_table2.csv,
-# claims_table2.*, figure5_ablations.png) from the second.
+# convergence.*, figure3, psnr_vs_time, report.md) from the last call, Table 1 at seed 0 alone
+# (table1_seed0.*, per_scene_seed0.csv) from the first, and Table 2 (table2.*,
+# per_scene_table2.csv, claims_table2.*, figure5_ablations.png) from the second.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=data/standard

@@ -605,6 +605,7 @@ def regenerate(cfg: HarnessConfig, train_fn: TrainFn = default_train,
     """The whole pipeline: plan (printed first), datasets, dehazing, runs, tables, figures,
     report. With ``dry_run`` only the plan is printed."""
     from eval.claims import write_claims
+    from eval.convergence import write_convergence
     from eval.figures import write_psnr_vs_time, write_qualitative_grid
     from eval.per_view import write_per_view
     from eval.regions import write_region_split
@@ -642,6 +643,7 @@ def regenerate(cfg: HarnessConfig, train_fn: TrainFn = default_train,
     paths.update(write_region_split(results, ok_sets, out))
     paths.update(write_per_view(results, out))
     paths.update(write_claims(results, out))
+    paths.update(write_convergence(results, out))
     if ok_sets:
         cols = ["thermal", "rgb", "gt"] + [k for k in ("full", "imgdehaze-dcp", "rgb-only") if k in cfg.methods]
         paths["figure3_qualitative.png"] = write_qualitative_grid(

@@ -101,7 +101,7 @@ def write_report(cfg: "HarnessConfig", results: list[RunResult], datasets: list[
         if d.status == "failed":
             lines += [f"### dataset {d.scene} ({d.kind})", "", "```", d.error.strip() or "(no message)", "```", ""]
     lines += ["", "## Tables", ""]
-    for name in ("table1.md", "table2.md", "claims.md", "per_scene_regions.md", "per_view.md"):
+    for name in ("table1.md", "table2.md", "claims.md", "convergence.md", "per_scene_regions.md", "per_view.md"):
         if name in paths:
             lines += [Path(paths[name]).read_text(), ""]
     lines += ["## Files", ""] + [f"- `{k}`" for k in sorted(paths)]

@@ -125,6 +125,7 @@ def test_pipeline_cache_and_failures(tmp_path: Path) -> None:
     no_mask = claims["w/o mask ≤ Ours (Full) on the mean over scenes"]
     assert no_mask["holds"] == "not yet" and no_mask["left_out"] == "seed 0: 2 of 4 runs; seed 1: 2 of 4 runs"
     assert "# The claims, checked on the finished runs" in report
+    assert "# Would more budget close the gap? (validation PSNR)" in report
 
     # numbers in the table are the runs' numbers: Full PSNR = mean over seeds of scene means
     full = [r for r in results if r.variant == "full"]
