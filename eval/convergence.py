@@ -119,9 +119,44 @@ def _summary(rows: list[RunConvergence], skipped: list[str]) -> str:
         if ref and not math.isnan(floor):
             lines.append(f"| {scene} | smoky input | - | {format_value(floor)} | 0.00 "
                          f"| {format_value(ref_end - floor)} | {_closing_cell(ref_end - floor, ref_slope)} |")
+    lines += _mean_over_scenes(by_key)
     if skipped:
         lines += ["", "Left out (said in the log too):", ""] + [f"- {s}" for s in skipped]
     return "\n".join(lines) + "\n"
+
+
+def _mean_over_scenes(by_key: dict[tuple[str, str], list[RunConvergence]]) -> list[str]:
+    """The same columns for the mean over the scenes that have both Full and the method: the gap
+    of the tables' headline (a mean over scenes) and how fast it was closing."""
+    lines = ["", "## Mean over scenes", "",
+             "Each scene's means over seeds, then the mean over the scenes that have both runs.", "",
+             "| method | scenes | end (dB) | slope (dB/1000 it) | " + variant_label(REFERENCE) + " end / slope "
+             "| gap to " + variant_label(REFERENCE) + " | extra iterations for " + variant_label(REFERENCE)
+             + " to catch up |", "|---|---|---|---|---|---|---|"]
+
+    def scene_mean(scene: str, variant: str, attr: str) -> float:
+        return _mean([getattr(r, attr) for r in by_key[(scene, variant)]])
+
+    ref_scenes = {s for s, v in by_key if v == REFERENCE}
+    rows: list[tuple[str, list[str], list[float], list[float]]] = []
+    for variant in sorted({v for _, v in by_key} - {REFERENCE}):
+        scenes = sorted(s for s, v in by_key if v == variant and s in ref_scenes)
+        rows.append((variant_label(variant), scenes, [scene_mean(s, variant, "val_psnr_end") for s in scenes],
+                     [scene_mean(s, variant, "slope_per_1000") for s in scenes]))
+    floor_scenes = sorted(s for s in ref_scenes
+                          if not math.isnan(scene_mean(s, REFERENCE, "val_psnr_input")))
+    rows.append(("smoky input", floor_scenes, [scene_mean(s, REFERENCE, "val_psnr_input") for s in floor_scenes],
+                 [0.0] * len(floor_scenes)))
+    for label, scenes, ends, slopes in rows:
+        if not scenes:
+            continue
+        ref_end = _mean([scene_mean(s, REFERENCE, "val_psnr_end") for s in scenes])
+        ref_slope = _mean([scene_mean(s, REFERENCE, "slope_per_1000") for s in scenes])
+        end, slope = _mean(ends), _mean(slopes)
+        lines.append(f"| {label} | {len(scenes)} | {format_value(end)} | {format_value(slope)} "
+                     f"| {format_value(ref_end)} / {format_value(ref_slope)} | {format_value(ref_end - end)} "
+                     f"| {_closing_cell(ref_end - end, ref_slope - slope)} |")
+    return lines
 
 
 def write_convergence(results: list[RunResult], out_dir: Path) -> dict[str, Path]:

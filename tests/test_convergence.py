@@ -71,4 +71,7 @@ def test_summary_gap_and_catch_up(tmp_path: Path) -> None:
     assert "| b | Ours (RGB only) | 1 | 21.00 | 0.50 | 1.00 | ahead |" in md
     assert "| b | smoky input | - | 23.00 | 0.00 | -1.00 | 10,000 |" in md
     assert "c full seed 0:" in md and "train_log.csv: missing" in md
+    # mean over scenes: Full 21.00 rising 0.45, RGB-only 21.00 rising 0.35, input 21.50
+    assert "| Ours (RGB only) | 2 | 21.00 | 0.35 | 21.00 / 0.45 | 0.00 | ahead |" in md
+    assert "| smoky input | 2 | 21.50 | 0.00 | 21.00 / 0.45 | -0.50 | 1,111 |" in md
     assert len(list(csv.DictReader(paths["convergence.csv"].open()))) == 4
