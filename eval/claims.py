@@ -168,6 +168,27 @@ def _per_scene_table(results: list[RunResult]) -> list[str]:
     return lines
 
 
+def _per_seed_table(results: list[RunResult]) -> list[str]:
+    """Each variant's mean over scenes at every seed where it has all of them; otherwise how many."""
+    psnr = _psnr_by_run(results)
+    floor = input_psnr(results)
+    scenes = sorted({r.scene for r in results})
+    seeds = sorted({r.seed for r in results})
+    variants = [v for v in (*METHOD_ORDER, *ABLATIONS) if any(r.variant == v for r in results)]
+    lines = ["| variant | " + " | ".join(f"seed {s}" for s in seeds) + " |", "|---|" + "---|" * len(seeds)]
+    for v in variants:
+        cells = []
+        for seed in seeds:
+            have = [psnr[(sc, v, seed)] for sc in scenes if (sc, v, seed) in psnr]
+            cells.append(format_value(sum(have) / len(have)) if len(have) == len(scenes)
+                         else f"({len(have)} of {len(scenes)} scenes)")
+        lines.append(f"| {variant_label(v)} | " + " | ".join(cells) + " |")
+    if scenes and all(sc in floor for sc in scenes):
+        floor_mean = format_value(sum(floor[sc] for sc in scenes) / len(scenes))
+        lines.append("| smoky input | " + " | ".join([floor_mean] * len(seeds)) + " |")
+    return lines
+
+
 def _summary(checks: list[ClaimCheck], results: list[RunResult]) -> str:
     seeds = sorted({r.seed for r in results})
     lines = ["# The claims, checked on the finished runs", "",
@@ -176,6 +197,7 @@ def _summary(checks: list[ClaimCheck], results: list[RunResult]) -> str:
              "seeds. Incomplete seeds are left out of the check and named.", "",
              "| claim | holds | measured | seeds | left out |", "|---|---|---|---|---|"]
     lines += [f"| {c.claim} | {c.holds} | {c.measured} | {c.seeds} | {c.left_out or '-'} |" for c in checks]
+    lines += ["", "## Per seed: mean over scenes", "", *_per_seed_table(results)]
     lines += ["", f"## Per scene (seeds {' / '.join(str(s) for s in seeds)}; - not finished)", "",
               *_per_scene_table(results)]
     return "\n".join(lines) + "\n"

@@ -101,7 +101,8 @@ def _summary(rows: list[RunConvergence], skipped: list[str]) -> str:
              "continuation of both slopes needs to close it (a rough guide: the curves flatten, but the "
              "slopes were measured under learning rates decaying to the budget's end).", "",
              "| scene | method | seeds | end (dB) | slope (dB/1000 it) | gap to " + variant_label(REFERENCE)
-             + " | extra iterations for " + variant_label(REFERENCE) + " to catch up |", "|---|---|---|---|---|---|---|"]
+             + " | extra iterations for " + variant_label(REFERENCE) + " to catch up |",
+             "|---|---|---|---|---|---|---|"]
     by_key: dict[tuple[str, str], list[RunConvergence]] = {}
     for r in rows:
         by_key.setdefault((r.scene, r.variant), []).append(r)

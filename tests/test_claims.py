@@ -85,3 +85,10 @@ def test_written_files(tmp_path: Path) -> None:
     assert [r["holds"] for r in rows] == ["yes", "yes", "yes"]
     md = paths["claims.md"].read_text()
     assert "| a | 20.00 | 22.00 | 21.00 |" in md and "| b | 10.00 | 12.00 | 11.00 |" in md
+    assert "| Ours (Full) | 17.00 |" in md and "| smoky input | 15.00 |" in md
+
+
+def test_per_seed_table_names_incomplete_seeds(tmp_path: Path) -> None:
+    runs = _table1({("a", 0): 22.0, ("b", 0): 12.0, ("a", 1): 30.0}, {}, {})
+    md = write_claims(runs, tmp_path)["claims.md"].read_text()
+    assert "| Ours (Full) | 17.00 | (1 of 2 scenes) |" in md
