@@ -92,21 +92,18 @@ def method_checks(results: list[RunResult]) -> list[ClaimCheck]:
     checks = []
     for better, worse in zip(present, present[1:]):
         seeds, left_out = complete_seeds(results, (better, worse))
-        means = {v: seed_stat({s: [psnr[(sc, v, s)] for sc in scenes] for s in seeds}) for v in (better, worse)}
-        ok = None if not seeds else means[better].mean > means[worse].mean
+        high, low = (_by_seed(psnr, scenes, v, seeds) for v in (better, worse))
+        ok = None if not seeds else seed_stat(high).mean > seed_stat(low).mean
         wins = sum(_scene_mean(psnr, sc, better, seeds) > _scene_mean(psnr, sc, worse, seeds)
                    for sc in scenes) if seeds else 0
         measured = ("-" if not seeds else
-                    f"{variant_label(better)} "
-                    f"{_stat_text({s: [psnr[(sc, better, s)] for sc in scenes] for s in seeds})}, "
-                    f"{variant_label(worse)} "
-                    f"{_stat_text({s: [psnr[(sc, worse, s)] for sc in scenes] for s in seeds})} dB; "
+                    f"{variant_label(better)} {_stat_text(high)}, {variant_label(worse)} {_stat_text(low)} dB; "
                     f"ahead on {wins} of {len(scenes)} scenes")
         checks.append(ClaimCheck(f"{variant_label(better)} > {variant_label(worse)} on the mean over scenes",
                                  _verdict(ok), measured, _seed_list(seeds), left_out))
     if REFERENCE in present and all(sc in floor for sc in scenes):
         seeds, left_out = complete_seeds(results, (REFERENCE,))
-        full = {s: [psnr[(sc, REFERENCE, s)] for sc in scenes] for s in seeds}
+        full = _by_seed(psnr, scenes, REFERENCE, seeds)
         floor_mean = sum(floor[sc] for sc in scenes) / len(scenes)
         stat = seed_stat(full)
         label = variant_label(REFERENCE)
@@ -136,8 +133,8 @@ def ablation_checks(results: list[RunResult]) -> list[ClaimCheck]:
         if not any(r.variant == key for r in results):
             continue
         seeds, left_out = complete_seeds(results, (REFERENCE, key))
-        mine = {s: [psnr[(sc, key, s)] for sc in scenes] for s in seeds}
-        full = {s: [psnr[(sc, REFERENCE, s)] for sc in scenes] for s in seeds}
+        mine = _by_seed(psnr, scenes, key, seeds)
+        full = _by_seed(psnr, scenes, REFERENCE, seeds)
         ok = None if not seeds else seed_stat(mine).mean <= seed_stat(full).mean
         above = [sc for sc in scenes if seeds and
                  _scene_mean(psnr, sc, key, seeds) > _scene_mean(psnr, sc, REFERENCE, seeds)]
@@ -148,6 +145,12 @@ def ablation_checks(results: list[RunResult]) -> list[ClaimCheck]:
         checks.append(ClaimCheck(f"{variant_label(key)} ≤ {variant_label(REFERENCE)} on the mean over scenes",
                                  _verdict(ok), measured, _seed_list(seeds), left_out))
     return checks
+
+
+def _by_seed(psnr: dict[tuple[str, str, int], float], scenes: list[str], variant: str,
+             seeds: list[int]) -> dict[int, list[float]]:
+    """A variant's PSNR on every scene, per seed (seeds where it has them all)."""
+    return {s: [psnr[(sc, variant, s)] for sc in scenes] for s in seeds}
 
 
 def _scene_mean(psnr: dict[tuple[str, str, int], float], scene: str, variant: str, seeds: list[int]) -> float:
