@@ -18,7 +18,7 @@ from pathlib import Path
 
 from contracts.results_format import ResultsFormatError, read_metrics
 from contracts.train_log import read_train_log
-from eval.regions import format_value, write_split_files
+from eval.regions import format_value, nan_mean, write_split_files
 from eval.runs import RunResult, variant_label
 
 TAIL_ITERATIONS = 1000
@@ -69,11 +69,6 @@ def run_convergence(result: RunResult) -> RunConvergence:
                           len(tail), math.nan if val_input is None else float(val_input))
 
 
-def _mean(values: list[float]) -> float:
-    vals = [v for v in values if not math.isnan(v)]
-    return sum(vals) / len(vals) if vals else math.nan
-
-
 def iterations_to_close(gap_db: float, closing_rate_per_1000: float) -> float:
     """Iterations a straight continuation needs to make up ``gap_db`` (behind when negative) at
     ``closing_rate_per_1000`` (how much faster the one behind improves). 0 when not behind, inf
@@ -92,6 +87,25 @@ def _closing_cell(gap: float, rate: float) -> str:
     return "ahead" if its == 0 else ("not closing" if math.isinf(its) else f"{its:,.0f}")
 
 
+@dataclass(frozen=True)
+class _SceneMeans:
+    """One scene and method: means over its seeds, NaN where nothing was recorded."""
+
+    seeds: int
+    end: float
+    slope: float
+    val_input: float
+
+
+def _scene_means(rows: list[RunConvergence]) -> dict[tuple[str, str], _SceneMeans]:
+    by_key: dict[tuple[str, str], list[RunConvergence]] = {}
+    for r in rows:
+        by_key.setdefault((r.scene, r.variant), []).append(r)
+    return {key: _SceneMeans(len(runs), nan_mean([r.val_psnr_end for r in runs]),
+                             nan_mean([r.slope_per_1000 for r in runs]), nan_mean([r.val_psnr_input for r in runs]))
+            for key, runs in by_key.items()}
+
+
 def _summary(rows: list[RunConvergence], skipped: list[str]) -> str:
     lines = ["# Would more budget close the gap? (validation PSNR)", "",
              f"Per scene and method, means over seeds: the validation PSNR at the end of the run and its slope "
@@ -103,30 +117,27 @@ def _summary(rows: list[RunConvergence], skipped: list[str]) -> str:
              "| scene | method | seeds | end (dB) | slope (dB/1000 it) | gap to " + variant_label(REFERENCE)
              + " | extra iterations for " + variant_label(REFERENCE) + " to catch up |",
              "|---|---|---|---|---|---|---|"]
-    by_key: dict[tuple[str, str], list[RunConvergence]] = {}
-    for r in rows:
-        by_key.setdefault((r.scene, r.variant), []).append(r)
-    for scene in sorted({r.scene for r in rows}):
-        ref = by_key.get((scene, REFERENCE), [])
-        ref_end, ref_slope = _mean([r.val_psnr_end for r in ref]), _mean([r.slope_per_1000 for r in ref])
-        for variant in sorted({v for s, v in by_key if s == scene}, key=lambda v: (v != REFERENCE, v)):
-            mine = by_key[(scene, variant)]
-            end, slope = _mean([r.val_psnr_end for r in mine]), _mean([r.slope_per_1000 for r in mine])
-            gap = "-" if variant == REFERENCE or not ref else format_value(ref_end - end)
-            closing = "-" if variant == REFERENCE or not ref else _closing_cell(ref_end - end, ref_slope - slope)
-            lines.append(f"| {scene} | {variant_label(variant)} | {len(mine)} | {format_value(end)} "
-                         f"| {format_value(slope)} | {gap} | {closing} |")
-        floor = _mean([r.val_psnr_input for r in ref])
-        if ref and not math.isnan(floor):
-            lines.append(f"| {scene} | smoky input | - | {format_value(floor)} | 0.00 "
-                         f"| {format_value(ref_end - floor)} | {_closing_cell(ref_end - floor, ref_slope)} |")
-    lines += _mean_over_scenes(by_key)
+    means = _scene_means(rows)
+    for scene in sorted({s for s, _ in means}):
+        ref = means.get((scene, REFERENCE))
+        for variant in sorted({v for s, v in means if s == scene}, key=lambda v: (v != REFERENCE, v)):
+            mine = means[(scene, variant)]
+            versus = variant != REFERENCE and ref is not None
+            gap = format_value(ref.end - mine.end) if versus else "-"
+            closing = _closing_cell(ref.end - mine.end, ref.slope - mine.slope) if versus else "-"
+            lines.append(f"| {scene} | {variant_label(variant)} | {mine.seeds} | {format_value(mine.end)} "
+                         f"| {format_value(mine.slope)} | {gap} | {closing} |")
+        if ref is not None and not math.isnan(ref.val_input):
+            gap = ref.end - ref.val_input
+            lines.append(f"| {scene} | smoky input | - | {format_value(ref.val_input)} | 0.00 "
+                         f"| {format_value(gap)} | {_closing_cell(gap, ref.slope)} |")
+    lines += _mean_over_scenes(means)
     if skipped:
         lines += ["", "Left out (said in the log too):", ""] + [f"- {s}" for s in skipped]
     return "\n".join(lines) + "\n"
 
 
-def _mean_over_scenes(by_key: dict[tuple[str, str], list[RunConvergence]]) -> list[str]:
+def _mean_over_scenes(means: dict[tuple[str, str], _SceneMeans]) -> list[str]:
     """The same columns for the mean over the scenes that have both Full and the method: the gap
     of the tables' headline (a mean over scenes) and how fast it was closing."""
     lines = ["", "## Mean over scenes", "",
@@ -134,27 +145,18 @@ def _mean_over_scenes(by_key: dict[tuple[str, str], list[RunConvergence]]) -> li
              "| method | scenes | end (dB) | slope (dB/1000 it) | " + variant_label(REFERENCE) + " end / slope "
              "| gap to " + variant_label(REFERENCE) + " | extra iterations for " + variant_label(REFERENCE)
              + " to catch up |", "|---|---|---|---|---|---|---|"]
-
-    def scene_mean(scene: str, variant: str, attr: str) -> float:
-        return _mean([getattr(r, attr) for r in by_key[(scene, variant)]])
-
-    ref_scenes = {s for s, v in by_key if v == REFERENCE}
-    rows: list[tuple[str, list[str], list[float], list[float]]] = []
-    for variant in sorted({v for _, v in by_key} - {REFERENCE}):
-        scenes = sorted(s for s, v in by_key if v == variant and s in ref_scenes)
-        rows.append((variant_label(variant), scenes, [scene_mean(s, variant, "val_psnr_end") for s in scenes],
-                     [scene_mean(s, variant, "slope_per_1000") for s in scenes]))
-    floor_scenes = sorted(s for s in ref_scenes
-                          if not math.isnan(scene_mean(s, REFERENCE, "val_psnr_input")))
-    rows.append(("smoky input", floor_scenes, [scene_mean(s, REFERENCE, "val_psnr_input") for s in floor_scenes],
-                 [0.0] * len(floor_scenes)))
-    for label, scenes, ends, slopes in rows:
-        if not scenes:
+    ref = {s: m for (s, v), m in means.items() if v == REFERENCE}
+    others: list[tuple[str, dict[str, tuple[float, float]]]] = [
+        (variant_label(variant), {s: (m.end, m.slope) for (s, v), m in means.items() if v == variant and s in ref})
+        for variant in sorted({v for _, v in means} - {REFERENCE})]
+    others.append(("smoky input", {s: (m.val_input, 0.0) for s, m in ref.items() if not math.isnan(m.val_input)}))
+    for label, by_scene in others:
+        if not by_scene:
             continue
-        ref_end = _mean([scene_mean(s, REFERENCE, "val_psnr_end") for s in scenes])
-        ref_slope = _mean([scene_mean(s, REFERENCE, "slope_per_1000") for s in scenes])
-        end, slope = _mean(ends), _mean(slopes)
-        lines.append(f"| {label} | {len(scenes)} | {format_value(end)} | {format_value(slope)} "
+        ref_end = nan_mean([ref[s].end for s in by_scene])
+        ref_slope = nan_mean([ref[s].slope for s in by_scene])
+        end, slope = nan_mean([e for e, _ in by_scene.values()]), nan_mean([k for _, k in by_scene.values()])
+        lines.append(f"| {label} | {len(by_scene)} | {format_value(end)} | {format_value(slope)} "
                      f"| {format_value(ref_end)} / {format_value(ref_slope)} | {format_value(ref_end - end)} "
                      f"| {_closing_cell(ref_end - end, ref_slope - slope)} |")
     return lines

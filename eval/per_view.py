@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from contracts.results_format import ResultsFormatError, read_metrics
-from eval.regions import format_value, pooled_psnr, write_split_files
+from eval.regions import format_value, nan_mean, pooled_psnr, write_split_files
 from eval.runs import VARIANTS, RunResult, variant_label
 
 REFERENCE = "full"
@@ -89,20 +89,15 @@ def summarise(scores: list[ViewScore], scene: str, variant: str) -> MethodSummar
     paired = [s for s in mine if (s.seed, s.view) in reference]
     return MethodSummary(
         seeds=len(seeds),
-        mean_of_views=_mean([_mean([s.psnr for s in v]) for v in by_seed.values()]),
-        pooled=_mean([pooled_over_views([s.psnr for s in v]) for v in by_seed.values()]),
-        input_mean_of_views=_mean([s.psnr_input for s in by_seed[seeds[0]]]),
+        mean_of_views=nan_mean([nan_mean([s.psnr for s in v]) for v in by_seed.values()]),
+        pooled=nan_mean([pooled_over_views([s.psnr for s in v]) for v in by_seed.values()]),
+        input_mean_of_views=nan_mean([s.psnr_input for s in by_seed[seeds[0]]]),
         input_pooled=pooled_over_views([s.psnr_input for s in by_seed[seeds[0]]]),
         above_input=sum(s.psnr > s.psnr_input for s in mine),
         views=len(mine),
         above_reference=None if variant == REFERENCE or not paired
         else sum(s.psnr > reference[(s.seed, s.view)] for s in paired),
         paired_views=len(paired))
-
-
-def _mean(values: list[float]) -> float:
-    vals = [v for v in values if not math.isnan(v)]
-    return sum(vals) / len(vals) if vals else math.nan
 
 
 def _summary(scores: list[ViewScore], skipped: list[str]) -> str:
@@ -127,7 +122,7 @@ def _summary(scores: list[ViewScore], skipped: list[str]) -> str:
     for variant in sorted({v for _, v in keys}):
         rows = [m for (_, v), m in summaries.items() if v == variant]
         label = variant_label(variant)
-        cells = [format_value(_mean([getattr(m, attr) for m in rows]))
+        cells = [format_value(nan_mean([getattr(m, attr) for m in rows]))
                  for attr in ("mean_of_views", "pooled", "input_mean_of_views", "input_pooled")]
         lines.append(f"| {label} | {len(rows)} | {cells[0]} | {cells[1]} | {cells[2]} / {cells[3]} |")
     if skipped:

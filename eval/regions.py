@@ -105,6 +105,12 @@ def score_run(result: RunResult, dataset: Path) -> list[RegionScore]:
             for region, (err, err_in, count) in sums.items()]
 
 
+def nan_mean(values: list[float]) -> float:
+    """Mean with NaN (an empty region, a missing record) left out; NaN when nothing is left."""
+    vals = [v for v in values if not math.isnan(v)]
+    return sum(vals) / len(vals) if vals else math.nan
+
+
 def format_value(x: float, digits: int = 2) -> str:
     """A table cell: the number at ``digits`` decimals, "-" for NaN (an empty region or no view)."""
     return "-" if math.isnan(x) else f"{x:.{digits}f}"
@@ -150,8 +156,7 @@ def _summary(scores: list[RegionScore], skipped: list[str]) -> str:
 
 def _mean(scores: list[RegionScore], attr: str) -> float:
     """Mean over seeds, NaN (an empty region) left out."""
-    vals = [getattr(s, attr) for s in scores if not math.isnan(getattr(s, attr))]
-    return sum(vals) / len(vals) if vals else math.nan
+    return nan_mean([getattr(s, attr) for s in scores])
 
 
 def write_region_split(results: list[RunResult], datasets: dict[str, Path], out_dir: Path) -> dict[str, Path]:
