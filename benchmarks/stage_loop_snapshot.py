@@ -72,7 +72,7 @@ def main() -> None:
     ap.add_argument("dataset", type=Path, help="a dataset written by generate-scene")
     ap.add_argument("--iterations", type=int, default=40, help="Stage 2 iterations per measurement")
     ap.add_argument("--repeats", type=int, default=3, help="alternating repeats; the best of each side is kept")
-    ap.add_argument("--out", type=Path, default=Path("/tmp/stage_loop_snapshot"), help="scratch run folder")
+    ap.add_argument("--out", type=Path, default=Path("runs/stage_loop_snapshot"), help="scratch run folder (git-ignored runs/)")
     args = ap.parse_args()
     torch.set_num_threads(1)
     best = {True: float("inf"), False: float("inf")}

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Issue 16's standard-profile runs as a work queue, one run per regenerate-tables call, for filling
-# the tables over several sessions with two of these side by side. Each call says --workers 2, as
+# the tables over several days, stopped and restarted at will, with two of these side by side. Each call says --workers 2, as
 # standard_tables.sh does, so that its one run trains on one thread (the harness gives a run
 # cores/workers threads) like every other run of the tables. The queue is
 # standard_tables.sh's order cut into single runs: Table 1 at seed 0, Table 2's ablations at seed

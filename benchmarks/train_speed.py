@@ -40,6 +40,7 @@ import json
 import os
 import pstats
 import sys
+import sysconfig
 import tempfile
 import time
 from dataclasses import dataclass
@@ -160,7 +161,13 @@ def profile_backend(dataset: Path, backend: str, iterations: int, top: int) -> t
                f"threads {torch.get_num_threads()}, load {os.getloadavg()[0]:.1f}\n")
     stats.sort_stats("tottime").print_stats(top)
     stats.sort_stats("cumulative").print_stats(top)
-    return stage_speeds(rows, backend, wall, cpu), text.getvalue()
+    return stage_speeds(rows, backend, wall, cpu), _portable_paths(text.getvalue())
+
+
+def _portable_paths(text: str) -> str:
+    """cProfile's file names relative to the checkout, the standard library as ``<stdlib>``: the
+    profile is committed, and one machine's folders mean nothing elsewhere."""
+    return text.replace(f"{ROOT}/", "").replace(f"{sysconfig.get_paths()['stdlib']}/", "<stdlib>/")
 
 
 def run_train(args: argparse.Namespace) -> None:

@@ -1,7 +1,7 @@
 """Adopt finished runs that were trained under another cache key only because the trainer's code
 digest differs (another Python version), into this checkout's ``--out``.
 
-Why: a lent GPU machine runs another Python, whose ``ast.dump`` gives the unchanged trainer
+Why: another machine (a GPU host, a cluster node) may run another Python, whose ``ast.dump`` gives the unchanged trainer
 another digest (docs/scale-out.md), so its runs are not found here. A run is adopted only when
 it is provably the run this plan asks for:
 

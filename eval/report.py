@@ -25,6 +25,24 @@ def _version(pkg: str) -> str:
         return "not installed"
 
 
+def _shown(path: str | Path) -> str:
+    """A path as the report prints it: relative to the working folder when it lies below it, else
+    with the home folder written as ``~``. Why: report.md is committed beside the tables, and one
+    machine's absolute paths tell a reader of another clone nothing."""
+    if not str(path):
+        return ""
+    p = Path(path)
+    try:
+        return str(p.resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return _home_as_tilde(str(p))
+
+
+def _home_as_tilde(text: str) -> str:
+    home = str(Path.home()).rstrip("/") + "/"
+    return text.replace(home, "~/") if home != "/" else text
+
+
 def _variant(key: str, label: bool) -> str:
     v = VARIANTS[key]
     return (f"{key} ({v.label + ', ' if label else ''}trainer mode `{v.mode}`"
@@ -44,7 +62,7 @@ def _settings(cfg: "HarnessConfig", backend: str) -> list[tuple[str, Any]]:
         ("dehazer", f"{cfg.dehazer} {asdict(DarkChannelPrior()) if cfg.dehazer == 'dcp' else ''}"),
         ("execution", f"{backend}, training on {cfg.device}"),
         ("LPIPS", f"{cfg.lpips_net}, weights {cfg.lpips_weights or 'from the default search ($TORCH_HOME, ~/.cache/torch)'}"),
-        ("output folder", str(Path(cfg.out).resolve())),
+        ("output folder", _shown(cfg.out)),
         ("versions", ", ".join(f"{p} {_version(p)}" for p in ("smokeseer-synth", "torch", "numpy", "bpy"))
          + f", python {platform.python_version()}"),
         ("code digests (part of every cache key: each entry point and the project modules it imports)",
@@ -64,9 +82,9 @@ def write_report(cfg: "HarnessConfig", results: list[RunResult], datasets: list[
              + f"; {wall_s:.1f} s wall.", "",
              "## Settings", ""]
     lines += [f"- **{k}**: {v}" for k, v in _settings(cfg, backend)]
-    lines += [f"- **LPIPS**: {lpips_status}", ""]
+    lines += [f"- **LPIPS**: {_home_as_tilde(lpips_status)}", ""]
     lines += ["## Datasets", "", "| scene | kind | status | cached | seconds | path |", "|---|---|---|---|---|---|"]
-    lines += [f"| {d.scene} | {d.kind} | {d.status} | {d.cached} | {d.wall_time_s:.1f} | `{d.path}` |"
+    lines += [f"| {d.scene} | {d.kind} | {d.status} | {d.cached} | {d.wall_time_s:.1f} | `{_shown(d.path)}` |"
               for d in datasets]
     lines += ["", "## Runs", "", "| scene | variant | seed | status | cached | device | seconds | PSNR | config hash | run dir |",
               "|---|---|---|---|---|---|---|---|---|---|"]
@@ -74,7 +92,7 @@ def write_report(cfg: "HarnessConfig", results: list[RunResult], datasets: list[
         p = r.metrics.get("psnr")
         device = "—" if r.status == "pending" else r.device  # a pending run has not trained anywhere yet
         lines.append(f"| {r.scene} | {r.variant} | {r.seed} | {r.status} | {r.cached} | {device} | {r.wall_time_s:.1f} | "
-                     f"{'' if p is None else f'{p:.2f}'} | {r.config_hash[:12]} | `{r.run_dir}` |")
+                     f"{'' if p is None else f'{p:.2f}'} | {r.config_hash[:12]} | `{_shown(r.run_dir)}` |")
     taken = [r for r in results if r.stage2_from]
     if taken:
         lines += ["", f"{len(taken)} run(s) took the finished Stage 2 of a run with the same Stage-2 settings "

@@ -2,7 +2,7 @@
 Python version.
 
 Why: the cache key holds ``contracts.source.code_digest``, which reads each module's syntax tree
-through ``ast.dump``, whose text differs between Python versions; a run trained on a lent GPU
+through ``ast.dump``, whose text differs between Python versions; a run trained on another
 machine under another Python therefore lands under another key. Recording this fingerprint
 beside the run lets ``eval/adopt.py`` show that such a run was made from this checkout's code.
 """

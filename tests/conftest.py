@@ -1,4 +1,4 @@
-"""Shared fixtures. `demo_dataset` runs the real generator (bpy + Mantaflow) once per session."""
+"""Shared fixtures. `demo_dataset` runs the real generator (bpy + Mantaflow) once per test run."""
 from __future__ import annotations
 
 import os
@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="package")  # tests/ is one package: one generation per test run
 def demo_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The `demo` preset, generated for real. SMOKESEER_DEMO_DATASET reuses an existing one."""
     existing = os.environ.get("SMOKESEER_DEMO_DATASET")
@@ -18,7 +18,7 @@ def demo_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return generate("demo", tmp_path_factory.mktemp("demo") / "dataset", show_progress=False)
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="package")  # tests/ is one package: one generation per test run
 def demo_nosmoke_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The `demo` preset with its smoke sources removed (no domain, no bake), generated for real.
     SMOKESEER_DEMO_NOSMOKE_DATASET reuses an existing one."""

@@ -311,7 +311,7 @@ def test_interrupted_run_resumes_without_redoing_frames(tmp_path: Path) -> None:
     staging = tmp_path / ".resumed.partial"
     args = [*CLI, "--preset", "demo", "--out", str(out), "--frames", "4", "--quiet"]
     proc = subprocess.Popen(args, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            start_new_session=True)
+                            process_group=0)  # its own group, so killpg reaches the Blender worker
     deadline = time.time() + 300
     while time.time() < deadline and not any((staging / "raw" / "rgb" / "clean").glob("*.png")):
         time.sleep(0.2)
