@@ -59,7 +59,7 @@ class LossWeights:
     """Inside the mask, smoke alpha at or above this counts as full smoke (the public code's 0.4;
     1 is the paper's plain L1). It sets how much of a dense smoke's darkening the surface may
     absorb: at 0.4 a pixel whose smoke is 0.8 opaque can be explained by half that smoke over a
-    darker surface (benchmarks/results/standard/README.md, the dense excavator)."""
+    darker surface (docs/experiments/2026-11-24-dense-smoke-colour.md)."""
     mask_floor_where: str = "all"
     """Which masked pixels the floor acts on (``smokeseer/mask_floor.py``): "all";
     "never-clear", those whose surface point no other training view sees smoke-free, so that
@@ -149,8 +149,7 @@ class Stage3Config:
     """3DGS density control of the surface from the RGB views' gradients ("refining geometry": the
     thermal-only Stage 2 surface is as coarse as the thermal images); ``every`` 0 is off. Needs
     ``train_surface_geometry``. On in the standard profile, which has no depth term: with the
-    depth term it collapsed (standard house validation: 22.5 dB gated against 26.2 dB without),
-    without it it holds (28.35 dB against 28.30; docs/method.md)."""
+    depth term the refined surface collapsed (docs/method.md, "Profiles")."""
     surface_densify_max_smoke: float = 0.02
     """Surface refinement counts a view's gradient for a Gaussian only where the smoke covering its
     projected centre (the rendered smoke alpha, or the Stage 1 mask where the run has one) is at
@@ -326,21 +325,10 @@ def _quick() -> TrainConfig:
 def _standard() -> TrainConfig:
     """The benchmark's scale on one CPU core with the compiled rasterizer (a `standard` dataset:
     60 frames, 200x150 RGB, 80x60 thermal): full resolution, 3000 + 3000 iterations with the
-    3DGS schedules scaled to them, and a validation split for every choice. No opacity reset, for
-    the quick profile's reason: too few iterations after it to regrow. The surface is refined
-    (gated on smoke-free centres) and there is no depth term: on the validation views of house,
-    forest and a dense excavator, the weight-free depth prior we have (Stage 2's render, in four
-    forms) cost 0.3-5 dB and made refinement collapse (docs/method.md). The smoke colour is read
-    off the smoky frames where that estimate is trusted: under dense smoke the learned colour
-    drifts bright and darkens the surface (room validation 9.1 dB learned, docs/method.md). The
-    thermal curve is half histogram-equalised, half linear: under the linear range a warm object
-    crowds the scene into a sliver and Stage 2 barely covers the views, fully equalised the warm
-    smoke stands out in thermal (validation: forest 26.4 linear, 24.7 equalised, 28.7 half;
-    food_plate 16.5, 18.5, 17.2). The mask term's floor acts only where the generator's true smoke
-    alpha reaches it: everywhere, it forced thin smoke up to 0.4 and the smoke took the scene's
-    colours; where no other view sees the surface clear, it still did so on thin smoke covering
-    every view (validation, never-clear → dense: excavator 17.4 → 22.4, better on all six scenes
-    tried; docs/method.md, "mask alignment")."""
+    3DGS schedules scaled to them, and a validation split for every choice. No opacity reset, a
+    gated surface refinement, no depth term, the haze-line smoke colour where trusted, a
+    half-equalised thermal curve and the mask floor only on dense smoke: each chosen on the
+    validation views, with its measurements in docs/method.md, "Profiles"."""
     s2 = Stage2Config(
         iterations=3000,
         init_points=5000,
