@@ -23,14 +23,14 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
-_SESSION = "sess" + "ion"
-_LEASE = "lea" + "s"
-_LENT = "le" + "nt"
+_SITTING_WORD = "sess" + "ion"
+_RENTAL_STEM = "lea" + "s"
+_BORROWED_WORD = "le" + "nt"
 FORBIDDEN = re.compile(
     "|".join([
-        rf"(?<![a-z]){_SESSION}",                   # also start_new_<word>, <Word>Factory
-        rf"(?<![a-z]){_LEASE}(?:e|es|ed|ing)(?![a-z])",  # not "release", "please"
-        rf"(?<![a-z]){_LENT}(?![a-z])",             # not "talent", "silent"
+        rf"(?<![a-z]){_SITTING_WORD}",  # inside identifiers too: start_new_<word>, <Word>Factory
+        rf"(?<![a-z]){_RENTAL_STEM}(?:e|es|ed|ing)(?![a-z])",  # not "release", "please"
+        rf"(?<![a-z]){_BORROWED_WORD}(?![a-z])",  # not "talent", "silent"
         *(re.escape(f"/{d}/") for d in ("wo" + "rk", "ro" + "ot", "t" + "mp")),
     ]),
     re.IGNORECASE,
@@ -52,8 +52,8 @@ def _tracked_text_files() -> list[Path]:
 
 
 def test_the_matcher_catches_the_words_and_spares_their_neighbours() -> None:
-    caught = [f"one {_SESSION}", f"two {_SESSION}s", f"Popen(start_new_{_SESSION}=True)", f"a {_LENT} GPU",
-              f"a 15-minute {_LEASE}e", f"{_LEASE}ed machines", "/" + "tmp/x", "cp /" + "work/main/x ."]
+    caught = [f"one {_SITTING_WORD}", f"two {_SITTING_WORD}s", f"Popen(start_new_{_SITTING_WORD}=True)", f"a {_BORROWED_WORD} GPU",
+              f"a 15-minute {_RENTAL_STEM}e", f"{_RENTAL_STEM}ed machines", "/" + "tmp/x", "cp /" + "work/main/x ."]
     spared = ["talent", "silent", "release", "released", "please", "possession", "temp_dir", "network/"]
     assert all(FORBIDDEN.search(s) for s in caught), [s for s in caught if not FORBIDDEN.search(s)]
     assert not any(FORBIDDEN.search(s) for s in spared), [s for s in spared if FORBIDDEN.search(s)]
