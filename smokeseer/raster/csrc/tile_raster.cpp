@@ -8,8 +8,13 @@
 // A second stream, optional: the Gaussians outside a subset (flag = last feature, 0) composited on
 // their own, with their own transmittance and early stop, in the same walk over each tile's list.
 // It gives the surface's depth and alpha as a separate render of the surface would, while the
-// first stream composites surface and smoke together; binning, the ellipse spans and the record
-// reads are shared. A pixel stops walking when both its streams have stopped.
+// first stream composites surface and smoke together; binning, the record reads and each lane
+// group's alpha (one exponent per pixel) are shared. A pixel stops walking when both its streams
+// have stopped.
+//
+// Pixels are visited in lane groups of 8 along a tile row (see `Lanes`). Each lane rounds exactly
+// as the scalar formula it vectorises, so the images are the bytes a pixel-by-pixel walk gives;
+// per-Gaussian gradient sums are taken lane-wise, then over the lanes in a fixed order.
 
 #include <torch/extension.h>
 
@@ -26,6 +31,10 @@
 #include <type_traits>
 #include <utility>
 #include <vector>
+
+// Lane vectors are passed between inline functions of this file only, so the ABI note GCC gives for
+// wide vector arguments does not apply.
+#pragma GCC diagnostic ignored "-Wpsabi"
 
 namespace {
 
@@ -55,79 +64,130 @@ struct Bins {
 
 int num_threads() { return std::max(1, at::get_num_threads()); }
 
-// exp(-sigma) for sigma >= 0. float: a branch-free polynomial (Cephes-style range reduction,
-// relative error ~2e-7, like expf) that vectorises; double: std::exp. Forward and backward call
-// the same code with the same rounding (no FMA contraction), so they agree on every skipped pair.
-inline float exp_neg(float sigma) {
-  const float x = std::max(-sigma, -87.0f);
-  const float k = std::nearbyint(x * 1.44269504088896341f);
-  const float r = (x - k * 0.693359375f) + k * 2.12194440e-4f;
-  float p = 1.9875691500e-4f;
+// Pixels are processed in lane groups: 8 horizontally adjacent pixels of one tile row. The code is
+// written with GCC vector extensions of 32 bytes, the AVX2 register width (8 floats, 4 doubles),
+// so it vectorises whatever the auto-vectoriser decides; without AVX2 the compiler splits each
+// vector into SSE halves. Comparisons give integer masks (-1 true, 0 false).
+constexpr int kLanes = 8;
+constexpr int kHalf = 4;  // doubles per register: a group's double work runs in two halves
+
+typedef float F8 __attribute__((vector_size(32)));
+typedef int32_t I8 __attribute__((vector_size(32)));
+typedef double D4 __attribute__((vector_size(32)));
+typedef int64_t L4 __attribute__((vector_size(32)));
+typedef float F4 __attribute__((vector_size(16)));
+typedef int32_t I4 __attribute__((vector_size(16)));
+
+template <typename V>
+inline V load_v(const void* p) {
+  V v;
+  std::memcpy(&v, p, sizeof(V));
+  return v;
+}
+
+template <typename V>
+inline void store_v(void* p, const V& v) {
+  std::memcpy(p, &v, sizeof(V));
+}
+
+// One bit per lane of a mask.
+inline unsigned lane_bits(const L4& m) {
+#if defined(__AVX2__)
+  return unsigned(__builtin_ia32_movmskpd256((D4)m));
+#else
+  unsigned bits = 0;
+  for (int l = 0; l < 4; ++l) bits |= (m[l] != 0 ? 1u : 0u) << l;
+  return bits;
+#endif
+}
+
+inline unsigned lane_bits(const I8& m) {
+#if defined(__AVX2__)
+  return unsigned(__builtin_ia32_movmskps256((F8)m));
+#else
+  unsigned bits = 0;
+  for (int l = 0; l < 8; ++l) bits |= (m[l] != 0 ? 1u : 0u) << l;
+  return bits;
+#endif
+}
+
+inline L4 widen(const I4& m) { return __builtin_convertvector(m, L4); }
+
+// exp(-sigma) for sigma >= 0, lane-wise. float: a branch-free polynomial (Cephes-style range
+// reduction, relative error ~2e-7, like expf); x*log2(e) is rounded to an integer by adding and
+// subtracting 1.5*2^23, which is round-to-nearest-even exactly as nearbyint for |x| < 2^22.
+// double: std::exp per lane. Forward and backward call the same code with the same rounding (no
+// FMA contraction), so they agree on every skipped pair.
+inline F8 exp_neg(const F8& sigma) {
+  const F8 neg = -sigma;
+  const F8 x = neg < -87.0f ? F8{} - 87.0f : neg;
+  const F8 k = (x * 1.44269504088896341f + 12582912.0f) - 12582912.0f;
+  const F8 r = (x - k * 0.693359375f) + k * 2.12194440e-4f;
+  F8 p = F8{} + 1.9875691500e-4f;
   p = p * r + 1.3981999507e-3f;
   p = p * r + 8.3334519073e-3f;
   p = p * r + 4.1665795894e-2f;
   p = p * r + 1.6666665459e-1f;
   p = p * r + 5.0000001201e-1f;
-  const float poly = (p * r) * r + r + 1.0f;
-  int32_t bits;
-  std::memcpy(&bits, &poly, sizeof(bits));
-  bits += int32_t(k) << 23;
-  float out;
-  std::memcpy(&out, &bits, sizeof(out));
+  const F8 poly = (p * r) * r + r + 1.0f;
+  const I8 bits = (I8)poly + (__builtin_convertvector(k, I8) << 23);  // vector casts reinterpret the bits
+  return (F8)bits;
+}
+
+inline D4 exp_neg(const D4& sigma) {
+  D4 out;
+  for (int l = 0; l < kHalf; ++l) out[l] = std::exp(-sigma[l]);
   return out;
 }
 
-inline double exp_neg(double sigma) { return std::exp(-sigma); }
+// The native vector of a kernel dtype: 8 float lanes (one chunk per group) or 4 double lanes (two).
+template <typename scalar_t>
+struct Native;
+template <>
+struct Native<float> {
+  using V = F8;
+  using M = I8;
+};
+template <>
+struct Native<double> {
+  using V = D4;
+  using M = L4;
+};
 
-// Pixels where alpha can reach 1/255 lie inside the ellipse sigma <= log(255 * opacity). This
-// finds, conservatively (a margin in sigma and one pixel on each side), the rows of a rectangle
-// that meet that ellipse and each row's column span, so the exact per-pixel test (still applied)
-// runs on few pixels it rejects. Culling here only skips pixels that the exact test would skip.
-struct EllipseSpans {
-  double mx, my, half_a, b, half_c, limit;
-  int row_lo, row_hi;  // rows that can meet the ellipse (the whole int range when not shaped)
-  bool shaped;  // false: no usable bound (degenerate conic); every pixel of the rectangle is tested
+// Half `h` of a group's lanes as doubles, from 8 stored scalars.
+inline D4 half_as_double(const float* v, int h) { return __builtin_convertvector(load_v<F4>(v + kHalf * h), D4); }
+inline D4 half_as_double(const double* v, int h) { return load_v<D4>(v + kHalf * h); }
 
-  EllipseSpans() = default;
+// Pixels where alpha can reach 1/255 lie inside the ellipse sigma <= log(255 * opacity). What a
+// tile walk needs of one packed record, computed once per record (a log and a square root): the
+// centre, conic and opacity, and the pixel rectangle with its rows narrowed, conservatively (a
+// margin in sigma and one row on each side), to those that meet that ellipse. The exact per-pixel
+// test still decides; the narrowing only skips rows that test would reject. A record whose opacity
+// can never reach 1/255 gets an empty rectangle.
+template <typename scalar_t>
+struct Footprint {
+  scalar_t mx, my, qa, qb, qc, opac;
+  int32_t x0, x1, y0, y1;  // inclusive; empty when x1 < x0 or y1 < y0
 
-  template <typename scalar_t>
-  EllipseSpans(scalar_t mx_, scalar_t my_, scalar_t qa, scalar_t qb, scalar_t qc, scalar_t opac)
-      : mx(mx_), my(my_), half_a(0.5 * double(qa)), b(qb), half_c(0.5 * double(qc)) {
+  Footprint() = default;
+
+  Footprint(const scalar_t* rec, const Rect& r)
+      : mx(rec[0]), my(rec[1]), qa(rec[2]), qb(rec[3]), qc(rec[4]), opac(rec[5]), x0(r.x0), x1(r.x1), y0(r.y0),
+        y1(r.y1) {
+    const double half_a = 0.5 * double(qa), b = double(qb), half_c = 0.5 * double(qc);
     const double s_max = std::log(255.0 * double(opac));
-    limit = s_max + 1e-3 + 1e-4 * std::abs(s_max);
-    shaped = half_a > 0.0 && std::isfinite(half_a) && std::isfinite(b) && std::isfinite(half_c) &&
-             std::isfinite(limit);
-    row_lo = std::numeric_limits<int>::min();
-    row_hi = std::numeric_limits<int>::max();
+    const double limit = s_max + 1e-3 + 1e-4 * std::abs(s_max);
+    const bool shaped = half_a > 0.0 && std::isfinite(half_a) && std::isfinite(b) && std::isfinite(half_c) &&
+                        std::isfinite(limit);
+    if (shaped && limit < 0.0) {
+      y1 = y0 - 1;
+      return;
+    }
     const double det = 4.0 * half_a * half_c - b * b;
-    if (!shaped || !(det > 0.0)) return;
+    if (!shaped || !(det > 0.0)) return;  // no usable bound: every row of the rectangle is tested
     const double reach = std::sqrt(4.0 * limit * half_a / det);
-    row_lo = int(std::ceil(std::max(-1e9, my - reach - 0.5)) - 1.0);
-    row_hi = int(std::floor(std::min(1e9, my + reach - 0.5)) + 1.0);
-  }
-
-  bool empty() const { return shaped && limit < 0.0; }
-
-  // Narrow the inclusive row range [y0, y1].
-  void rows(int& y0, int& y1) const {
-    y0 = std::max(y0, row_lo);
-    y1 = std::min(y1, row_hi);
-  }
-
-  // Narrow the inclusive column range [x0, x1] on row y; false when the row misses the ellipse.
-  bool columns(int y, int& x0, int& x1) const {
-    if (!shaped) return true;
-    const double dy = my - (double(y) + 0.5);
-    const double lin = b * dy, cst = half_c * dy * dy - limit;
-    const double disc = lin * lin - 4.0 * half_a * cst;
-    if (disc < 0.0) return false;
-    const double root = std::sqrt(disc), inv = 0.5 / half_a;
-    const double dx_lo = (-lin - root) * inv, dx_hi = (-lin + root) * inv;
-    const double lo = std::ceil(std::max(-1e9, mx - dx_hi - 0.5)) - 1.0;
-    const double hi = std::floor(std::min(1e9, mx - dx_lo - 0.5)) + 1.0;
-    x0 = std::max(x0, int(lo));
-    x1 = std::min(x1, int(hi));
-    return x0 <= x1;
+    y0 = std::max(y0, int32_t(std::ceil(std::max(-1e9, double(my) - reach - 0.5)) - 1.0));
+    y1 = std::min(y1, int32_t(std::floor(std::min(1e9, double(my) + reach - 0.5)) + 1.0));
   }
 };
 
@@ -167,18 +227,24 @@ std::vector<int32_t> depth_order(const double* key, const Rect* rect, int64_t n)
   return idx;
 }
 
-// One EllipseSpans per packed record (a log and a square root), shared by every tile entry of
-// that record instead of recomputed per entry.
+// A tile walks its list in depth order, which jumps through the records; fetching the record a few
+// entries ahead hides the memory latency that otherwise dominates small Gaussians.
+constexpr int64_t kPrefetch = 4;
+
 template <typename scalar_t>
-std::vector<EllipseSpans> record_spans(const scalar_t* rec, int64_t packed, int64_t stride) {
-  std::vector<EllipseSpans> spans(packed);
+inline void prefetch_record(const Footprint<scalar_t>* footprints, const scalar_t* rec, int64_t stride, int64_t s) {
+  __builtin_prefetch(footprints + s);
+  __builtin_prefetch(rec + s * stride + 6);
+}
+
+template <typename scalar_t>
+std::vector<Footprint<scalar_t>> record_footprints(const scalar_t* rec, const Rect* rects, int64_t packed,
+                                                   int64_t stride) {
+  std::vector<Footprint<scalar_t>> out(packed);
   at::parallel_for(0, packed, 2048, [&](int64_t lo, int64_t hi) {
-    for (int64_t s = lo; s < hi; ++s) {
-      const scalar_t* r = rec + s * stride;
-      spans[s] = EllipseSpans(r[0], r[1], r[2], r[3], r[4], r[5]);
-    }
+    for (int64_t s = lo; s < hi; ++s) out[s] = Footprint<scalar_t>(rec + s * stride, rects[s]);
   });
-  return spans;
+  return out;
 }
 
 template <typename scalar_t>
@@ -284,7 +350,7 @@ Bins bin_gaussians(const torch::Tensor& means2d, const torch::Tensor& conics, co
   return b;
 }
 
-// Pixel range of tile `t` and of its intersection with a Gaussian's rectangle.
+// Pixel range of tile `t`.
 struct TileBox {
   int x0, x1, y0, y1;  // inclusive
 };
@@ -295,32 +361,111 @@ inline TileBox tile_box(int64_t t, int64_t tiles_x, int64_t width, int64_t heigh
                  int(std::min<int64_t>(height, (ty + 1) * kTile)) - 1};
 }
 
-// The record fields a pixel loop needs, read once per tile entry.
-template <typename scalar_t>
-struct Splat {
-  scalar_t mx, my, qa, qb, qc, opac;
-  const scalar_t* feats;
-  int x0, x1, y0, y1;  // rectangle clipped to the tile
-
-  Splat(const scalar_t* rec, const Rect& r, const TileBox& tb)
-      : mx(rec[0]), my(rec[1]), qa(rec[2]), qb(rec[3]), qc(rec[4]), opac(rec[5]), feats(rec + 6),
-        x0(std::max(r.x0, tb.x0)), x1(std::min(r.x1, tb.x1)), y0(std::max(r.y0, tb.y0)),
-        y1(std::min(r.y1, tb.y1)) {}
-};
-
 // Features per record: a compile-time count (so per-pixel loops vectorise) or, for NF == 0, any.
 template <int NF>
 inline int64_t feature_count(int64_t nf) {
   return NF > 0 ? NF : nf;
 }
 
+// One tile entry clipped to the tile, in tile-relative pixels, with the rows it can touch.
+template <typename scalar_t>
+struct EntryBox {
+  int lx0, lx1, y0, y1;  // lx: columns relative to the tile's first column; y: absolute rows
+  bool empty() const { return lx1 < lx0 || y1 < y0; }
+
+  EntryBox(const Footprint<scalar_t>& fp, const TileBox& tb)
+      : lx0(std::max(fp.x0, tb.x0) - tb.x0), lx1(std::min(fp.x1, tb.x1) - tb.x0), y0(std::max(fp.y0, tb.y0)),
+        y1(std::min(fp.y1, tb.y1)) {}
+};
+
+// Alpha of one record over one lane group, computed once and shared by both streams and, with the
+// same rounding, by the forward and the backward pass (so both agree on every skipped pair).
+// `hit`: inside the record's rectangle (lanes lo..hi), sigma >= 0 and alpha >= 1/255.
+template <typename scalar_t>
+struct Lanes {
+  alignas(32) scalar_t alpha[kLanes];
+  alignas(32) scalar_t falloff[kLanes];
+  alignas(32) scalar_t dx[kLanes];
+  alignas(32) int32_t hit[kLanes];
+
+  // False when no lane is hit (the group can be skipped).
+  bool evaluate(const Footprint<scalar_t>& fp, scalar_t dy, scalar_t row_term, int x_first, int lo, int hi) {
+    using V = typename Native<scalar_t>::V;
+    using M = typename Native<scalar_t>::M;
+    constexpr int width = sizeof(V) / sizeof(scalar_t);
+    unsigned any = 0;
+    for (int c = 0; c < kLanes; c += width) {
+      V index;
+      for (int l = 0; l < width; ++l) index[l] = scalar_t(c + l);
+      const V x = (index + scalar_t(x_first)) + scalar_t(0.5);
+      const V d = fp.mx - x;
+      const V sigma = scalar_t(0.5) * fp.qa * d * d + row_term + fp.qb * d * dy;
+      const V f = exp_neg(sigma);
+      const V a0 = fp.opac * f;
+      const V a = scalar_t(kAlphaMax) < a0 ? V{} + scalar_t(kAlphaMax) : a0;
+      const M h = (index >= scalar_t(lo)) & (index <= scalar_t(hi)) & (sigma >= scalar_t(0)) &
+                  (a >= scalar_t(kAlphaMin));
+      store_v(dx + c, d);
+      store_v(falloff + c, f);
+      store_v(alpha + c, a);
+      if constexpr (std::is_same_v<M, I8>) {
+        store_v(hit + c, h);
+      } else {
+        store_v(hit + c, __builtin_convertvector(h, I4));
+      }
+      any |= lane_bits(h);
+    }
+    return any != 0;
+  }
+
+  L4 hit_half(int h) const { return widen(load_v<I4>(hit + kHalf * h)); }
+
+  // Lanes of half `h` where opacity * falloff is below the 0.99 clamp (there alpha has a gradient).
+  L4 below_clamp(int h, scalar_t opac) const {
+    if constexpr (std::is_same_v<scalar_t, float>) {
+      return widen(opac * load_v<F4>(falloff + kHalf * h) <= float(kAlphaMax));
+    } else {
+      return opac * load_v<D4>(falloff + kHalf * h) <= kAlphaMax;
+    }
+  }
+};
+
+// Calls visit(dy, base) for every lane group of the entry's box in which some pixel is still open
+// (`open(base)`: a pixel of the group can still take this entry) and reaches 1/255, row by row;
+// base is the tile-pixel index of the group's first lane. Testing `open` first skips the exponent
+// where the group's pixels have all stopped, which behind dense content is most of them.
+template <typename scalar_t, typename Open, typename Visit>
+inline void for_each_group(const Footprint<scalar_t>& fp, const EntryBox<scalar_t>& box, const TileBox& tb,
+                           Lanes<scalar_t>& lanes, Open&& open, Visit&& visit) {
+  const int g0 = box.lx0 / kLanes, g1 = box.lx1 / kLanes;
+  for (int y = box.y0; y <= box.y1; ++y) {
+    const scalar_t dy = fp.my - (scalar_t(y) + scalar_t(0.5));
+    const scalar_t row_term = scalar_t(0.5) * fp.qc * dy * dy;
+    const int row_base = (y - tb.y0) * kTile;
+    for (int g = g0; g <= g1; ++g) {
+      const int first = g * kLanes;
+      if (!open(row_base + first)) continue;
+      if (!lanes.evaluate(fp, dy, row_term, tb.x0 + first, box.lx0 - first, box.lx1 - first)) continue;
+      visit(dy, row_base + first);
+    }
+  }
+}
+
+// Whether any of the 8 transmittances from `t` is positive (a forward pixel not yet stopped).
+inline bool any_positive(const double* t) {
+  return lane_bits((load_v<D4>(t) > 0.0) | (load_v<D4>(t + kHalf) > 0.0)) != 0;
+}
+
+// Whether any of the 8 pixels from `stop` blended entry `e` (a backward pixel that entry reaches).
+inline bool any_reached(const int32_t* stop, int32_t e) { return lane_bits(I8{} + e < load_v<I8>(stop)) != 0; }
+
 // Per-tile pixel state of the forward pass, structure of arrays over the 16x16 pixels.
 // `trans` holds the transmittance; a pixel that stopped stores its final T negated. A stream that
 // is off starts stopped (T = -1), so it never blends and never keeps a pixel open.
 struct ForwardTile {
-  std::vector<double> trans, acc, weight;
+  std::vector<double> trans, acc;
   std::vector<int32_t> stop;
-  explicit ForwardTile(int64_t nf) : trans(kTilePixels), acc(kTilePixels * nf), weight(kTile), stop(kTilePixels) {}
+  explicit ForwardTile(int64_t nf) : trans(kTilePixels), acc(kTilePixels * nf), stop(kTilePixels) {}
   void reset(bool on = true) {
     std::fill(trans.begin(), trans.end(), on ? 1.0 : -1.0);
     std::fill(acc.begin(), acc.end(), 0.0);
@@ -328,40 +473,36 @@ struct ForwardTile {
   }
 };
 
-// Blend entry `e` (record `sp`) into one row of the tile: returns (pairs blended, pixels stopped).
-// A pixel counts as stopped when this stream ends there and the other stream (`other`, the same
-// row of its transmittance) has already ended, so each pixel is counted once, by its last stream.
+// Blend entry `e` into one lane group of a stream: returns (pairs blended, pixels stopped). A pixel
+// counts as stopped when this stream ends there and the other stream (`other`, the same pixels of
+// its transmittance) has already ended, so each pixel is counted once, by its last stream.
 template <typename scalar_t, int NF>
-inline std::pair<int, int> blend_row(ForwardTile& st, const Splat<scalar_t>& sp, int64_t nf_rt, int row_base,
-                                     int y, int cx0, int cx1, int32_t e, const double* other) {
+inline std::pair<int, int> blend_lanes(ForwardTile& st, const Lanes<scalar_t>& la, const scalar_t* feats,
+                                       int64_t nf_rt, int base, int32_t e, const double* other) {
   const int64_t nf = feature_count<NF>(nf_rt);
-  const scalar_t dy = sp.my - (scalar_t(y) + scalar_t(0.5));
-  const scalar_t row_term = scalar_t(0.5) * sp.qc * dy * dy;
-  double* trans = st.trans.data() + row_base;
-  double* weight = st.weight.data();
-  int32_t* stop = st.stop.data() + row_base;
   int blended = 0, stopped = 0;
-#pragma omp simd reduction(+ : blended, stopped)
-  for (int x = cx0; x <= cx1; ++x) {
-    const scalar_t dx = sp.mx - (scalar_t(x) + scalar_t(0.5));
-    const scalar_t sigma = scalar_t(0.5) * sp.qa * dx * dx + row_term + sp.qb * dx * dy;
-    const scalar_t alpha = std::min(sp.opac * exp_neg(sigma), scalar_t(kAlphaMax));
-    const double t = trans[x];
-    const bool valid = t > 0.0 && sigma >= scalar_t(0) && alpha >= scalar_t(kAlphaMin);
-    const double t_next = t * (1.0 - double(alpha));
-    const bool ends = valid && t_next < kTransmittanceMin;
-    const bool blend = valid && !ends;
-    weight[x - cx0] = blend ? double(alpha) * t : 0.0;
-    trans[x] = blend ? t_next : (ends ? -t : t);
-    stop[x] = blend ? e + 1 : stop[x];
-    blended += blend ? 1 : 0;
-    stopped += (ends && other[x] < 0.0) ? 1 : 0;
-  }
-  for (int64_t k = 0; k < nf; ++k) {
-    double* acc = st.acc.data() + k * kTilePixels + row_base;
-    const double f = double(sp.feats[k]);
-#pragma omp simd
-    for (int x = cx0; x <= cx1; ++x) acc[x] += weight[x - cx0] * f;
+  for (int h = 0; h < 2; ++h) {
+    const int o = base + kHalf * h;
+    double* trans = st.trans.data() + o;
+    const D4 t = load_v<D4>(trans);
+    const L4 valid = la.hit_half(h) & (t > 0.0);
+    if (!lane_bits(valid)) continue;
+    const D4 a = half_as_double(la.alpha, h);
+    const D4 t_next = t * (1.0 - a);
+    const L4 ends = valid & (t_next < kTransmittanceMin);
+    const L4 blend = valid & ~ends;
+    store_v(trans, blend ? t_next : (ends ? -t : t));
+    stopped += __builtin_popcount(lane_bits(ends & (load_v<D4>(other + kHalf * h) < 0.0)));
+    const unsigned b = lane_bits(blend);
+    if (!b) continue;
+    blended += __builtin_popcount(b);
+    int32_t* stop = st.stop.data() + o;
+    store_v(stop, __builtin_convertvector(blend, I4) ? I4{} + (e + 1) : load_v<I4>(stop));
+    const D4 weight = blend ? a * t : 0.0;
+    for (int64_t k = 0; k < nf; ++k) {
+      double* acc = st.acc.data() + k * kTilePixels + o;
+      store_v(acc, load_v<D4>(acc) + weight * double(feats[k]));
+    }
   }
   return {blended, stopped};
 }
@@ -410,11 +551,12 @@ std::vector<torch::Tensor> forward_impl(const torch::Tensor& means2d, const torc
   scalar_t* alpha2_p = alpha2.data_ptr<scalar_t>();
   double* tf2_p = t_final2.data_ptr<double>();
   int32_t* last2_p = last2.data_ptr<int32_t>();
-  const std::vector<EllipseSpans> spans = record_spans(rec, b.records.size(0), stride);
+  const auto footprints = record_footprints(rec, rects, b.records.size(0), stride);
 
 #pragma omp parallel num_threads(num_threads())
   {
     ForwardTile st(nf), st2(1);
+    Lanes<scalar_t> lanes;
 #pragma omp for schedule(dynamic, 1)
     for (int64_t ct = 0; ct < cams * tiles; ++ct) {
       const int64_t c = ct / tiles;
@@ -425,28 +567,26 @@ std::vector<torch::Tensor> forward_impl(const torch::Tensor& means2d, const torc
       int64_t pairs = 0;
       const int64_t begin = toff[ct], count = toff[ct + 1] - begin;
       for (int64_t e = 0; e < count && active > 0; ++e) {
+        if (e + kPrefetch < count) prefetch_record(footprints.data(), rec, stride, ent[begin + e + kPrefetch]);
         const int64_t s = ent[begin + e];
-        const EllipseSpans& span = spans[s];
-        if (span.empty()) continue;
-        const Splat<scalar_t> sp(rec + s * stride, rects[s], tb);
+        const Footprint<scalar_t>& fp = footprints[s];
+        const EntryBox<scalar_t> box(fp, tb);
+        if (box.empty()) continue;
+        const scalar_t* feats_s = rec + s * stride + 6;
         const bool in_second = second && outside_subset(rec + s * stride, stride);
-        Splat<scalar_t> sp2 = sp;
-        sp2.feats += alone;
-        int ry0 = sp.y0, ry1 = sp.y1;
-        span.rows(ry0, ry1);
-        for (int y = ry0; y <= ry1; ++y) {
-          int cx0 = sp.x0, cx1 = sp.x1;
-          if (!span.columns(y, cx0, cx1)) continue;
-          const int row_base = (y - tb.y0) * kTile - tb.x0;
-          const auto [blended, stopped] = blend_row<scalar_t, NF>(st, sp, nf, row_base, y, cx0, cx1, int32_t(e),
-                                                                  st2.trans.data() + row_base);
+        const auto open = [&](int base) {
+          return any_positive(st.trans.data() + base) || (in_second && any_positive(st2.trans.data() + base));
+        };
+        for_each_group(fp, box, tb, lanes, open, [&](scalar_t, int base) {
+          const auto [blended, stopped] =
+              blend_lanes<scalar_t, NF>(st, lanes, feats_s, nf, base, int32_t(e), st2.trans.data() + base);
           pairs += blended;
           active -= stopped;
           if (in_second) {
-            active -= blend_row<scalar_t, 1>(st2, sp2, 1, row_base, y, cx0, cx1, int32_t(e),
-                                             st.trans.data() + row_base).second;
+            active -= blend_lanes<scalar_t, 1>(st2, lanes, feats_s + alone, 1, base, int32_t(e),
+                                               st.trans.data() + base).second;
           }
-        }
+        });
       }
       pc_p[ct] = pairs;
       for (int y = tb.y0; y <= tb.y1; ++y) {
@@ -475,74 +615,73 @@ std::vector<torch::Tensor> forward_impl(const torch::Tensor& means2d, const torc
 
 // Per-tile pixel state of the backward pass (structure of arrays over the 16x16 pixels).
 struct BackwardTile {
-  std::vector<double> trans, t_end, g_alpha_out, behind, g_out, weight;
+  std::vector<double> trans, t_end, g_alpha_out, behind, g_out;
   std::vector<int32_t> stop;
   explicit BackwardTile(int64_t nf)
       : trans(kTilePixels), t_end(kTilePixels), g_alpha_out(kTilePixels), behind(kTilePixels * nf),
-        g_out(kTilePixels * nf), weight(kTile), stop(kTilePixels) {}
+        g_out(kTilePixels * nf), stop(kTilePixels) {}
 };
 
-// Adds one entry's gradient sums over one row to `g` (means2d 2, conic 3, opacity 1) and to
-// `g_feat` (its features), stepping each pixel's transmittance and behind-colour back past this entry.
-template <typename scalar_t, int NF>
-inline void unblend_row(BackwardTile& st, const Splat<scalar_t>& sp, int64_t nf_rt, int row_base, int y, int cx0,
-                        int cx1, int32_t e, double* g, double* g_feat) {
-  const int64_t nf = feature_count<NF>(nf_rt);
-  const scalar_t dy = sp.my - (scalar_t(y) + scalar_t(0.5));
-  const scalar_t row_term = scalar_t(0.5) * sp.qc * dy * dy;
-  const double qa = double(sp.qa), qb = double(sp.qb), qc = double(sp.qc), ddy = double(dy);
-  double* trans = st.trans.data() + row_base;
-  double* weight = st.weight.data();
-  const double* t_end = st.t_end.data() + row_base;
-  const double* g_alpha_out = st.g_alpha_out.data() + row_base;
-  const double* behind = st.behind.data() + row_base;
-  const double* g_out = st.g_out.data() + row_base;
-  const int32_t* stop = st.stop.data() + row_base;
-  const scalar_t* feats = sp.feats;
-  double g0 = 0, g1 = 0, g2 = 0, g3 = 0, g4 = 0, g5 = 0;
-#pragma omp simd reduction(+ : g0, g1, g2, g3, g4, g5)
-  for (int x = cx0; x <= cx1; ++x) {
-    const scalar_t dx = sp.mx - (scalar_t(x) + scalar_t(0.5));
-    const scalar_t sigma = scalar_t(0.5) * sp.qa * dx * dx + row_term + sp.qb * dx * dy;
-    const scalar_t falloff = exp_neg(sigma);
-    const scalar_t alpha = std::min(sp.opac * falloff, scalar_t(kAlphaMax));
-    const bool valid = e < stop[x] && sigma >= scalar_t(0) && alpha >= scalar_t(kAlphaMin);
-    const double ad = valid ? double(alpha) : 0.0;
-    const double inv_1ma = 1.0 / (1.0 - ad);
-    const double t_i = trans[x] * inv_1ma;
-    double g_a = g_alpha_out[x] * t_end[x] * inv_1ma;  // alpha output = 1 - T_final
-    for (int64_t k = 0; k < nf; ++k) {
-      g_a += g_out[k * kTilePixels + x] * (t_i * double(feats[k]) - behind[k * kTilePixels + x] * inv_1ma);
-    }
-    weight[x - cx0] = ad * t_i;
-    trans[x] = t_i;
-    const bool open = valid && sp.opac * falloff <= scalar_t(kAlphaMax);  // below the clamp
-    const double g_sigma = open ? -g_a * ad : 0.0;
-    const double ddx = double(dx);
-    g5 += open ? g_a * double(falloff) : 0.0;
-    g0 += g_sigma * (qa * ddx + qb * ddy);
-    g1 += g_sigma * (qb * ddx + qc * ddy);
-    g2 += g_sigma * 0.5 * ddx * ddx;
-    g3 += g_sigma * ddx * ddy;
-    g4 += g_sigma * 0.5 * ddy * ddy;
+// Gradient sums of one tile entry, lane by lane: row j holds [means2d x, y, conic a, b, c,
+// opacity, features...][lane]. Summed over lanes in a fixed order once per entry.
+struct EntrySums {
+  std::vector<double> lane;  // [(6 + F) * kLanes]
+  explicit EntrySums(int64_t stride) : lane(stride * kLanes) {}
+  void clear() { std::fill(lane.begin(), lane.end(), 0.0); }
+  void add(int64_t row, int h, const D4& v) {
+    double* p = &lane[row * kLanes + kHalf * h];
+    store_v(p, load_v<D4>(p) + v);
   }
-  g[0] += g0;
-  g[1] += g1;
-  g[2] += g2;
-  g[3] += g3;
-  g[4] += g4;
-  g[5] += g5;
-  for (int64_t k = 0; k < nf; ++k) {
-    double* bk = st.behind.data() + k * kTilePixels + row_base;
-    const double* gk = g_out + k * kTilePixels;
-    const double fk = double(feats[k]);
-    double sum = 0.0;
-#pragma omp simd reduction(+ : sum)
-    for (int x = cx0; x <= cx1; ++x) {
-      sum += weight[x - cx0] * gk[x];
-      bk[x] += weight[x - cx0] * fk;
+  void add_to(double* g) const {
+    const int64_t rows = int64_t(lane.size()) / kLanes;
+    for (int64_t j = 0; j < rows; ++j) {
+      double sum = 0.0;
+      for (int l = 0; l < kLanes; ++l) sum += lane[j * kLanes + l];
+      g[j] += sum;
     }
-    g_feat[k] += sum;
+  }
+};
+
+// Steps one stream back past entry `e` over one lane group: each pixel's transmittance and
+// behind-features are rebuilt, and the entry's gradient terms are added lane-wise into `sums`
+// (its features into rows 6 + feat_row onwards).
+template <typename scalar_t, int NF>
+inline void unblend_lanes(BackwardTile& st, const Lanes<scalar_t>& la, const Footprint<scalar_t>& fp,
+                          const scalar_t* feats, int64_t nf_rt, int base, scalar_t dy, int32_t e, EntrySums& sums,
+                          int64_t feat_row) {
+  const int64_t nf = feature_count<NF>(nf_rt);
+  const double qa = double(fp.qa), qb = double(fp.qb), qc = double(fp.qc), ddy = double(dy);
+  for (int h = 0; h < 2; ++h) {
+    const int o = base + kHalf * h;
+    const L4 valid = la.hit_half(h) & widen(I4{} + e < load_v<I4>(st.stop.data() + o));
+    if (!lane_bits(valid)) continue;
+    double* trans = st.trans.data() + o;
+    const D4 ad = valid ? half_as_double(la.alpha, h) : 0.0;
+    const D4 inv_1ma = 1.0 / (1.0 - ad);
+    const D4 t_i = load_v<D4>(trans) * inv_1ma;
+    // alpha output = 1 - T_final
+    D4 g_a = load_v<D4>(st.g_alpha_out.data() + o) * load_v<D4>(st.t_end.data() + o) * inv_1ma;
+    for (int64_t k = 0; k < nf; ++k) {
+      const D4 g_out = load_v<D4>(st.g_out.data() + k * kTilePixels + o);
+      const D4 behind = load_v<D4>(st.behind.data() + k * kTilePixels + o);
+      g_a = g_a + g_out * (t_i * double(feats[k]) - behind * inv_1ma);
+    }
+    const D4 w = ad * t_i;
+    store_v(trans, t_i);
+    const L4 open = valid & la.below_clamp(h, fp.opac);
+    const D4 g_sigma = open ? -g_a * ad : 0.0;
+    const D4 ddx = half_as_double(la.dx, h);
+    sums.add(0, h, g_sigma * (qa * ddx + qb * ddy));
+    sums.add(1, h, g_sigma * (qb * ddx + qc * ddy));
+    sums.add(2, h, g_sigma * 0.5 * ddx * ddx);
+    sums.add(3, h, g_sigma * ddx * ddy);
+    sums.add(4, h, g_sigma * 0.5 * ddy * ddy);
+    sums.add(5, h, open ? g_a * half_as_double(la.falloff, h) : 0.0);
+    for (int64_t k = 0; k < nf; ++k) {
+      double* behind = st.behind.data() + k * kTilePixels + o;
+      sums.add(6 + feat_row + k, h, w * load_v<D4>(st.g_out.data() + k * kTilePixels + o));
+      store_v(behind, load_v<D4>(behind) + w * double(feats[k]));
+    }
   }
 }
 
@@ -578,11 +717,13 @@ std::vector<torch::Tensor> backward_impl(int64_t cams, int64_t n, const torch::T
   const int32_t* last2_p = last2.data_ptr<int32_t>();
   const scalar_t* go2_p = grad_out2.data_ptr<scalar_t>();
   const scalar_t* ga2_p = grad_alpha2.data_ptr<scalar_t>();
-  const std::vector<EllipseSpans> spans = record_spans(rec, packed, stride);
+  const auto footprints = record_footprints(rec, rects, packed, stride);
 
 #pragma omp parallel num_threads(num_threads())
   {
     BackwardTile st(nf), st2(1);
+    Lanes<scalar_t> lanes;
+    EntrySums sums(stride);
 #pragma omp for schedule(dynamic, 1)
     for (int64_t ct = 0; ct < cams * tiles; ++ct) {
       const int64_t c = ct / tiles;
@@ -614,27 +755,27 @@ std::vector<torch::Tensor> backward_impl(int64_t cams, int64_t n, const torch::T
       // Back to front: rebuild each pair's transmittance from the final one, as 3DGS does; a
       // record outside the subset also steps the second stream back.
       for (int64_t e = std::max(max_stop, max_stop2) - 1; e >= 0; --e) {
+        if (e >= kPrefetch) prefetch_record(footprints.data(), rec, stride, ent[begin + e - kPrefetch]);
         const int64_t s = ent[begin + e];
-        const EllipseSpans& span = spans[s];
-        if (span.empty()) continue;
         const bool first_open = e < max_stop;
         const bool second_open = e < max_stop2 && outside_subset(rec + s * stride, stride);
         if (!first_open && !second_open) continue;
-        const Splat<scalar_t> sp(rec + s * stride, rects[s], tb);
-        Splat<scalar_t> sp2 = sp;
-        sp2.feats += alone;
-        double* g = partial.data() + sof[begin + e] * stride;
-        int ry0 = sp.y0, ry1 = sp.y1;
-        span.rows(ry0, ry1);
-        for (int y = ry0; y <= ry1; ++y) {
-          int cx0 = sp.x0, cx1 = sp.x1;
-          if (!span.columns(y, cx0, cx1)) continue;
-          const int row_base = (y - tb.y0) * kTile - tb.x0;
-          if (first_open) unblend_row<scalar_t, NF>(st, sp, nf, row_base, y, cx0, cx1, int32_t(e), g, g + 6);
+        const Footprint<scalar_t>& fp = footprints[s];
+        const EntryBox<scalar_t> box(fp, tb);
+        if (box.empty()) continue;
+        const scalar_t* feats_s = rec + s * stride + 6;
+        sums.clear();
+        const auto open = [&](int base) {
+          return (first_open && any_reached(st.stop.data() + base, int32_t(e))) ||
+                 (second_open && any_reached(st2.stop.data() + base, int32_t(e)));
+        };
+        for_each_group(fp, box, tb, lanes, open, [&](scalar_t dy, int base) {
+          if (first_open) unblend_lanes<scalar_t, NF>(st, lanes, fp, feats_s, nf, base, dy, int32_t(e), sums, 0);
           if (second_open) {
-            unblend_row<scalar_t, 1>(st2, sp2, 1, row_base, y, cx0, cx1, int32_t(e), g, g + 6 + alone);
+            unblend_lanes<scalar_t, 1>(st2, lanes, fp, feats_s + alone, 1, base, dy, int32_t(e), sums, alone);
           }
-        }
+        });
+        sums.add_to(partial.data() + sof[begin + e] * stride);
       }
     }
   }
