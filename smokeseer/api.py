@@ -1,4 +1,4 @@
-"""``train_and_evaluate``: validate → load → Stage 1 → Stage 2 → Stage 3 → evaluate → outputs.
+"""``train_and_evaluate``: load (validating) → Stage 1 → Stage 2 → Stage 3 → evaluate → outputs.
 
 The metrics harness calls this function; the CLI is a thin wrapper. Bad input (config, dataset,
 Stage 1) is refused before anything is written to ``out``; once training starts, every run
@@ -16,12 +16,14 @@ import numpy as np
 import torch
 
 from contracts.atomic import write_json
-from contracts.dataset_format import validate_dataset
 from contracts.provenance import provenance
 from contracts.results_format import RESULTS_FORMAT, RESULTS_FORMAT_VERSION
-from smokeseer.cameras import sample_in_view
+from scenes.cameras import sample_in_view
+from scenes.generated import load_smoke_alpha
+from scenes.load import load_scene
+from scenes.scene import ModalityData, SceneData
+from scenes.thermal_scale import ThermalScaleSpec
 from smokeseer.config import TrainConfig, make_config
-from smokeseer.data import ModalityData, SceneData, load_scene, load_smoke_alpha
 from smokeseer.depth_prior import DepthPriorMaps, file_depth_prior, monocular_depth_prior, rendered_depth_prior
 from smokeseer.evaluate import heldout_psnr, score, score_validation, write_plys, write_renders
 from smokeseer.haze_lines import SmokeColourEstimate, estimate_smoke_colour
@@ -32,7 +34,6 @@ from smokeseer.stage1 import Stage1Report, run_stage1
 from smokeseer.stage2 import train_stage2, views_of
 from smokeseer.stage3 import (Stage3Switches, build_scene_model, depth_term_on, dropped_term_notes, loss_weights,
                               train_stage3)
-from smokeseer.thermal_scale import ThermalScaleSpec
 from smokeseer.trainutil import RunContext, RunLog
 
 
@@ -117,8 +118,9 @@ class PreparedRun:
 
 def prepare(dataset: Path, mode: str = "full", profile: str = "quick", seed: int = 0,
             overrides: dict[str, Any] | None = None) -> PreparedRun:
-    """Config, dataset validation (the validator of ``generate-scene --validate`` for datasets in
-    our format), loading and Stage 1; raises DatasetError/ValueError naming the bad input."""
+    """Config, loading (a dataset in our format is validated as it is read: its structure and
+    every file present, each image checked as it is decoded, once) and Stage 1; raises
+    DatasetError/ValueError naming the bad input."""
     t = time.perf_counter()
     code = provenance("smokeseer.api", torch.get_num_threads())
     cfg = make_config(mode, profile, seed, overrides)
@@ -126,8 +128,6 @@ def prepare(dataset: Path, mode: str = "full", profile: str = "quick", seed: int
     if cfg.depth_prior == "mono" and not Path(cfg.mono_weights).is_file():
         raise ValueError(f"mono_weights: no TorchScript file at {cfg.mono_weights!r} (depth_prior=mono "
                          "uses weights on local disk only)")
-    if (dataset / "dataset.json").is_file():
-        validate_dataset(dataset)
     scene = load_scene(dataset, cfg.max_width, ThermalScaleSpec(cfg.thermal_scale, cfg.thermal_equalised_share))
     hold_out_validation(scene.rgb, cfg.validation_every)
     report = run_stage1(cfg, scene)

@@ -15,8 +15,8 @@ from typing import Any, Callable
 import numpy as np
 import torch
 
+from scenes.scene import ModalityData
 from smokeseer.config import TrainConfig
-from smokeseer.data import ModalityData
 from smokeseer.deform import DeformNetwork
 from smokeseer.depth_prior import DepthPriorMaps
 from smokeseer.gaussians import DensifyStrategy, GaussianSet, make_optimizer

@@ -13,8 +13,8 @@ from PIL import Image
 
 from interop.convert import convert, main
 from interop.resample import warp_to_intrinsics
-from smokeseer.cameras import c2w_gl_to_viewmat
-from smokeseer.data import load_scene
+from scenes.cameras import c2w_gl_to_viewmat
+from scenes.load import load_scene
 from tests.test_smokeseer_data import write_splat_dataset
 
 N_RGB, N_THERMAL = 17, 9

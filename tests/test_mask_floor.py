@@ -6,9 +6,11 @@ import numpy as np
 import pytest
 import torch
 
+from contracts.imageio import read_exr_channel
+from scenes.generated import load_smoke_alpha
+from scenes.load import load_scene
 from smokeseer.api import mask_floor_rule, switches_for
 from smokeseer.config import make_config
-from smokeseer.data import load_scene, load_smoke_alpha, read_exr
 from smokeseer.losses import mask_alignment
 from smokeseer.mask_floor import never_seen_clear
 from smokeseer.stage1 import run_stage1
@@ -75,7 +77,7 @@ def test_dense_floor_reads_the_true_alpha_at_the_training_resolution(tmp_path) -
     assert scene.rgb.images.shape[1:3] == (18, 24)
     got = load_smoke_alpha(scene, [1, 3])
     for row, i in zip(got, (1, 3)):
-        full = read_exr(tmp_path / "ds" / "rgb" / "smoke_alpha" / f"{i:04d}.exr", "A")
+        full = read_exr_channel(tmp_path / "ds" / "rgb" / "smoke_alpha" / f"{i:04d}.exr", "A")
         np.testing.assert_allclose(row, full.reshape(18, 2, 24, 2).mean(axis=(1, 3)), rtol=1e-6)
     assert got.dtype == np.float32 and 0 < got.max() <= 1
 

@@ -16,8 +16,9 @@ import pytest
 import torch
 from PIL import Image
 
-from smokeseer.cameras import c2w_gl_to_viewmat
-from smokeseer.data import DatasetError, load_scene
+from contracts.errors import DatasetError
+from scenes.cameras import c2w_gl_to_viewmat
+from scenes.load import load_scene
 from smokeseer.raster import rasterize
 
 
