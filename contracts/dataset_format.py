@@ -155,6 +155,26 @@ def read_pass_image(path: Path, pf: PassFile, shape: tuple[int, int]) -> np.ndar
     return image
 
 
+def dataset_files(root: Path, meta: dict[str, Any]) -> list[tuple[Path, PassFile, tuple[int, int]]]:
+    """Every image file the passes of dataset.json (``meta``) put in the dataset, with its pass
+    and the (H, W) its modality's transforms give."""
+    meta_path = root / DATASET_FILE
+    out = []
+    for modality, passes in meta["passes"].items():
+        if modality not in ("rgb", "thermal") or not isinstance(passes, list):
+            raise DatasetError(f"{meta_path}: field 'passes' has a bad entry {modality!r}")
+        if not passes:
+            continue
+        transforms = load_transforms(root, modality)
+        shape = (transforms["h"], transforms["w"])
+        for name in passes:
+            if (modality, name) not in PASS_FILES:
+                raise DatasetError(f"{meta_path}: unknown pass {modality}.{name}")
+            out += [(file_path(root, pf, frame["file_stem"]), pf, shape)
+                    for pf in PASS_FILES[(modality, name)] for frame in transforms["frames"]]
+    return out
+
+
 def validate_dataset(root: Path, check_images: bool = True) -> dict[str, Any]:
     """Raise DatasetError on the first problem; return dataset.json on success. Without
     ``check_images`` every file must exist, and the reader checks each one as it reads it
@@ -171,23 +191,11 @@ def validate_dataset(root: Path, check_images: bool = True) -> dict[str, Any]:
     for key, kind in (("scene", str), ("seed", int), ("passes", dict), ("smoke", dict), ("versions", dict),
                       ("duration_s", (int, float)), ("sim_fps", int)):
         need_field(meta, key, meta_path, kind)
-    for modality, passes in meta["passes"].items():
-        if modality not in ("rgb", "thermal") or not isinstance(passes, list):
-            raise DatasetError(f"{meta_path}: field 'passes' has a bad entry {modality!r}")
-        if not passes:
-            continue
-        transforms = load_transforms(root, modality)
-        shape = (transforms["h"], transforms["w"])
-        for name in passes:
-            if (modality, name) not in PASS_FILES:
-                raise DatasetError(f"{meta_path}: unknown pass {modality}.{name}")
-            for pf in PASS_FILES[(modality, name)]:
-                for frame in transforms["frames"]:
-                    path = file_path(root, pf, frame["file_stem"])
-                    if check_images:
-                        read_pass_image(path, pf, shape)
-                    elif not path.is_file():
-                        raise DatasetError(f"{path}: missing file")
+    for path, pf, shape in dataset_files(root, meta):
+        if check_images:
+            read_pass_image(path, pf, shape)
+        elif not path.is_file():
+            raise DatasetError(f"{path}: missing file")
     if "thermal" in meta["passes"] and meta["passes"]["thermal"]:
         sensor = need_field(meta, "thermal_sensor", meta_path, dict)
         for key in ("gain", "offset", "bits"):

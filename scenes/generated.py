@@ -1,9 +1,10 @@
 """Read a generated dataset (docs/dataset-format.md) into a ``SceneData``.
 
-The format's validator checks the structure (dataset.json, the transforms, every file of every
-pass present) without decoding images; each image the trainer uses is then read once and
-checked as it is read (``contracts.dataset_format.read_pass_image``). Files the trainer does
-not use (the radiance EXRs, thermal smoke alpha) are checked by ``generate-scene --validate``.
+The dataset is validated as ``generate-scene --validate`` does, and every image is decoded once:
+the format's validator checks the structure (dataset.json, the transforms, every file of every
+pass present) without decoding images, each image the trainer uses is checked as it is read
+(``contracts.dataset_format.read_pass_image``), and the files it does not use (the radiance
+EXRs, the smoke alpha) are read for their check alone.
 """
 from __future__ import annotations
 
@@ -11,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from contracts.dataset_format import (file_path, load_transforms, pass_file, read_pass_image, transforms_name,
-                                      validate_dataset)
+from contracts.dataset_format import (dataset_files, file_path, load_transforms, pass_file, read_pass_image,
+                                      transforms_name, validate_dataset)
 from contracts.errors import DatasetError
 from scenes.images import box_downscale, check_finite, downscale_depth, gray, rgb01, thermal_images, working_factor
 from scenes.scene import ModalityData, SceneData, set_times
@@ -26,10 +27,14 @@ def load_generated(path: Path, max_width: int, thermal_scale: ThermalScaleSpec =
     rgb_passes = passes.get("rgb", [])
     if "smoky" not in rgb_passes:
         raise DatasetError(f"{path / 'dataset.json'}: field 'passes.rgb' must include 'smoky'")
-    rgb = _modality(path, "rgb", rgb_passes, max_width)
+    read: set[Path] = set()
+    rgb = _modality(path, "rgb", rgb_passes, max_width, read)
     thermal_passes = passes.get("thermal", [])
-    thermal = (_modality(path, "thermal", thermal_passes, max_width, thermal_scale)
+    thermal = (_modality(path, "thermal", thermal_passes, max_width, read, thermal_scale)
                if "smoky" in thermal_passes else None)
+    for file, pf, shape in dataset_files(path, meta):
+        if file not in read:
+            read_pass_image(file, pf, shape)
     set_times(rgb, thermal, meta["duration_s"])
     smoke = meta["smoke"]
     return SceneData(
@@ -38,38 +43,42 @@ def load_generated(path: Path, max_width: int, thermal_scale: ThermalScaleSpec =
         mask_threshold=float(smoke.get("mask_threshold", 0.02)), synthetic=True, meta=meta)
 
 
-def _modality(root: Path, modality: str, passes: list[str], max_width: int,
+def _modality(root: Path, modality: str, passes: list[str], max_width: int, read: set[Path],
               thermal_scale: ThermalScaleSpec = LINEAR_SCALE) -> ModalityData:
+    """One camera's frames and images; every file it reads is added to ``read``."""
     data = load_transforms(root, modality)
     factor = working_factor(data["w"], max_width)
     frames = frames_from_transforms(root / transforms_name(modality), data, data["frames"], factor,
                                     default_test_every=0)
     shape = (data["h"], data["w"])
 
-    def read(name: str, ext: str) -> list[np.ndarray]:
+    def files(name: str, ext: str) -> list[tuple[Path, np.ndarray]]:
         pf = pass_file(modality, name, ext)
-        return [read_pass_image(file_path(root, pf, f.file_stem), pf, shape) for f in frames]
+        paths = [file_path(root, pf, f.file_stem) for f in frames]
+        read.update(paths)
+        return [(p, read_pass_image(p, pf, shape)) for p in paths]
+
+    def images(name: str, ext: str) -> list[np.ndarray]:
+        return [a for _, a in files(name, ext)]
 
     def rgb_stack(name: str) -> np.ndarray:
-        pf = pass_file(modality, name, "png")
-        return np.stack([box_downscale(rgb01(read_pass_image(p, pf, shape), p), factor)
-                         for p in (file_path(root, pf, f.file_stem) for f in frames)])
+        return np.stack([box_downscale(rgb01(a, p), factor) for p, a in files(name, "png")])
 
     clean = scale = masks = depth = None
     if modality == "rgb":
-        images = rgb_stack("smoky")
+        smoky = rgb_stack("smoky")
         if "clean" in passes:
             clean = rgb_stack("clean")
     else:
-        images, scale = thermal_images(np.stack([gray(a) for a in read("smoky", "png")]), factor, thermal_scale)
+        smoky, scale = thermal_images(np.stack([gray(a) for a in images("smoky", "png")]), factor, thermal_scale)
         if "clean" in passes:
-            clean = np.stack([box_downscale(scale.apply(gray(a)), factor)[..., None] for a in read("clean", "png")])
+            clean = np.stack([box_downscale(scale.apply(gray(a)), factor)[..., None] for a in images("clean", "png")])
     if "smoke_alpha" in passes:
-        masks = np.stack([box_downscale(gray(a) / 255.0, factor) for a in read("smoke_alpha", "png")])
+        masks = np.stack([box_downscale(gray(a) / 255.0, factor) for a in images("smoke_alpha", "png")])
     if "depth" in passes:
-        depth = np.stack([downscale_depth(a.astype(np.float64), factor) for a in read("depth", "exr")])
-    check_finite(images, root / modality / "smoky")
-    return ModalityData(name=modality, frames=frames, images=images.astype(np.float32),
+        depth = np.stack([downscale_depth(a.astype(np.float64), factor) for a in images("depth", "exr")])
+    check_finite(smoky, root / modality / "smoky")
+    return ModalityData(name=modality, frames=frames, images=smoky.astype(np.float32),
                         clean=None if clean is None else clean.astype(np.float32),
                         masks=None if masks is None else masks.astype(np.float32),
                         depth=None if depth is None else depth.astype(np.float32),
