@@ -55,8 +55,9 @@ def _library_output() -> Iterator[list[str]]:
             captured.extend(line for line in text.splitlines() if line.strip())
 
 
-def read_exr(path: Path) -> dict[str, np.ndarray]:
+def read_exr(path: Path | str) -> dict[str, np.ndarray]:
     """All channels of every part by full name (Blender's multilayer names kept, e.g. 'ViewLayer.Depth.Z')."""
+    path = Path(path)
     if not path.is_file():
         raise DatasetError(f"{path}: missing file")
     with _library_output() as library_messages:
@@ -71,7 +72,7 @@ def read_exr(path: Path) -> dict[str, np.ndarray]:
     return channels
 
 
-def read_exr_channel(path: Path, channel: str) -> np.ndarray:
+def read_exr_channel(path: Path | str, channel: str) -> np.ndarray:
     """One channel as float32 (half-float files widen exactly)."""
     channels = read_exr(path)
     if channel not in channels:
@@ -98,7 +99,7 @@ def png_bit_depth(path: Path) -> int:
     return int(head[24])
 
 
-def read_png(path: Path) -> np.ndarray:
+def read_png(path: Path | str) -> np.ndarray:
     """A PNG (or another image Pillow reads) with its stored integer type and channels: uint16 H×W
     for 16-bit grey; uint8 H×W (L), H×W×2 (LA), H×W×3 (RGB) or H×W×4 (RGBA); any other mode
     (palette, bilevel) converted to RGB.
@@ -106,6 +107,7 @@ def read_png(path: Path) -> np.ndarray:
     Pillow reads 16-bit colour PNGs as 8-bit RGB, so the dtype, not the values, says which full
     scale applies (``image01``); a dark 16-bit frame is never mistaken for an 8-bit one.
     """
+    path = Path(path)
     if not path.is_file():
         raise DatasetError(f"{path}: missing file")
     try:
