@@ -35,11 +35,11 @@ def rebuild(run: Path, overrides: dict, tmp: Path):
     saved = torch.load(run / "checkpoints" / "stage3.pt", map_location="cpu", weights_only=False)
     if saved["config_sha256"] != ctx.config_sha or not saved.get("done"):
         raise SystemExit(f"{run}: its stage3.pt is unfinished or from another config; pass the run's overrides")
-    geo = scene.thermal if prep.switches.use_thermal else scene.rgb
+    geo = scene.thermal if prep.plan.use_thermal else scene.rgb
     s2 = train_stage2(ctx, geo, np.random.default_rng(0).normal(size=(8, 3)), deformable=False, heldout_psnr=lambda *a: None)
-    pts = np.random.default_rng(1).normal(size=(cfg.stage3.smoke_points, 3)) if prep.switches.use_smoke else None
-    model = build_scene_model(ctx, s2, prep.switches, pts, scene.smoke_static)
-    model = train_stage3(ctx, model, scene.rgb, scene.thermal, prep.switches, None, heldout_psnr=None)
+    pts = np.random.default_rng(1).normal(size=(cfg.stage3.smoke_points, 3)) if prep.plan.use_smoke else None
+    model = build_scene_model(ctx, s2, prep.plan, pts, scene.smoke_static)
+    model = train_stage3(ctx, model, scene.rgb, scene.thermal, prep.plan, None, heldout_psnr=None)
     return prep, model
 
 

@@ -20,8 +20,8 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from contracts.imageio import image01, read_png  # noqa: E402
 from eval.regions import pooled_psnr  # noqa: E402
-from smokeseer.data import image01, read_png  # noqa: E402
 
 COLUMNS = ("clean truth", "smoky input", "surface", "smoke (render)", "|surface - clean| x 4")
 

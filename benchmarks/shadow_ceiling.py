@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from contracts.imageio import image01, read_png
 from contracts.metrics import psnr
-from smokeseer.data import image01, read_png
 
 out = Path(sys.argv[1])
 rows = []

@@ -24,7 +24,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from contracts.atomic import write_rows_csv  # noqa: E402
-from smokeseer.data import load_scene  # noqa: E402
+from scenes.load import load_scene  # noqa: E402
 from smokeseer.smoke_masks import CANDIDATES, candidate_scores, iou  # noqa: E402
 from smokeseer.smoke_presence import ESTIMATOR, decide_smoke_presence  # noqa: E402
 

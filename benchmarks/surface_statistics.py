@@ -32,7 +32,7 @@ if str(ROOT) not in sys.path:
 
 from contracts.atomic import write_rows_csv  # noqa: E402
 from contracts.metrics import psnr  # noqa: E402
-from smokeseer.data import load_scene  # noqa: E402
+from scenes.load import load_scene  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 LUMA = np.array([0.2126, 0.7152, 0.0722])

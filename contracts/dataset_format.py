@@ -14,6 +14,8 @@ from contracts.imageio import read_exr_channel, read_png
 
 FORMAT = "smokeseer-synth-dataset"
 FORMAT_VERSION = 1
+DATASET_FILE = "dataset.json"
+"""The file that makes a folder a generated dataset: scene-level metadata."""
 
 
 @dataclass(frozen=True)
@@ -46,6 +48,14 @@ def file_path(root: Path, pf: PassFile, stem: str) -> Path:
     return root / pf.folder / f"{stem}.{pf.ext}"
 
 
+def pass_file(modality: str, name: str, ext: str) -> PassFile:
+    """The file of pass ``modality.name`` with extension ``ext`` (a pass may write an EXR and a PNG)."""
+    matches = [pf for pf in PASS_FILES[(modality, name)] if pf.ext == ext]
+    if len(matches) != 1:
+        raise KeyError(f"pass {modality}.{name} has no single .{ext} file")
+    return matches[0]
+
+
 def transforms_name(modality: str) -> str:
     return f"transforms_{modality}.json"
 
@@ -73,26 +83,28 @@ def need_field(data: dict[str, Any], key: str, path: Path, kind: type | tuple[ty
 
 
 def check_pose(matrix: Any, where: str) -> np.ndarray:
-    """A 4×4 rigid c2w: finite, orthonormal rotation with det +1, last row 0 0 0 1."""
+    """A 4×4 rigid c2w: finite, orthonormal rotation with det +1, last row 0 0 0 1. ``where``
+    names the file and the frame (``PATH: frames[3]``); the message adds ``.transform_matrix``."""
+    field = f"{where}.transform_matrix"
     try:
         m = np.asarray(matrix, dtype=np.float64)
     except (TypeError, ValueError):
-        raise DatasetError(f"{where}: transform_matrix is not numeric") from None
+        raise DatasetError(f"{field} is missing or not numeric") from None
     if m.shape != (4, 4):
-        raise DatasetError(f"{where}: transform_matrix must be 4x4, got shape {m.shape}")
+        raise DatasetError(f"{field} must be 4x4, got shape {m.shape}")
     if not np.isfinite(m).all():
-        raise DatasetError(f"{where}: transform_matrix holds NaN or Inf")
+        raise DatasetError(f"{field} holds NaN or Inf")
     r = m[:3, :3]
     if not np.allclose(r.T @ r, np.eye(3), atol=1e-4) or abs(np.linalg.det(r) - 1) > 1e-4:
-        raise DatasetError(f"{where}: transform_matrix rotation is not orthonormal with det +1")
+        raise DatasetError(f"{field}: rotation is not orthonormal with det +1")
     if not np.allclose(m[3], [0, 0, 0, 1], atol=1e-6):
-        raise DatasetError(f"{where}: transform_matrix last row must be 0 0 0 1")
+        raise DatasetError(f"{field}: last row must be 0 0 0 1")
     return m
 
 
-def load_transforms(root: Path, modality: str) -> dict[str, Any]:
-    path = root / transforms_name(modality)
-    data = load_json(path)
+def check_camera(data: dict[str, Any], path: Path) -> None:
+    """Pinhole intrinsics of a transforms file: positive integer ``w``, ``h``; finite ``cx``, ``cy``
+    and positive ``fl_x``, ``fl_y`` in pixels."""
     for key in ("w", "h"):
         if need_field(data, key, path, int) <= 0:
             raise DatasetError(f"{path}: field {key!r} must be positive")
@@ -100,6 +112,12 @@ def load_transforms(root: Path, modality: str) -> dict[str, Any]:
         value = need_field(data, key, path, (int, float))
         if not math.isfinite(value) or (key.startswith("fl") and value <= 0):
             raise DatasetError(f"{path}: field {key!r} must be finite{' and positive' if key.startswith('fl') else ''}")
+
+
+def load_transforms(root: Path, modality: str) -> dict[str, Any]:
+    path = root / transforms_name(modality)
+    data = load_json(path)
+    check_camera(data, path)
     frames = need_field(data, "frames", path, list)
     for i, frame in enumerate(frames):
         where = f"{path}: frames[{i}]"
@@ -117,9 +135,9 @@ def load_transforms(root: Path, modality: str) -> dict[str, Any]:
     return data
 
 
-def _check_image(path: Path, pf: PassFile, shape: tuple[int, int]) -> np.ndarray:
-    if not path.is_file():
-        raise DatasetError(f"{path}: missing")
+def read_pass_image(path: Path, pf: PassFile, shape: tuple[int, int]) -> np.ndarray:
+    """One file of a pass, read once and checked: shape (H, W) from the transforms, the pass's
+    dtype, finite values, and the pass's value range."""
     image = read_exr_channel(path, pf.exr_channel) if pf.ext == "exr" else read_png(path)
     expected = shape + ((3,) if pf.channels == 3 else ())
     if image.shape != expected:
@@ -128,32 +146,20 @@ def _check_image(path: Path, pf: PassFile, shape: tuple[int, int]) -> np.ndarray
         raise DatasetError(f"{path}: dtype {image.dtype}, expected {np.dtype(pf.dtype)}")
     if pf.ext == "exr" and not np.isfinite(image).all():
         raise DatasetError(f"{path}: holds NaN or Inf")
-    return image
-
-
-def _check_values(path: Path, pf: PassFile, image: np.ndarray) -> None:
     if pf.exr_channel == "A" and (image.min() < -1e-4 or image.max() > 1 + 1e-4):
         raise DatasetError(f"{path}: smoke alpha outside [0, 1]")
     if pf.exr_channel in ("Z", "L") and image.min() < 0:
         raise DatasetError(f"{path}: negative {'depth' if pf.exr_channel == 'Z' else 'radiance'}")
     if pf.folder.endswith("smoke_mask") and not np.isin(image, (0, 255)).all():
         raise DatasetError(f"{path}: mask values must be 0 or 255")
+    return image
 
 
-def validate_dataset(root: Path, check_images: bool = True) -> dict[str, Any]:
-    """Raise DatasetError on the first problem; return dataset.json on success."""
-    root = Path(root)
-    if not root.is_dir():
-        raise DatasetError(f"{root}: not a directory")
-    meta_path = root / "dataset.json"
-    meta = load_json(meta_path)
-    if meta.get("format") != FORMAT:
-        raise DatasetError(f"{meta_path}: field 'format' must be {FORMAT!r}")
-    if meta.get("format_version") != FORMAT_VERSION:
-        raise DatasetError(f"{meta_path}: unsupported format_version {meta.get('format_version')!r}")
-    for key, kind in (("scene", str), ("seed", int), ("passes", dict), ("smoke", dict), ("versions", dict),
-                      ("duration_s", (int, float)), ("sim_fps", int)):
-        need_field(meta, key, meta_path, kind)
+def dataset_files(root: Path, meta: dict[str, Any]) -> list[tuple[Path, PassFile, tuple[int, int]]]:
+    """Every image file the passes of dataset.json (``meta``) put in the dataset, with its pass
+    and the (H, W) its modality's transforms give."""
+    meta_path = root / DATASET_FILE
+    out = []
     for modality, passes in meta["passes"].items():
         if modality not in ("rgb", "thermal") or not isinstance(passes, list):
             raise DatasetError(f"{meta_path}: field 'passes' has a bad entry {modality!r}")
@@ -164,13 +170,32 @@ def validate_dataset(root: Path, check_images: bool = True) -> dict[str, Any]:
         for name in passes:
             if (modality, name) not in PASS_FILES:
                 raise DatasetError(f"{meta_path}: unknown pass {modality}.{name}")
-            for pf in PASS_FILES[(modality, name)]:
-                for frame in transforms["frames"]:
-                    path = file_path(root, pf, frame["file_stem"])
-                    if check_images:
-                        _check_values(path, pf, _check_image(path, pf, shape))
-                    elif not path.is_file():
-                        raise DatasetError(f"{path}: missing")
+            out += [(file_path(root, pf, frame["file_stem"]), pf, shape)
+                    for pf in PASS_FILES[(modality, name)] for frame in transforms["frames"]]
+    return out
+
+
+def validate_dataset(root: Path, check_images: bool = True) -> dict[str, Any]:
+    """Raise DatasetError on the first problem; return dataset.json on success. Without
+    ``check_images`` every file must exist, and the reader checks each one as it reads it
+    (``read_pass_image``), so no image is decoded twice."""
+    root = Path(root)
+    if not root.is_dir():
+        raise DatasetError(f"{root}: not a directory")
+    meta_path = root / DATASET_FILE
+    meta = load_json(meta_path)
+    if meta.get("format") != FORMAT:
+        raise DatasetError(f"{meta_path}: field 'format' must be {FORMAT!r}")
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise DatasetError(f"{meta_path}: unsupported format_version {meta.get('format_version')!r}")
+    for key, kind in (("scene", str), ("seed", int), ("passes", dict), ("smoke", dict), ("versions", dict),
+                      ("duration_s", (int, float)), ("sim_fps", int)):
+        need_field(meta, key, meta_path, kind)
+    for path, pf, shape in dataset_files(root, meta):
+        if check_images:
+            read_pass_image(path, pf, shape)
+        elif not path.is_file():
+            raise DatasetError(f"{path}: missing file")
     if "thermal" in meta["passes"] and meta["passes"]["thermal"]:
         sensor = need_field(meta, "thermal_sensor", meta_path, dict)
         for key in ("gain", "offset", "bits"):

@@ -1,5 +1,9 @@
-"""Image files of the dataset: EXR (float32) and PNG (8- and 16-bit), read with errors that name
-the file, and written atomically (contracts.atomic) so a resume never trusts a truncated file.
+"""Image files: EXR (float32) and PNG (8- and 16-bit), read with errors that name the file, and
+written atomically (contracts.atomic) so a resume never trusts a truncated file.
+
+The one reader of image files for the generator, the validator, the scene loaders (``scenes``)
+and the harness: a PNG comes back with the channels it stores (alpha included, for the layouts
+whose rule composites it) and its integer type, which says the full scale (``image01``).
 """
 from __future__ import annotations
 
@@ -51,8 +55,11 @@ def _library_output() -> Iterator[list[str]]:
             captured.extend(line for line in text.splitlines() if line.strip())
 
 
-def read_exr(path: Path) -> dict[str, np.ndarray]:
+def read_exr(path: Path | str) -> dict[str, np.ndarray]:
     """All channels of every part by full name (Blender's multilayer names kept, e.g. 'ViewLayer.Depth.Z')."""
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(f"{path}: missing file")
     with _library_output() as library_messages:
         try:
             with OpenEXR.File(str(path), separate_channels=True) as exr:
@@ -65,7 +72,8 @@ def read_exr(path: Path) -> dict[str, np.ndarray]:
     return channels
 
 
-def read_exr_channel(path: Path, channel: str) -> np.ndarray:
+def read_exr_channel(path: Path | str, channel: str) -> np.ndarray:
+    """One channel as float32 (half-float files widen exactly)."""
     channels = read_exr(path)
     if channel not in channels:
         raise DatasetError(f"{path}: EXR has no channel {channel!r} (has {', '.join(sorted(channels))})")
@@ -82,14 +90,46 @@ def write_png(path: Path, image: np.ndarray) -> None:
         pil.save(tmp, format="PNG", compress_level=6)
 
 
-def read_png(path: Path) -> np.ndarray:
+def png_bit_depth(path: Path) -> int:
+    """Bits per sample from the PNG header (IHDR byte 24)."""
+    with path.open("rb") as fh:
+        head = fh.read(25)
+    if len(head) < 25 or head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
+        raise DatasetError(f"{path}: not a PNG file (no IHDR header)")
+    return int(head[24])
+
+
+def read_png(path: Path | str) -> np.ndarray:
+    """A PNG (or another image Pillow reads) with its stored integer type and channels: uint16 H×W
+    for 16-bit grey; uint8 H×W (L), H×W×2 (LA), H×W×3 (RGB) or H×W×4 (RGBA); any other mode
+    (palette, bilevel) converted to RGB.
+
+    Pillow reads 16-bit colour PNGs as 8-bit RGB, so the dtype, not the values, says which full
+    scale applies (``image01``); a dark 16-bit frame is never mistaken for an 8-bit one.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(f"{path}: missing file")
     try:
         with Image.open(path) as img:
             img.load()
-            if img.mode in ("I;16", "I;16B", "I;16L"):
-                return np.asarray(img, dtype=np.uint16)
-            if img.mode not in ("L", "RGB"):
+            if img.mode in ("I;16", "I;16B", "I;16L", "I"):
+                if path.suffix.lower() == ".png" and png_bit_depth(path) != 16:
+                    raise DatasetError(f"{path}: {png_bit_depth(path)}-bit integer PNG; expected 8- or 16-bit")
+                return np.asarray(img).astype(np.uint16)
+            if img.mode not in ("L", "LA", "RGB", "RGBA"):
                 img = img.convert("RGB")
-            return np.asarray(img)
+            return np.asarray(img).astype(np.uint8)
+    except DatasetError:
+        raise
     except (OSError, ValueError) as exc:
         raise DatasetError(f"{path}: not a readable PNG image ({exc})") from None
+
+
+def image01(arr: np.ndarray) -> np.ndarray:
+    """Integer image to float64 in [0, 1] by its type's full scale (8- or 16-bit)."""
+    if arr.dtype == np.uint16:
+        return arr.astype(np.float64) / 65535.0
+    if arr.dtype == np.uint8:
+        return arr.astype(np.float64) / 255.0
+    raise TypeError(f"image01: expected uint8 or uint16, got {arr.dtype}")

@@ -13,6 +13,8 @@ METRIC_KEYS = ("psnr", "ssim", "lpips", "lpips_status", "psnr_input", "depth_abs
 TOP_KEYS = ("format", "format_version", "scene", "dataset", "method", "profile", "seed", "status", "provenance")
 PROVENANCE_KEYS = ("commit", "version", "source_digest", "threads", "machine")
 RENDER_DIRS = ("composite", "surface", "smoke")
+STAGE3_PLAN_KEYS = ("smoke_colour", "mask_floor", "depth_prior", "depth_camera", "loss_weights", "dropped")
+"""metrics.json ``stages.stage3_plan``: what Stage 3 trained with (smokeseer/plan.py writes it)."""
 
 
 class ResultsFormatError(ValueError):
@@ -67,7 +69,27 @@ def read_metrics(run_dir: Path) -> dict[str, Any]:
     for key in ("wall_time_s", "versions", "config_sha256"):
         if key not in doc:
             raise ResultsFormatError(f"{mpath}: missing field {key!r}")
+    stage3_plan(doc, mpath)
     return doc
+
+
+def stage3_plan(doc: dict[str, Any], mpath: Path) -> dict[str, Any] | None:
+    """``stages.stage3_plan`` of a metrics.json, checked; None for a run without Stage 3 and for
+    runs written before the plan was recorded (their readers fall back on ``stages.smoke_colour``)."""
+    plan = (doc.get("stages") or {}).get("stage3_plan")
+    if plan is None:
+        return None
+    if not isinstance(plan, dict):
+        raise ResultsFormatError(f"{mpath}: field 'stages.stage3_plan' must be an object")
+    for key in STAGE3_PLAN_KEYS:
+        if key not in plan:
+            raise ResultsFormatError(f"{mpath}: missing field 'stages.stage3_plan.{key}'")
+    for key in ("loss_weights", "dropped"):
+        if not isinstance(plan[key], dict):
+            raise ResultsFormatError(f"{mpath}: field 'stages.stage3_plan.{key}' must be an object")
+    for term, weight in plan["loss_weights"].items():
+        _finite_or_null(mpath, f"stages.stage3_plan.loss_weights.{term}", weight)
+    return plan
 
 
 def validate_run_dir(run_dir: Path) -> dict[str, Any]:

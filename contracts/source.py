@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
-PROJECT_PACKAGES: tuple[str, ...] = ("blender", "contracts", "eval", "generator", "interop", "smokeseer")
+PROJECT_PACKAGES: tuple[str, ...] = ("blender", "contracts", "eval", "generator", "interop", "scenes", "smokeseer")
 _DATA_SUFFIXES = (".cpp", ".cu", ".cuh", ".h", ".hpp", ".yaml", ".yml", ".json")
 DIGEST_CACHE_ENV = "SMOKESEER_DIGEST_CACHE"
 """File of remembered digests; set to an empty string to turn the cache off."""

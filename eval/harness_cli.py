@@ -13,8 +13,9 @@ import sys
 from pathlib import Path
 
 from eval.adopt import adopt_runs
-from eval.harness import DEFAULT_OUT, HarnessConfig, default_workers, regenerate
+from eval.harness import DEFAULT_OUT, HarnessConfig, regenerate
 from eval.runs import ABLATIONS, METHODS
+from eval.settings import default_workers
 from generator.cli import parse_size
 from generator.profiles import get_profile
 from smokeseer.config import LPIPS_NETS, parse_set_items

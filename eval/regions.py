@@ -33,9 +33,10 @@ import numpy as np
 from contracts.atomic import atomic_path, write_text
 from contracts.dataset_format import PASS_FILES, file_path
 from contracts.errors import DatasetError
+from contracts.imageio import image01, read_png
 from contracts.metrics import PSNR_CAP_DB
 from eval.runs import RunResult, variant_label
-from smokeseer.data import box_downscale, image01, read_png
+from scenes.images import box_downscale
 
 log = logging.getLogger(__name__)
 

@@ -7,15 +7,13 @@ import platform
 from dataclasses import asdict
 from importlib import metadata
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from contracts.atomic import write_text
 from contracts.source import code_digest
 from eval.dehaze import DarkChannelPrior
 from eval.runs import VARIANTS, RunResult
-
-if TYPE_CHECKING:
-    from eval.harness import DatasetOutcome, HarnessConfig
+from eval.settings import DatasetOutcome, HarnessConfig
 
 
 def _version(pkg: str) -> str:
@@ -49,7 +47,7 @@ def _variant(key: str, label: bool) -> str:
             + "".join(f", `{o}={val}`" for o, val in v.overrides.items()) + ")")
 
 
-def _settings(cfg: "HarnessConfig", backend: str) -> list[tuple[str, Any]]:
+def _settings(cfg: HarnessConfig, backend: str) -> list[tuple[str, Any]]:
     return [
         ("scenes", ", ".join(cfg.scenes)),
         ("methods", ", ".join(_variant(k, label=True) for k in cfg.methods) or "none"),
@@ -71,7 +69,7 @@ def _settings(cfg: "HarnessConfig", backend: str) -> list[tuple[str, Any]]:
     ]
 
 
-def write_report(cfg: "HarnessConfig", results: list[RunResult], datasets: list["DatasetOutcome"],
+def write_report(cfg: HarnessConfig, results: list[RunResult], datasets: list[DatasetOutcome],
                  lpips_status: str, backend: str, wall_s: float, paths: dict[str, Path], out: Path) -> Path:
     failed = [r for r in results if r.status == "failed"]
     pending = sum(r.status == "pending" for r in results)

@@ -1,11 +1,12 @@
 """Table-2 rows that would train exactly like Full on a scene take Full's finished run.
 
-Where Full held the smoke colour at the haze-line estimate (``stages.smoke_colour.source`` is
-``haze-lines`` in its metrics.json, docs/results-format.md), neither colour prior was in its
-loss, so "w/o smoke_color" and "w/o mono" remove a term that was not there: with the same
-scene, seed, data, settings and code they end with Full's bytes (tests/test_trainer.py checks
+Full's metrics.json records its Stage 3 plan (``stages.stage3_plan``, docs/results-format.md):
+where the plan dropped a colour prior (the smoke colour held at the haze-line estimate, or no
+smoke Gaussians), "w/o smoke_color" and "w/o mono" remove a term that was not there: with the
+same scene, seed, data, settings and code they end with Full's bytes (tests/test_twins.py checks
 this with the real trainer). The harness then records Full's result for them, marked
-``same_as``, instead of training them; the tables say on how many scenes.
+``same_as``, instead of training them; the tables say on how many scenes. Runs written before
+the plan was recorded say the same through ``stages.smoke_colour.source`` = ``haze-lines``.
 """
 from __future__ import annotations
 
@@ -13,22 +14,28 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
 
-from contracts.results_format import ResultsFormatError, read_metrics
+from contracts.results_format import ResultsFormatError, read_metrics, stage3_plan
 from eval.runs import RunResult, RunSpec
 
-COLOUR_PRIOR_ABLATIONS = ("no-smoke-color", "no-mono")
-"""Ablations that only zero a smoke-colour prior."""
+COLOUR_PRIOR_ABLATIONS = {"no-smoke-color": "smoke_color", "no-mono": "mono"}
+"""Ablations that only zero a smoke-colour prior, and the term each zeroes."""
 
 COLOUR_FIXED_REASON = ("Full held the smoke colour at the haze-line estimate, so this prior was not in its loss "
                        "and the run would train exactly like Full")
 
 
-def twin_reason(variant: str, full_doc: dict[str, Any]) -> str | None:
+def twin_reason(variant: str, full_doc: dict[str, Any], where: Path = Path("metrics.json")) -> str | None:
     """Why ``variant`` would train exactly like the Full run whose metrics.json is ``full_doc``, or None."""
+    term = COLOUR_PRIOR_ABLATIONS.get(variant)
+    if term is None:
+        return None
+    plan = stage3_plan(full_doc, where)
+    if plan is not None:
+        why = plan["dropped"].get(term)
+        return (f"Full's Stage 3 plan left the {term} term out ({why}), so the run would train exactly like Full"
+                if why else None)
     colour = (full_doc.get("stages") or {}).get("smoke_colour") or {}
-    if variant in COLOUR_PRIOR_ABLATIONS and colour.get("source") == "haze-lines":
-        return COLOUR_FIXED_REASON
-    return None
+    return COLOUR_FIXED_REASON if colour.get("source") == "haze-lines" else None
 
 
 def full_twins(specs: list[RunSpec], out: Path,
@@ -46,7 +53,7 @@ def full_twins(specs: list[RunSpec], out: Path,
         if done is None:
             continue
         try:
-            reason = twin_reason(spec.variant, read_metrics(full_dir))
+            reason = twin_reason(spec.variant, read_metrics(full_dir), full_dir / "metrics.json")
         except ResultsFormatError:
             continue
         if reason:

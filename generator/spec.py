@@ -4,6 +4,7 @@ from __future__ import annotations
 import copy
 import hashlib
 import json
+import math
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, TypeVar
@@ -22,6 +23,18 @@ PARTICLE_KINDS = ("organic_smoke", "soot")
 MODALITIES = ("rgb", "thermal")
 DENOISERS = ("none", "color", "albedo", "albedo_normal")
 PASSES = ("smoky", "clean", "depth", "smoke_alpha")
+
+BYTES_PER_RENDER_PIXEL = 64
+"""What one pixel of one render holds at once: Cycles' float RGBA film and the denoiser's albedo
+and normal guides (16 bytes each), and the float image written and read back (16)."""
+MAX_RENDER_BYTES = 16 * 2**30
+"""One frame's render must fit in 16 GiB: a 16384 × 16384 RGB frame, the largest the camera
+fields allow, and no more."""
+MAX_PIXEL_SAMPLES = 10**12
+"""Cycles samples over every pixel of every rendered pass and frame."""
+PIXEL_SAMPLES_PER_S = 5e4
+"""The render rate measured on a 2-core CPU (docs/generator.md: 64×48 at 128 samples, 7.2 s a
+frame), for the time estimate in the refusal."""
 
 
 @dataclass(frozen=True)
@@ -280,9 +293,42 @@ def parse_spec(data: Any, source: str | Path) -> SceneSpec:
     if duplicate:
         raise f.error("objects", f"object name {duplicate!r} is used twice")
     passes_raw = f.raw("passes", ["rgb", "thermal"])
-    return parse_section(SceneSpec, f, sources=tuple(parse_section(SourceSpec, sf) for sf in f.sub_list("sources")),
+    spec = parse_section(SceneSpec, f, sources=tuple(parse_section(SourceSpec, sf) for sf in f.sub_list("sources")),
                          objects=objects, materials=materials, rig=_rig(f.sub("rig")),
                          passes=parse_passes(passes_raw, str(source)))
+    check_render_budget(spec, str(source), {"rgb": "rig.rgb", "thermal": "rig.thermal"})
+    return spec
+
+
+def check_render_budget(spec: SceneSpec, source: str, fields: dict[str, str]) -> None:
+    """Refuse, before any work, renders that cannot fit in memory or finish: one frame of either
+    camera (the thermal one at its supersampled size) within ``MAX_RENDER_BYTES``, and every
+    pass of every frame within ``MAX_PIXEL_SAMPLES`` (docs/scene-spec.md "Size limits").
+    ``fields`` names each camera's size field as the user gave it."""
+    rgb, thermal = spec.rig.rgb, spec.rig.thermal
+    duration = (spec.frames - 1) / rgb.fps if spec.frames > 1 else 0.0
+    thermal_frames = 1 + max(0, math.floor((duration - thermal.time_offset_s) * thermal.fps + 1e-9))
+    cameras = {"rgb": (rgb.width, rgb.height, rgb.samples, spec.frames, 1),
+               "thermal": (thermal.width, thermal.height, thermal.samples, thermal_frames, thermal.supersample)}
+    work: dict[str, float] = {}
+    for modality, (width, height, samples, frames, supersample) in cameras.items():
+        pixels = width * height * supersample ** 2
+        size = f"{width}x{height}" + (f" (x{supersample} supersampled)" if supersample > 1 else "")
+        need = pixels * BYTES_PER_RENDER_PIXEL
+        if need > MAX_RENDER_BYTES:
+            raise SpecError(source, fields[modality],
+                            f"{size} needs about {need / 2**30:,.0f} GiB to render one frame ({BYTES_PER_RENDER_PIXEL} "
+                            f"bytes per pixel); the limit is {MAX_RENDER_BYTES // 2**30} GiB")
+        work[modality] = float(pixels) * samples * frames * len(spec.passes.get(modality, ()))
+    total = sum(work.values())
+    if total > MAX_PIXEL_SAMPLES:
+        largest = max(work, key=lambda m: work[m])
+        width, height, samples, frames, _ = cameras[largest]
+        days = total / PIXEL_SAMPLES_PER_S / 86400
+        raise SpecError(source, fields[largest],
+                        f"{total:.2g} pixel-samples in all ({frames} {largest} frames of {width}x{height} at {samples} "
+                        f"samples, {len(spec.passes[largest])} passes), about {days:,.0f} days at "
+                        f"{PIXEL_SAMPLES_PER_S:.0e} pixel-samples/s on 2 CPU cores; the limit is {MAX_PIXEL_SAMPLES:.0e}")
 
 
 def load_spec_file(path: Path) -> SceneSpec:
@@ -341,4 +387,6 @@ def apply_overrides(spec: SceneSpec, o: Overrides, source: str = "command line")
         out = replace(out, seed=o.seed)
     if o.passes is not None:
         out = replace(out, passes=parse_passes(o.passes, source, "--passes"))
+    check_render_budget(out, source, {"rgb": "--resolution" if o.resolution else "rig.rgb",
+                                      "thermal": "--thermal-resolution" if o.thermal_resolution else "rig.thermal"})
     return out

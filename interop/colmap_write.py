@@ -1,6 +1,6 @@
 """Write COLMAP's binary sparse model, the only form the official SmokeSeer reader trusts.
 
-Record layouts are COLMAP's documented little-endian ones; ``smokeseer.colmap_binary`` reads
+Record layouts are COLMAP's documented little-endian ones; ``scenes.colmap_binary`` reads
 them back and a test checks the two against each other and against hand-packed bytes.
 """
 from __future__ import annotations

@@ -16,7 +16,8 @@ from pathlib import Path
 
 from contracts.errors import DatasetError
 from interop.layouts import SPLITS, TARGETS, WRITERS, Conversion, prepare, sidecar
-from smokeseer.data import load_scene
+from scenes.load import load_scene
+from scenes.official_layouts import SIDECAR
 
 log = logging.getLogger("convert-dataset")
 
@@ -50,7 +51,7 @@ def convert(src: Path, target: str, out: Path, split: str = "official", points: 
     try:
         stage.mkdir(parents=True)
         WRITERS[target](scene, frames, stage, conv)
-        (stage / "smokeseer_interop.json").write_text(json.dumps(sidecar(scene, conv, origin), indent=2))
+        (stage / SIDECAR).write_text(json.dumps(sidecar(scene, conv, origin), indent=2))
         os.rename(stage, out)
     finally:
         if stage.exists():

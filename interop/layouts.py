@@ -19,17 +19,16 @@ from PIL import Image
 
 from interop.colmap_write import CameraRecord, ImageRecord, points3d_bin, write_model
 from interop.resample import centred_intrinsics, needs_resample, warp_to_intrinsics
-from smokeseer.official_depth import DEPTH_DIR, PARAMS_FILE, encode_inverse_depth, global_code, reciprocal_or_zero
-from smokeseer.cameras import backproject, scene_bounds
-from smokeseer.data import Frame, ModalityData, SceneData
+from scenes.cameras import backproject, scene_bounds, viewmat_to_c2w_gl
+from scenes.official_depth import DEPTH_DIR, PARAMS_FILE, encode_inverse_depth, global_code, reciprocal_or_zero
+from scenes.official_layouts import OFFICIAL_TEST_EVERY
+from scenes.scene import Frame, ModalityData, SceneData
 
 TARGETS = ("smokeseer-blender", "smokeseer-colmap", "nerfstudio")
 SPLITS = ("official", "source")
 TICK_S = 1e-6
 DIGITS = 10
-OFFICIAL_TEST_EVERY = 8
 MAX_POINTS = 20_000
-_GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
 @dataclass
@@ -56,11 +55,6 @@ class Conversion:
     depth_sources: dict[str, str] = field(default_factory=dict)
     images_depth: str | None = None
     """What ``images_depth/`` holds ("ground-truth" or "prior"), None when it is not written."""
-
-
-def viewmat_to_c2w_gl(viewmat: np.ndarray) -> np.ndarray:
-    """OpenCV world-to-camera → OpenGL camera-to-world (inverse of cameras.c2w_gl_to_viewmat)."""
-    return np.linalg.inv(viewmat) @ _GL_TO_CV
 
 
 def _to8(x: np.ndarray) -> np.ndarray:
@@ -262,7 +256,7 @@ def write_colmap(scene: SceneData, frames: dict[str, list[OutFrame]], out: Path,
 
 def write_images_depth(frames: dict[str, list[OutFrame]], out: Path, conv: Conversion) -> None:
     """``images_depth/NAME.png`` (16-bit inverse depth) for every image and
-    ``sparse/0/depth_params.json``, by the official reader's rules (``smokeseer.official_depth``).
+    ``sparse/0/depth_params.json``, by the official reader's rules (``scenes.official_depth``).
     The official reader, given ``--depths``, opens a map for every image, RGB and thermal, so
     the maps are written only when every frame has depth."""
     lacking = [m for m in frames if conv.depth_sources.get(m) is None]

@@ -1,4 +1,4 @@
-"""``train_and_evaluate``: validate → load → Stage 1 → Stage 2 → Stage 3 → evaluate → outputs.
+"""``train_and_evaluate``: load (validating) → Stage 1 → Stage 2 → Stage 3 → evaluate → outputs.
 
 The metrics harness calls this function; the CLI is a thin wrapper. Bad input (config, dataset,
 Stage 1) is refused before anything is written to ``out``; once training starts, every run
@@ -16,23 +16,24 @@ import numpy as np
 import torch
 
 from contracts.atomic import write_json
-from contracts.dataset_format import validate_dataset
 from contracts.provenance import provenance
 from contracts.results_format import RESULTS_FORMAT, RESULTS_FORMAT_VERSION
-from smokeseer.cameras import sample_in_view
+from scenes.cameras import sample_in_view
+from scenes.generated import load_smoke_alpha
+from scenes.load import load_scene
+from scenes.scene import ModalityData, SceneData
+from scenes.thermal_scale import ThermalScaleSpec
 from smokeseer.config import TrainConfig, make_config
-from smokeseer.data import ModalityData, SceneData, load_scene, load_smoke_alpha
 from smokeseer.depth_prior import DepthPriorMaps, file_depth_prior, monocular_depth_prior, rendered_depth_prior
 from smokeseer.evaluate import heldout_psnr, score, score_validation, write_plys, write_renders
 from smokeseer.haze_lines import SmokeColourEstimate, estimate_smoke_colour
 from smokeseer.mask_floor import never_seen_clear
 from smokeseer.model import Placed, SceneModel, init_gaussians, render
+from smokeseer.plan import Stage3Plan, plan_stage3
 from smokeseer.splits import hold_out_validation
 from smokeseer.stage1 import Stage1Report, run_stage1
 from smokeseer.stage2 import train_stage2, views_of
-from smokeseer.stage3 import (Stage3Switches, build_scene_model, depth_term_on, dropped_term_notes, loss_weights,
-                              train_stage3)
-from smokeseer.thermal_scale import ThermalScaleSpec
+from smokeseer.stage3 import build_scene_model, train_stage3
 from smokeseer.trainutil import RunContext, RunLog
 
 
@@ -44,50 +45,6 @@ def _sample(mod: ModalityData, n: int, bounds: Any, rng: np.random.Generator) ->
     f = [mod.frames[i] for i in mod.indices("train")]
     return sample_in_view(bounds, n, *mod.cameras("train"), np.array([x.width for x in f]),
                           np.array([x.height for x in f]), rng)
-
-
-def switches_for(cfg: TrainConfig, scene: SceneData) -> Stage3Switches:
-    """Leave out what the data does not need: no smoke in the masks → no smoke Gaussians and no
-    deformation network; static smoke → no deformation network; no thermal → rgb-only. Priors
-    the data cannot support are named in ``notes``."""
-    masks = scene.rgb.masks
-    smoke_seen = scene.smoke_present and (masks is None or bool((masks[scene.rgb.indices("train")] > 0).any()))
-    deformable = cfg.mode == "deformable-3dgs"
-    use_smoke = smoke_seen and not deformable
-    return Stage3Switches(
-        use_thermal=scene.thermal is not None and cfg.mode not in ("rgb-only", "deformable-3dgs"),
-        use_smoke=use_smoke,
-        use_deform=deformable or (use_smoke and not scene.smoke_static),
-        use_masks=masks is not None,
-        smoke_threshold=scene.mask_threshold,
-        notes=(dropped_term_notes(cfg, masks is not None) if cfg.mode != "deformable-3dgs" else [])
-        + depth_file_notes(cfg, scene),
-    )
-
-
-def depth_file_notes(cfg: TrainConfig, scene: SceneData) -> list[str]:
-    """The layout's depth maps (official ``images_depth``) that this run reads but does not use,
-    and why: never a silent difference from the official code, which uses them."""
-    used = depth_camera(cfg, scene) if cfg.depth_prior == "files" and depth_term_on(cfg) else None
-    notes = []
-    for mod in (scene.rgb, scene.thermal):
-        if mod is None or mod.inverse_depth is None or mod.name == used:
-            continue
-        why = (f"depth_prior is {cfg.depth_prior} (--set depth_prior=files uses them)" if cfg.depth_prior != "files"
-               else "this run has no depth term" if used is None
-               else f"the depth term compares at the {used} camera (depth_camera)")
-        notes.append(f"images_depth: the {mod.name} frames' depth maps are read but not used: {why}")
-    return notes
-
-
-def check_depth_files(cfg: TrainConfig, scene: SceneData) -> None:
-    if cfg.depth_prior != "files" or not depth_term_on(cfg):
-        return
-    camera = depth_camera(cfg, scene)
-    mod = scene.thermal if camera == "thermal" else scene.rgb
-    if mod is None or mod.inverse_depth is None:
-        raise ValueError(f"depth_prior: files needs depth maps for the {camera} frames, and {scene.path} has none "
-                         "(the official COLMAP layout's images_depth/ with sparse/0/depth_params.json)")
 
 
 def _metrics_doc(prep: PreparedRun, status: str) -> dict[str, Any]:
@@ -106,19 +63,18 @@ class PreparedRun:
     dataset: Path
     scene: SceneData
     report: Stage1Report
-    switches: Stage3Switches
+    plan: Stage3Plan
     load_s: float
     provenance: dict[str, Any]
     """Taken before training: a commit made or a file edited during a long run must not be
     credited with its result."""
-    mask_floor_where: str = "all"
-    """The pixels the mask floor acts on in this run (``mask_floor_rule``)."""
 
 
 def prepare(dataset: Path, mode: str = "full", profile: str = "quick", seed: int = 0,
             overrides: dict[str, Any] | None = None) -> PreparedRun:
-    """Config, dataset validation (the validator of ``generate-scene --validate`` for datasets in
-    our format), loading and Stage 1; raises DatasetError/ValueError naming the bad input."""
+    """Config, loading (a dataset in our format is validated as it is read: its structure and
+    every file present, each image checked as it is decoded, once) and Stage 1; raises
+    DatasetError/ValueError naming the bad input."""
     t = time.perf_counter()
     code = provenance("smokeseer.api", torch.get_num_threads())
     cfg = make_config(mode, profile, seed, overrides)
@@ -126,15 +82,11 @@ def prepare(dataset: Path, mode: str = "full", profile: str = "quick", seed: int
     if cfg.depth_prior == "mono" and not Path(cfg.mono_weights).is_file():
         raise ValueError(f"mono_weights: no TorchScript file at {cfg.mono_weights!r} (depth_prior=mono "
                          "uses weights on local disk only)")
-    if (dataset / "dataset.json").is_file():
-        validate_dataset(dataset)
     scene = load_scene(dataset, cfg.max_width, ThermalScaleSpec(cfg.thermal_scale, cfg.thermal_equalised_share))
     hold_out_validation(scene.rgb, cfg.validation_every)
     report = run_stage1(cfg, scene)
-    check_depth_files(cfg, scene)
-    switches = switches_for(cfg, scene)
-    floor_where = mask_floor_rule(cfg, switches, scene, report)
-    return PreparedRun(cfg, dataset, scene, report, switches, time.perf_counter() - t, code, floor_where)
+    plan = plan_stage3(cfg, scene, report.masks)
+    return PreparedRun(cfg, dataset, scene, report, plan, time.perf_counter() - t, code)
 
 
 def train_and_evaluate(dataset: Path, out: Path, mode: str = "full", profile: str = "quick", seed: int = 0,
@@ -142,8 +94,10 @@ def train_and_evaluate(dataset: Path, out: Path, mode: str = "full", profile: st
     """Train ``mode`` on ``dataset``, evaluate the held-out views, write RUN_DIR ``out``;
     returns the metrics.json content. Raises DatasetError/ValueError for bad input (nothing is
     written then) and NaNDetected for a diverged run (after writing a failed metrics.json)."""
+    out = Path(out)
+    check_run_dir(out)
     prep = prepare(dataset, mode, profile, seed, overrides)
-    cfg, out = prep.cfg, Path(out)
+    cfg = prep.cfg
     (out / "checkpoints").mkdir(parents=True, exist_ok=True)
     write_json(out / "config.json", cfg.to_dict())
     try:
@@ -153,6 +107,15 @@ def train_and_evaluate(dataset: Path, out: Path, mode: str = "full", profile: st
         doc["error"] = f"{type(exc).__name__}: {exc}"
         write_json(out / "metrics.json", doc)
         raise
+
+
+def check_run_dir(out: Path) -> None:
+    """Refuse, before any work, a run folder that cannot be made: ``out`` or the nearest of its
+    parents that exists must be a directory."""
+    existing = next((p for p in (out, *out.parents) if p.exists()), None)
+    if existing is not None and not existing.is_dir():
+        what = "the run folder" if existing == out else f"a parent of the run folder {out}"
+        raise ValueError(f"{existing}: is a file, not a directory ({what})")
 
 
 def estimate_cpu_seconds(ctx: RunContext, geo: ModalityData, init: np.ndarray) -> float:
@@ -173,7 +136,7 @@ def estimate_cpu_seconds(ctx: RunContext, geo: ModalityData, init: np.ndarray) -
 
 
 def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
-    cfg, scene, report, switches = prep.cfg, prep.scene, prep.report, prep.switches
+    cfg, scene, report, plan = prep.cfg, prep.scene, prep.report, prep.plan
     torch.manual_seed(cfg.seed)
     wall: dict[str, float] = {"stage1": prep.load_s}
     t_start = time.perf_counter() - prep.load_s
@@ -183,13 +146,13 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
     dev = torch.device(cfg.device)
     ctx = RunContext(cfg, out, RunLog(log_path, wall_offset=prior_wall),
                      torch.as_tensor(b.center, dtype=torch.float32, device=dev), b.extent)
-    geo = scene.thermal if switches.use_thermal else scene.rgb
+    geo = scene.thermal if plan.use_thermal else scene.rgb
     ctx.log_line(f"stage 1: {scene.name}: {len(scene.rgb.frames)} RGB frames "
                  f"({len(scene.rgb.indices('test'))} test, {len(scene.rgb.indices('val'))} validation), "
                  f"{len(scene.thermal.frames) if scene.thermal else 0} thermal; geometry from {geo.name}; "
-                 f"smoke={'on' if switches.use_smoke else 'off'} deform={'on' if switches.use_deform else 'off'} "
+                 f"smoke={'on' if plan.use_smoke else 'off'} deform={'on' if plan.use_deform else 'off'} "
                  f"registered={report.registered} extent={b.extent:.3g}")
-    thermal_scale = scene.thermal.scale if scene.thermal is not None and switches.use_thermal else None
+    thermal_scale = scene.thermal.scale if scene.thermal is not None and plan.use_thermal else None
     thermal_record = thermal_scale.record(scene.thermal.images) if thermal_scale is not None else None
     if thermal_record is not None:
         ctx.log_line(f"stage 1: thermal scale {thermal_scale.describe(thermal_record['crowded'])}")
@@ -201,7 +164,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
                      f"about {np.round(r['rotation_axis'], 4).tolist()}, translation "
                      f"{np.round(r['translation'], 4).tolist()}, {r['inliers']}/{r['pairs']} inliers, centre rmse "
                      f"{r['centre_rmse']:.3g}, rotation rms {r['rotation_rms_deg']:.3g} deg, {r['geometry']} path")
-    for note in switches.notes:
+    for note in plan.notes:
         ctx.log_line(f"stage 3: {note}")
     rng = np.random.default_rng(cfg.seed)
     init = scene.init_points if scene.init_points is not None and len(scene.init_points) >= 4 else \
@@ -233,42 +196,35 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
         wall["stage3"] = 0.0
         ctx.log_line("stage 3: skipped (deformable-3dgs baseline has one deformable set)")
     else:
-        smoke_pts = _sample(scene.rgb, cfg.stage3.smoke_points, b, rng) if switches.use_smoke else None
-        floor_where = prep.mask_floor_where
+        smoke_pts = _sample(scene.rgb, cfg.stage3.smoke_points, b, rng) if plan.use_smoke else None
         rgb_depth = (rendered_depth_prior(s2.gaussians, views_of(scene.rgb, scene.rgb.indices("train"), dev), "rgb")
-                     if switches.use_smoke and (cfg.stage3.smoke_color == "haze-lines" or floor_where == "never-clear")
-                     else None)
-        if floor_where != "all":
+                     if plan.smoke_colour == "haze-lines" or plan.mask_floor == "never-clear" else None)
+        if plan.mask_floor != "all":
             train = scene.rgb.indices("train")
             masked = scene.rgb.masks[train] > 0.5
-            if floor_where == "dense":
-                switches.mask_floor = masked & (load_smoke_alpha(scene, train) >= cfg.loss.mask_alpha_floor)
+            if plan.mask_floor == "dense":
+                plan.floor_pixels = masked & (load_smoke_alpha(scene, train) >= cfg.loss.mask_alpha_floor)
                 rest = "the rest is thinner smoke by the generator's smoke alpha (loss.mask_floor_where=dense)"
             else:
-                switches.mask_floor = mask_floor_pixels(scene.rgb, rgb_depth)
+                plan.floor_pixels = mask_floor_pixels(scene.rgb, rgb_depth)
                 rest = "the rest are seen smoke-free from another training view (loss.mask_floor_where=never-clear)"
-            note = (f"mask floor on {100 * int(switches.mask_floor.sum()) / max(int(masked.sum()), 1):.0f} % "
+            note = (f"mask floor on {100 * int(plan.floor_pixels.sum()) / max(int(masked.sum()), 1):.0f} % "
                     f"of the masked training pixels: {rest}")
-            switches.notes.append(note)
+            plan.notes.append(note)
             ctx.log_line(f"stage 3: {note}")
-        if switches.use_smoke and cfg.stage3.smoke_color == "haze-lines":
+        if plan.smoke_colour == "haze-lines":
             smoke_colour = haze_line_smoke_colour(cfg, rgb_depth, scene.rgb)
-            switches.smoke_colour = smoke_colour.colour
             ctx.log_line(f"stage 3: smoke colour from haze lines: {smoke_colour.describe()}")
-            note = smoke_colour_note(cfg, smoke_colour)
+            note = plan.settle_colour(smoke_colour)
             if note:
-                switches.notes.append(note)
+                plan.notes.append(note)
                 ctx.log_line(f"stage 3: {note}")
-        model = build_scene_model(ctx, s2, switches, smoke_pts, scene.smoke_static)
-        prior = depth_prior_maps(cfg, s2.gaussians, scene, dev)
+        model = build_scene_model(ctx, s2, plan, smoke_pts, scene.smoke_static)
+        prior = depth_prior_maps(cfg, plan, s2.gaussians, scene, dev)
         if prior is not None:
             ctx.log_line(f"stage 3: depth term at the {prior.camera} camera ({cfg.depth_prior} prior, "
                          f"{prior.maps.shape[0]} training views)")
-            if prior.camera != cfg.depth_camera:
-                note = f"depth term at the {prior.camera} camera, not {cfg.depth_camera}: this run has no thermal input"
-                switches.notes.append(note)
-                ctx.log_line(f"stage 3: {note}")
-        model = train_stage3(ctx, model, scene.rgb, scene.thermal, switches, prior,
+        model = train_stage3(ctx, model, scene.rgb, scene.thermal, plan, prior,
                              heldout_psnr=lambda m, it: heldout_psnr(m, scene, dev))
         wall["stage3"] = time.perf_counter() - t
         ctx.log_line(f"stage 3: {model.surface.n} surface + {model.smoke.n if model.smoke else 0} smoke "
@@ -292,11 +248,12 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
     doc["stages"] = {"registered": report.registered, "registration_rmse": report.registration_rmse,
                      "pose_noise": report.pose_noise, "geometry_modality": geo.name,
                      "smoke_gaussians": model.smoke.n if model.smoke is not None else 0,
-                     "surface_gaussians": model.surface.n, "deformation": switches.use_deform,
+                     "surface_gaussians": model.surface.n, "deformation": plan.use_deform,
                      "registration": report.registration, "masks": report.masks,
-                     "smoke_colour": smoke_colour_record(cfg, switches, smoke_colour),
+                     "smoke_colour": smoke_colour_record(plan, smoke_colour),
                      "thermal_scale": thermal_record,
-                     "notes": list(report.notes) + list(switches.notes)}
+                     "stage3_plan": None if deformable else plan.record(),
+                     "notes": list(report.notes) + list(plan.notes)}
     write_json(out / "metrics.json", doc)
     return doc
 
@@ -309,23 +266,6 @@ def haze_line_smoke_colour(cfg: TrainConfig, depth: DepthPriorMaps, rgb: Modalit
                                  depth.valid.cpu().numpy(), *rgb.cameras("train"), np.random.default_rng(cfg.seed + 2))
 
 
-def mask_floor_rule(cfg: TrainConfig, switches: Stage3Switches, scene: SceneData, report: Stage1Report) -> str:
-    """The pixels the mask floor acts on in this run: "all", "never-clear" or "dense" (needs masks
-    and smoke). "dense" reads the generator's true smoke alpha, so it holds only where Stage 1's
-    masks are that dataset's own; elsewhere the run uses "never-clear" and says so in ``switches.notes``."""
-    where = cfg.loss.mask_floor_where
-    if where == "all" or not (switches.use_smoke and switches.use_masks):
-        return "all"
-    if where == "dense" and not (report.masks == "dataset" and scene.synthetic
-                                 and "smoke_alpha" in scene.meta.get("passes", {}).get("rgb", [])):
-        note = (f"mask floor: loss.mask_floor_where=dense needs the generator's smoke alpha behind Stage 1's masks, "
-                f"but the masks are {report.masks!r} masks of a "
-                f"{'synthetic' if scene.synthetic else 'captured'} scene; the floor acts where never seen clear instead")
-        switches.notes.append(note)
-        return "never-clear"
-    return where
-
-
 def mask_floor_pixels(rgb: ModalityData, depth: DepthPriorMaps) -> np.ndarray:
     """The training frames' pixels where the mask floor acts (``smokeseer.mask_floor``), with
     Stage 2's geometry rendered as depth at the same cameras."""
@@ -333,24 +273,9 @@ def mask_floor_pixels(rgb: ModalityData, depth: DepthPriorMaps) -> np.ndarray:
                             *rgb.cameras("train"))
 
 
-def smoke_colour_note(cfg: TrainConfig, estimate: SmokeColourEstimate) -> str | None:
-    """What the haze-line colour changes in the loss, said like every other dropped term: the
-    colour priors when the estimate holds the colour fixed, the estimate itself when refused."""
-    if estimate.colour is None:
-        return ("smoke colour: the haze-line estimate is not trusted, so the smoke Gaussians learn "
-                f"their colours as in the paper ({estimate.reason})")
-    weights = loss_weights(cfg)
-    dropped = [name for name in ("smoke_color", "mono") if weights[name] > 0]
-    if not dropped:
-        return None
-    return (f"{' and '.join(dropped)} term{'s' if len(dropped) > 1 else ''} dropped: the smoke colour is held "
-            "fixed at the haze-line estimate, so there is no colour spread for them to act on")
-
-
-def smoke_colour_record(cfg: TrainConfig, switches: Stage3Switches,
-                        estimate: SmokeColourEstimate | None) -> dict[str, Any] | None:
+def smoke_colour_record(plan: Stage3Plan, estimate: SmokeColourEstimate | None) -> dict[str, Any] | None:
     """metrics.json ``stages.smoke_colour``: where the smoke colour came from; None without smoke."""
-    if not switches.use_smoke or cfg.mode == "deformable-3dgs":
+    if plan.smoke_colour == "none":
         return None
     if estimate is None:
         return {"source": "learned", "haze_lines": None}
@@ -360,22 +285,16 @@ def smoke_colour_record(cfg: TrainConfig, switches: Stage3Switches,
                            "meeting_fraction": estimate.meeting_fraction, "refused": estimate.reason or None}}
 
 
-def depth_prior_maps(cfg: TrainConfig, geometry: Any, scene: SceneData, dev: torch.device) -> DepthPriorMaps | None:
-    if not depth_term_on(cfg):
+def depth_prior_maps(cfg: TrainConfig, plan: Stage3Plan, geometry: Any, scene: SceneData,
+                     dev: torch.device) -> DepthPriorMaps | None:
+    """The maps the plan's depth term compares with, at its camera's training views; None without one."""
+    if plan.depth_prior is None:
         return None
-    camera = depth_camera(cfg, scene)
+    camera = plan.depth_camera
     mod = scene.thermal if camera == "thermal" else scene.rgb
     idx = mod.indices("train")
-    if cfg.depth_prior == "files":
+    if plan.depth_prior == "files":
         return file_depth_prior(torch.as_tensor(mod.inverse_depth[idx], device=dev), camera)
-    if cfg.depth_prior == "mono":
+    if plan.depth_prior == "mono":
         return monocular_depth_prior(Path(cfg.mono_weights), torch.as_tensor(mod.images[idx], device=dev), camera)
     return rendered_depth_prior(geometry, views_of(mod, idx, dev), camera)
-
-
-def depth_camera(cfg: TrainConfig, scene: SceneData) -> str:
-    """The camera the depth term compares at: ``cfg.depth_camera``, except that a run without
-    thermal input (rgb-only, or a capture without thermal) has only the RGB camera."""
-    if cfg.depth_camera == "thermal" and (cfg.mode == "rgb-only" or scene.thermal is None):
-        return "rgb"
-    return cfg.depth_camera

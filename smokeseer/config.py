@@ -13,7 +13,7 @@ from typing import Any
 
 import yaml
 
-from smokeseer.thermal_scale import check_thermal_scale
+from scenes.thermal_scale import check_thermal_scale
 
 MODES: tuple[str, ...] = (
     "full",
@@ -180,7 +180,7 @@ class TrainConfig:
     max_width: int = 0
     thermal_scale: str = "linear"
     """How raw thermal values become the trainer's [0, 1]: "linear" (dataset percentiles 0.5-99.5)
-    or "equalised" (plateau histogram equalisation over the dataset; smokeseer.thermal_scale)."""
+    or "equalised" (plateau histogram equalisation over the dataset; scenes.thermal_scale)."""
     thermal_equalised_share: float = 1.0
     """With thermal_scale=equalised: the share of the equalised curve, the rest linear (0, 1]."""
     sh_degree: int = 3

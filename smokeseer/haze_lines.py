@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from smokeseer.cameras import backproject, project
+from scenes.cameras import backproject, project
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from smokeseer.cameras import backproject
+from scenes.cameras import backproject
 from smokeseer.haze_lines import observations
 
 DEPTH_TOLERANCE = 0.03

@@ -34,8 +34,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.ndimage import convolve, gaussian_filter, map_coordinates
 
-from smokeseer.cameras import camera_center, scene_bounds
-from smokeseer.data import Frame, box_downscale
+from scenes.cameras import camera_center, scene_bounds
+from scenes.images import box_downscale
+from scenes.scene import Frame
 
 
 ESTIMATOR = "multiview-residual"

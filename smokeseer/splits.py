@@ -8,7 +8,7 @@ in training; they are not scored.
 """
 from __future__ import annotations
 
-from smokeseer.data import ModalityData
+from scenes.scene import ModalityData
 
 MIN_TRAIN_FRAMES = 2
 

@@ -17,9 +17,10 @@ from typing import Any
 
 import numpy as np
 
-from smokeseer.cameras import SceneBounds, camera_center, scene_bounds
+from scenes.cameras import SceneBounds, camera_center, scene_bounds
+from scenes.images import load_masks
+from scenes.scene import ModalityData, SceneData
 from smokeseer.config import TrainConfig
-from smokeseer.data import ModalityData, SceneData, load_masks
 from smokeseer.registration import Sim3, register_rig
 from smokeseer.smoke_presence import ESTIMATOR, decide_smoke_presence
 

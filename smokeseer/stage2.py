@@ -9,9 +9,9 @@ from typing import Any, Callable
 import numpy as np
 import torch
 
+from scenes.scene import ModalityData
 from smokeseer.background import EnvironmentBackground
 from smokeseer.config import DeformConfig, TrainConfig
-from smokeseer.data import ModalityData
 from smokeseer.deform import DeformNetwork
 from smokeseer.gaussians import DensifyStrategy, GaussianSet, make_optimizer
 from smokeseer.losses import render_loss

@@ -9,14 +9,13 @@ their count is Stage 2's.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
 import torch
 
+from scenes.scene import ModalityData
 from smokeseer.config import TrainConfig
-from smokeseer.data import ModalityData
 from smokeseer.deform import DeformNetwork
 from smokeseer.depth_prior import DepthPriorMaps
 from smokeseer.gaussians import DensifyStrategy, GaussianSet, make_optimizer
@@ -24,7 +23,8 @@ from smokeseer.losses import (depth_consistency, mask_alignment, monochromaticit
                               smoke_alpha_variance, smoke_color_variance)
 from smokeseer.model import SceneModel, add_rgb_sh, make_smoke
 from smokeseer.optim import Adam
-from smokeseer.raster.api import RasterOutput
+from smokeseer.plan import Stage3Plan
+from smokeseer.raster.output import RasterOutput
 from smokeseer.stage2 import Stage2Result, draw_index, make_background, views_of
 from smokeseer.trainloop import IterationOutput, StageProblem, StageSchedule, run_stage
 from smokeseer.trainutil import RunContext, grads_of, state_or_none, step_optimizers
@@ -32,69 +32,7 @@ from smokeseer.trainutil import RunContext, grads_of, state_or_none, step_optimi
 HeldoutPsnr = Callable[[SceneModel, int], dict[str, float | None] | None]
 
 
-@dataclass
-class Stage3Switches:
-    """Which inputs and loss terms this mode uses (a zero weight also switches a term off), and a
-    line for every term or input the data made us drop (logged, and kept in metrics.json)."""
-
-    use_thermal: bool
-    use_smoke: bool
-    use_deform: bool
-    """Whether a deformation network trains: the smoke's (moving smoke only), or the
-    deformable-3dgs baseline's single set. A run without smoke Gaussians has none."""
-    use_masks: bool
-    smoke_threshold: float
-    """Rendered smoke alpha above this counts as smoke: the dataset's mask threshold."""
-    notes: list[str] = field(default_factory=list)
-    smoke_colour: np.ndarray | None = None
-    """The fixed RGB smoke colour (``stage3.smoke_color=haze-lines``, set once Stage 2 has given the
-    geometry), or None when the smoke Gaussians learn their colours."""
-    mask_floor: np.ndarray | None = None
-    """(training RGB frames, H, W) bool: where the mask term's floor acts
-    (``loss.mask_floor_where`` never-clear, set once Stage 2 has given the geometry, or dense); None: everywhere."""
-
-
-def loss_weights(cfg: TrainConfig) -> dict[str, float]:
-    """The mode's loss weights: each ablation zeroes exactly one prior."""
-    w = cfg.loss
-    weights = {"render": w.render, "smoke_alpha": w.smoke_alpha, "smoke_color": w.smoke_color,
-               "mono": w.mono, "depth": w.depth, "mask": w.mask,
-               "thermal_smoke_opacity": w.thermal_smoke_opacity}
-    off = {"no-smoke-alpha": "smoke_alpha", "no-smoke-color": "smoke_color", "no-mono": "mono",
-           "no-depth": "depth", "no-mask": "mask"}.get(cfg.mode)
-    if off:
-        weights[off] = 0.0
-    if not depth_term_on(cfg):
-        weights["depth"] = 0.0
-    return weights
-
-
-def depth_term_on(cfg: TrainConfig) -> bool:
-    """Whether the run has a depth term at all: a weight, a prior, a mode that keeps it, and a surface
-    whose geometry trains (a frozen surface depth would give the term no gradient)."""
-    return (cfg.loss.depth > 0 and cfg.depth_prior != "none" and cfg.mode not in ("no-depth", "deformable-3dgs")
-            and cfg.stage3.train_surface_geometry)
-
-
-def dropped_term_notes(cfg: TrainConfig, has_masks: bool) -> list[str]:
-    """Why a prior the mode asks for is not in the loss: each becomes a log line and a note in
-    metrics.json, never a silent difference between runs."""
-    w = loss_weights(cfg)
-    notes = []
-    if cfg.mode != "no-depth" and cfg.loss.depth > 0 and w["depth"] == 0.0:
-        why = ("depth_prior is none" if cfg.depth_prior == "none" else
-               "stage3.train_surface_geometry is false, so the surface depth is frozen and the term has no gradient")
-        notes.append(f"depth term dropped: {why}")
-    if w["depth"] > 0 and cfg.loss.depth_pixels == "smoky" and not has_masks:
-        notes.append("depth term only where the rendered smoke alpha exceeds the dataset's mask threshold "
-                     "(loss.depth_pixels=smoky): the dataset has no smoke masks")
-    if not has_masks and cfg.mode != "rgb-only":
-        notes.append("mask term dropped: the dataset has no smoke masks"
-                     + (", so this no-mask run trains exactly like full" if cfg.mode == "no-mask" else ""))
-    return notes
-
-
-def build_scene_model(ctx: RunContext, s2: Stage2Result, switches: Stage3Switches,
+def build_scene_model(ctx: RunContext, s2: Stage2Result, plan: Stage3Plan,
                       smoke_points: np.ndarray | None, smoke_static: bool) -> SceneModel:
     """Surface from Stage 2 gains an RGB SH colour beside its thermal one (RGB-only runs already
     have it); smoke starts random in the scene bounds. Stage 2's environment carries over for
@@ -106,16 +44,16 @@ def build_scene_model(ctx: RunContext, s2: Stage2Result, switches: Stage3Switche
     surf = GaussianSet(tensors)
     smoke = None
     deform = None
-    if switches.use_smoke and smoke_points is not None:
+    if plan.use_smoke and smoke_points is not None:
         smoke = make_smoke(smoke_points, cfg.stage3.smoke_init_opacity, cfg.stage3.smoke_init_scale,
                            cfg.stage2.init_scale_max * ctx.extent, np.random.default_rng(cfg.seed + 1), ctx.device,
-                           switches.smoke_colour)
-        if switches.use_deform:
+                           plan.colour)
+        if plan.use_deform:
             deform = DeformNetwork(cfg.deform, ctx.extent, ctx.device)
     thermal_geometry = s2.color == "thermal"
     bg_rgb = make_background(cfg, 3, ctx.device) if thermal_geometry else s2.background
     bg_thermal = s2.background if thermal_geometry else None
-    return SceneModel(surf, smoke, deform, smoke_static or not switches.use_deform, ctx.center, cfg.sh_degree,
+    return SceneModel(surf, smoke, deform, smoke_static or not plan.use_deform, ctx.center, cfg.sh_degree,
                       background_rgb=bg_rgb, background_thermal=bg_thermal)
 
 
@@ -141,19 +79,19 @@ def _smoke_lrs(cfg: TrainConfig, extent: float, colour_fixed: bool) -> dict[str,
 
 
 class Stage3Problem(StageProblem):
-    """Joint optimisation of surface and smoke with the mode's priors."""
+    """Joint optimisation of surface and smoke with the plan's loss terms."""
 
     stage = 3
     name = "stage 3"
 
     def __init__(self, ctx: RunContext, model: SceneModel, rgb: ModalityData, thermal: ModalityData | None,
-                 switches: Stage3Switches, prior: DepthPriorMaps | None,
+                 plan: Stage3Plan, prior: DepthPriorMaps | None,
                  heldout_psnr: HeldoutPsnr | None) -> None:
         cfg, dev = ctx.cfg, ctx.device
         self.ctx, self.cfg, self.model, self.prior, self.heldout_fn = ctx, cfg, model, prior, heldout_psnr
-        self.weights = loss_weights(cfg)
-        self.smoke_threshold = switches.smoke_threshold
-        self.colour_fixed = switches.smoke_colour is not None
+        self.weights = plan.weights
+        self.smoke_threshold = plan.smoke_threshold
+        self.colour_fixed = plan.colour is not None
         self._make_optimizers()
         self.strategy = DensifyStrategy(cfg.stage3.smoke_densify, ("opacity_rgb", "opacity_thermal"), ctx.extent)
         refine = cfg.stage3.train_surface_geometry and cfg.stage3.surface_densify.every > 0
@@ -163,13 +101,13 @@ class Stage3Problem(StageProblem):
         self.rgb_views = views_of(rgb, rgb_idx, dev)
         self.rgb_imgs = torch.as_tensor(rgb.images[rgb_idx], device=dev)
         self.masks = (torch.as_tensor(rgb.masks[rgb_idx], device=dev)
-                      if switches.use_masks and rgb.masks is not None and model.smoke is not None else None)
-        self.mask_floor = (torch.as_tensor(switches.mask_floor, device=dev)
-                           if self.masks is not None and switches.mask_floor is not None else None)
+                      if plan.use_masks and rgb.masks is not None and model.smoke is not None else None)
+        self.mask_floor = (torch.as_tensor(plan.floor_pixels, device=dev)
+                           if self.masks is not None and plan.floor_pixels is not None else None)
         self.th_views: list = []
         self.th_imgs = None
         self._held_surface: torch.Tensor | None = None
-        if switches.use_thermal and thermal is not None:
+        if plan.use_thermal and thermal is not None:
             th_idx = thermal.indices("train")
             self.th_views = views_of(thermal, th_idx, dev)
             self.th_imgs = torch.as_tensor(thermal.images[th_idx], device=dev)
@@ -210,9 +148,9 @@ class Stage3Problem(StageProblem):
             col = torch.sigmoid(model.smoke["color"])
             if weights["smoke_alpha"] > 0:
                 terms["smoke_alpha"] = smoke_alpha_variance(o_rgb)
-            if weights["smoke_color"] > 0 and not self.colour_fixed:
+            if weights["smoke_color"] > 0:
                 terms["smoke_color"] = smoke_color_variance(col)
-            if weights["mono"] > 0 and not self.colour_fixed:
+            if weights["mono"] > 0:
                 terms["mono"] = monochromaticity(col)
             if self.masks is not None and weights["mask"] > 0:
                 terms["mask"] = mask_alignment(out.subset_alphas[0, ..., 0], self.masks[k],
@@ -372,11 +310,11 @@ def centre_cover(means2d: torch.Tensor, smoke_cover: torch.Tensor) -> tuple[torc
 
 
 def train_stage3(ctx: RunContext, model: SceneModel, rgb: ModalityData, thermal: ModalityData | None,
-                 switches: Stage3Switches, prior: DepthPriorMaps | None,
+                 plan: Stage3Plan, prior: DepthPriorMaps | None,
                  heldout_psnr: HeldoutPsnr | None = None) -> SceneModel:
     """Stage 3 through the shared loop; resumes from checkpoints/stage3.pt."""
     cfg = ctx.cfg
-    problem = Stage3Problem(ctx, model, rgb, thermal, switches, prior, heldout_psnr)
+    problem = Stage3Problem(ctx, model, rgb, thermal, plan, prior, heldout_psnr)
     run_stage(ctx, problem, StageSchedule(cfg.stage3.iterations, cfg.log_every, cfg.stage3.test_every,
                                           cfg.checkpoint_every, ctx.config_sha))
     return problem.model

@@ -10,7 +10,7 @@ import pytest
 
 from contracts.results_format import ResultsFormatError
 from eval.clean_ceiling import derive_clean_dataset, smoky_input_psnr
-from smokeseer.data import load_scene
+from scenes.load import load_scene
 from tests.results_builder import write_metrics
 
 

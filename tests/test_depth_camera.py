@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pytest
 
-from smokeseer.api import depth_camera, prepare
+from smokeseer.api import prepare
 from smokeseer.cli import main
 from smokeseer.config import make_config
-from smokeseer.stage3 import depth_term_on
+from smokeseer.plan import depth_camera, depth_term_on
 from tests.test_smokeseer_data import write_splat_dataset
 from tests.test_trainer import TINY
 
@@ -38,11 +38,12 @@ def test_depth_term_runs_at_the_chosen_camera(splat: Path, tmp_path: Path, camer
 
 def test_rgb_only_has_no_thermal_camera_and_says_so(splat: Path, tmp_path: Path) -> None:
     prep = prepare(splat, mode="rgb-only", overrides={"depth_camera": "thermal"})
-    assert depth_camera(prep.cfg, prep.scene) == "rgb"
+    assert depth_camera(prep.cfg, prep.scene) == "rgb" and prep.plan.depth_camera == "rgb"
     run = tmp_path / "rgb-only"
     assert main([str(splat), "--mode", "rgb-only", "--out", str(run), "--set", "depth_camera=thermal"] + TINY) == 0
-    notes = json.loads((run / "metrics.json").read_text())["stages"]["notes"]
-    assert any("depth term at the rgb camera, not thermal" in n for n in notes)
+    stages = json.loads((run / "metrics.json").read_text())["stages"]
+    assert any("depth term at the rgb camera, not thermal" in n for n in stages["notes"])
+    assert stages["stage3_plan"]["depth_camera"] == "rgb" and stages["stage3_plan"]["loss_weights"]["depth"] > 0
 
 
 def test_unknown_camera_is_refused(splat: Path) -> None:

@@ -18,8 +18,8 @@ from scipy.ndimage import map_coordinates, maximum_filter, minimum_filter
 from contracts.dataset_format import load_transforms, validate_dataset
 from contracts.errors import DatasetError
 from contracts.imageio import read_exr_channel, read_png
-from generator.optics.slab import slab_radiance
 from generator.optics.planck import band_radiance
+from generator.optics.slab import slab_radiance
 from generator.presets import PRESET_DIR
 from generator.spec import load_spec_file
 
@@ -66,7 +66,7 @@ def test_validator_rejects_broken_data(demo_dataset: Path, tmp_path: Path) -> No
     transforms = json.loads((broken / "transforms_rgb.json").read_text())
     transforms["frames"][1]["transform_matrix"][0][0] = float("nan")
     (broken / "transforms_rgb.json").write_text(json.dumps(transforms))
-    with pytest.raises(DatasetError, match=r"transforms_rgb.json: frames\[1\]: transform_matrix holds NaN"):
+    with pytest.raises(DatasetError, match=r"transforms_rgb.json: frames\[1\].transform_matrix holds NaN"):
         validate_dataset(broken)
     shutil.copy(demo_dataset / "transforms_rgb.json", broken / "transforms_rgb.json")
     (broken / "rgb" / "depth" / "0002.exr").write_bytes(b"not an exr")

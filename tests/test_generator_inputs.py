@@ -97,6 +97,25 @@ def test_asset_errors_leave_no_staging_folder(tmp_path: Path, case: str, needle:
     assert not out.exists() and not (tmp_path / ".out.partial").exists()
 
 
+@pytest.mark.parametrize("args, needle", [
+    (["--resolution", "100000x75000"], "command line: --resolution: 100000x75000 needs about 447 GiB to render one frame"),
+    (["--frames", "100000", "--resolution", "4000x3000"], "command line: --resolution: 1.5e+14 pixel-samples in all"),
+    (["--thermal-resolution", "16000x12000"], "--thermal-resolution: 16000x12000 (x2 supersampled) needs about 46 GiB"),
+])
+def test_renders_too_big_to_fit_or_finish_are_refused_before_any_work(tmp_path: Path, args: list[str],
+                                                                      needle: str) -> None:
+    """The demo at 7.5 gigapixels (or 10^14 pixel-samples) is refused with the estimate, naming
+    the option, before Blender starts: exit 2, one line, nothing written."""
+    out = tmp_path / "out"
+    start = time.perf_counter()
+    result = subprocess.run([*CLI, "--preset", "demo", *args, "--out", str(out), "--quiet"], cwd=REPO,
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and needle in result.stderr, result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1 and "Traceback" not in result.stderr
+    assert not out.exists() and not (tmp_path / ".out.partial").exists()
+    assert time.perf_counter() - start < 60
+
+
 def _options(parser: argparse.ArgumentParser) -> list[argparse.Action]:
     return [a for a in parser._actions if not isinstance(a, argparse._HelpAction)]
 

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from eval import harness, harness_cli
+from eval import harness, harness_cli, settings
 from eval.harness import HarnessConfig, regenerate
 from contracts.metrics import psnr, ssim_3dgs
 from contracts.provenance import provenance
@@ -421,14 +421,14 @@ def test_table2_depth_row_differs_from_full() -> None:
     row's run does have the term; the user's overrides decide as well."""
     from eval.runs import VARIANTS
     from smokeseer.config import make_config
-    from smokeseer.stage3 import depth_term_on
+    from smokeseer.plan import depth_term_on
 
-    quick, standard = harness.default_ablations("quick", {}), harness.default_ablations("standard", {})
+    quick, standard = settings.default_ablations("quick", {}), settings.default_ablations("standard", {})
     assert "no-depth" in quick and "stage2-depth" not in quick
     assert "stage2-depth" in standard and "no-depth" not in standard
     assert set(quick) - {"no-depth"} == set(standard) - {"stage2-depth"}
     assert depth_term_on(make_config("full", "standard", overrides=VARIANTS["stage2-depth"].overrides))
-    assert "no-depth" in harness.default_ablations("standard", {"depth_prior": "thermal-render"})
+    assert "no-depth" in settings.default_ablations("standard", {"depth_prior": "thermal-render"})
     cfg = HarnessConfig(out=Path("unused"), scenes=["demo"], profile="standard")
     assert cfg.ablations == standard
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from smokeseer.cameras import backproject
+from scenes.cameras import backproject
 from smokeseer.haze_lines import HazeLineSettings, estimate_smoke_colour, fit_lines, meeting_point, observations
 
 SMOKE = np.array([0.2, 0.3, 0.25])

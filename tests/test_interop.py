@@ -13,8 +13,8 @@ from PIL import Image
 
 from interop.convert import convert, main
 from interop.resample import warp_to_intrinsics
-from smokeseer.cameras import c2w_gl_to_viewmat
-from smokeseer.data import load_scene
+from scenes.cameras import c2w_gl_to_viewmat
+from scenes.load import load_scene
 from tests.test_smokeseer_data import write_splat_dataset
 
 N_RGB, N_THERMAL = 17, 9
@@ -302,8 +302,12 @@ def test_colmap_depth_recovers_the_demo_depth(demo_dataset: Path, tmp_path: Path
 def test_depth_round_trip_and_its_use_as_a_prior(source: Path, outputs: dict[str, Path]) -> None:
     import torch
 
-    from smokeseer.api import check_depth_files, depth_file_notes, depth_prior_maps
+    from smokeseer.api import depth_prior_maps
     from smokeseer.config import make_config
+    from smokeseer.plan import plan_stage3
+
+    def depth_file_notes(cfg, scene):
+        return [n for n in plan_stage3(cfg, scene, "dataset").notes if n.startswith("images_depth:")]
 
     ref, back = load_scene(source), load_scene(outputs["colmap"])
     tol = depth_tolerance([ref.rgb.depth, ref.thermal.depth])
@@ -323,13 +327,14 @@ def test_depth_round_trip_and_its_use_as_a_prior(source: Path, outputs: dict[str
     no_depth = depth_file_notes(make_config("no-depth", "standard", overrides={"depth_prior": "files"}), back)
     assert len(no_depth) == 2 and all("no depth term" in n for n in no_depth)
     # Used: the thermal training frames' inverse depth, compared as inverse depth.
-    prior = depth_prior_maps(files, None, back, torch.device("cpu"))
+    plan = plan_stage3(files, back, "dataset")
+    assert (plan.depth_prior, plan.depth_camera) == ("files", "thermal")
+    prior = depth_prior_maps(files, plan, None, back, torch.device("cpu"))
     idx = back.thermal.indices("train")
     assert prior.camera == "thermal" and prior.space == "disparity"
     np.testing.assert_array_equal(prior.maps.numpy(), back.thermal.inverse_depth[idx])
-    check_depth_files(files, back)
     with pytest.raises(ValueError, match="depth_prior: files needs depth maps for the thermal frames"):
-        check_depth_files(files, load_scene(outputs["blender"]))
+        plan_stage3(files, load_scene(outputs["blender"]), "dataset")
 
 
 def test_bad_depth_files_are_named(outputs: dict[str, Path], tmp_path: Path) -> None:

@@ -6,11 +6,13 @@ import numpy as np
 import pytest
 import torch
 
-from smokeseer.api import mask_floor_rule, switches_for
+from contracts.imageio import read_exr_channel
+from scenes.generated import load_smoke_alpha
+from scenes.load import load_scene
 from smokeseer.config import make_config
-from smokeseer.data import load_scene, load_smoke_alpha, read_exr
 from smokeseer.losses import mask_alignment
 from smokeseer.mask_floor import never_seen_clear
+from smokeseer.plan import plan_stage3
 from smokeseer.stage1 import run_stage1
 from tests.test_smokeseer_data import write_splat_dataset
 
@@ -75,7 +77,7 @@ def test_dense_floor_reads_the_true_alpha_at_the_training_resolution(tmp_path) -
     assert scene.rgb.images.shape[1:3] == (18, 24)
     got = load_smoke_alpha(scene, [1, 3])
     for row, i in zip(got, (1, 3)):
-        full = read_exr(tmp_path / "ds" / "rgb" / "smoke_alpha" / f"{i:04d}.exr", "A")
+        full = read_exr_channel(tmp_path / "ds" / "rgb" / "smoke_alpha" / f"{i:04d}.exr", "A")
         np.testing.assert_allclose(row, full.reshape(18, 2, 24, 2).mean(axis=(1, 3)), rtol=1e-6)
     assert got.dtype == np.float32 and 0 < got.max() <= 1
 
@@ -88,8 +90,7 @@ def test_dense_floor_needs_the_generators_masks(tmp_path) -> None:
         cfg = make_config("full", "quick", overrides={"loss.mask_floor_where": "dense", "stage1": stage1})
         scene = load_scene(ds, cfg.max_width)
         report = run_stage1(cfg, scene)
-        switches = switches_for(cfg, scene)
-        assert mask_floor_rule(cfg, switches, scene, report) == expected
-        assert any("needs the generator's smoke alpha" in n for n in switches.notes) == (expected == "never-clear")
-    plain = make_config("full", "quick")
-    assert mask_floor_rule(plain, switches_for(plain, scene), scene, report) == "all"
+        plan = plan_stage3(cfg, scene, report.masks)
+        assert plan.mask_floor == expected and plan.record()["mask_floor"] == expected
+        assert any("needs the generator's smoke alpha" in n for n in plan.notes) == (expected == "never-clear")
+    assert plan_stage3(make_config("full", "quick"), scene, report.masks).mask_floor == "all"

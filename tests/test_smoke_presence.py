@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from scenes.load import load_scene
 from smokeseer.config import make_config
-from smokeseer.data import load_scene
 from smokeseer.smoke_masks import candidate_scores, iou
 from smokeseer.smoke_presence import PresenceConfig, decide_smoke_presence, noise_sigma
 from smokeseer.stage1 import run_stage1

@@ -16,8 +16,9 @@ import pytest
 import torch
 from PIL import Image
 
-from smokeseer.cameras import c2w_gl_to_viewmat
-from smokeseer.data import DatasetError, load_scene
+from contracts.errors import DatasetError
+from scenes.cameras import c2w_gl_to_viewmat
+from scenes.load import load_scene
 from smokeseer.raster import rasterize
 
 
@@ -212,6 +213,28 @@ def test_malformed_inputs_name_the_file(splat_dataset: Path, tmp_path: Path) -> 
     (bad / "dataset.json").write_text("{not json")
     with pytest.raises(DatasetError, match="dataset.json"):
         load_scene(bad)
+
+
+def test_every_image_is_decoded_once_and_checked(splat_dataset: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Loading a generated dataset validates it as ``generate-scene --validate`` does without
+    decoding any image twice: the ones training uses are checked as they are read, the rest
+    (radiance, smoke alpha) are read for their check alone."""
+    import contracts.dataset_format as fmt
+
+    reads: dict[Path, int] = {}
+
+    def counting(real):
+        def read(path, *args):
+            reads[Path(path)] = reads.get(Path(path), 0) + 1
+            return real(path, *args)
+        return read
+
+    monkeypatch.setattr(fmt, "read_png", counting(fmt.read_png))
+    monkeypatch.setattr(fmt, "read_exr_channel", counting(fmt.read_exr_channel))
+    load_scene(splat_dataset, max_width=24)
+    every = {p for p, _, _ in fmt.dataset_files(splat_dataset, json.loads((splat_dataset / "dataset.json").read_text()))}
+    assert set(reads) == every and len(every) == 8 * 5 + 6 * 7
+    assert set(reads.values()) == {1}
 
 
 def test_real_capture_with_colmap_text(tmp_path: Path, splat_dataset: Path) -> None:

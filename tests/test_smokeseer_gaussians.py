@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from smokeseer.cameras import c2w_gl_to_viewmat, scene_bounds
+from scenes.cameras import c2w_gl_to_viewmat, scene_bounds
 from smokeseer.config import DensifyConfig, make_config
 from smokeseer.gaussians import DensifyStrategy, GaussianSet, knn_log_scales, logit, make_optimizer
 from smokeseer.optim import Adam

@@ -16,7 +16,7 @@ TRAINER = "smokeseer.api"
 
 @pytest.fixture()
 def tree(tmp_path: Path) -> Path:
-    for pkg in ("contracts", "smokeseer", "eval"):
+    for pkg in ("contracts", "scenes", "smokeseer", "eval"):
         shutil.copytree(PROJECT_ROOT / pkg, tmp_path / pkg, ignore=shutil.ignore_patterns("__pycache__", "build"))
     return tmp_path
 
@@ -29,7 +29,7 @@ def _edit(path: Path, old: str, new: str) -> None:
 
 def test_closure_follows_imports_into_other_packages(tree: Path) -> None:
     names = {m.name for m in module_closure(TRAINER, root=tree)}
-    assert {"smokeseer.stage3", "smokeseer.raster", "contracts.metrics", "contracts.dataset_format"} <= names
+    assert {"smokeseer.stage3", "smokeseer.raster", "scenes.load", "contracts.metrics", "contracts.dataset_format"} <= names
     assert not any(n.startswith("eval") for n in names)
 
 

@@ -97,3 +97,18 @@ def test_parser_is_driven_by_field_metadata() -> None:
     limit = next(f for f in dataclasses.fields(spec_mod.SimSpec) if f.name == "resolution").metadata["maximum"]
     with pytest.raises(SpecError, match=rf"bad.yaml: sim.resolution: must be at most {limit}, got {limit + 1}"):
         parse_spec({"name": "x", "sim": {"resolution": limit + 1}}, "bad.yaml")
+
+
+def test_render_budget_names_the_camera_field() -> None:
+    """A frame that cannot fit in memory is refused where the spec is read, naming the camera;
+    the largest frame the camera fields allow (16384 x 16384 RGB) is exactly at the limit."""
+    from generator.spec import MAX_RENDER_BYTES, BYTES_PER_RENDER_PIXEL
+
+    assert 16384 * 16384 * BYTES_PER_RENDER_PIXEL == MAX_RENDER_BYTES
+    with pytest.raises(SpecError, match=r"bad.yaml: rig.thermal: 16384x16384 \(x2 supersampled\) needs about 64 GiB"):
+        parse_spec({"name": "x", "rig": {"thermal": {"width": 16384, "height": 16384}}}, "bad.yaml")
+    big = parse_spec({"name": "x", "frames": 2, "rig": {"rgb": {"width": 16384, "height": 16384}}}, "ok.yaml")
+    assert big.rig.rgb.width == 16384
+    with pytest.raises(SpecError, match=r"many.yaml: rig.rgb: 1.1e\+12 pixel-samples in all"):
+        parse_spec({"name": "x", "frames": 16, "rig": {"rgb": {"width": 16384, "height": 16384, "samples": 64}}},
+                   "many.yaml")

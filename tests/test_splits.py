@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from scenes.scene import Frame, ModalityData
 from smokeseer.config import make_config
-from smokeseer.data import Frame, ModalityData
 from smokeseer.splits import hold_out_validation
 
 

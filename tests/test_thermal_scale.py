@@ -1,4 +1,4 @@
-"""The dataset's thermal curve (smokeseer.thermal_scale): checked against the empirical CDF, a
+"""The dataset's thermal curve (scenes.thermal_scale): checked against the empirical CDF, a
 hand-made plateau case, its own inverse, and on a loaded dataset's smoky and clean frames."""
 from __future__ import annotations
 
@@ -7,8 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from smokeseer.data import _gray, load_scene, read_png
-from smokeseer.thermal_scale import EQUALISE_BINS, PLATEAU, ThermalScaleSpec, crowded_fraction, fit_thermal_scale
+from contracts.imageio import read_png
+from scenes.images import gray
+from scenes.load import load_scene
+from scenes.thermal_scale import EQUALISE_BINS, PLATEAU, ThermalScaleSpec, crowded_fraction, fit_thermal_scale
 from tests.test_smokeseer_data import write_splat_dataset
 
 
@@ -99,8 +101,8 @@ def test_loader_maps_smoky_and_clean_frames_through_one_curve(tmp_path: Path) ->
     assert linear.thermal.scale.kind == "linear" and equalised.thermal.scale.kind == "equalised"
     np.testing.assert_array_equal(linear.rgb.images, equalised.rgb.images)
     stems = [f.file_stem for f in equalised.thermal.frames]
-    smoky = np.stack([_gray(read_png(ds / "thermal" / "smoky" / f"{s}.png")) for s in stems])
-    clean = np.stack([_gray(read_png(ds / "thermal" / "clean" / f"{s}.png")) for s in stems])
+    smoky = np.stack([gray(read_png(ds / "thermal" / "smoky" / f"{s}.png")) for s in stems])
+    clean = np.stack([gray(read_png(ds / "thermal" / "clean" / f"{s}.png")) for s in stems])
     scale = equalised.thermal.scale
     np.testing.assert_allclose(equalised.thermal.images[..., 0], scale.apply(smoky), atol=1e-6)
     np.testing.assert_allclose(equalised.thermal.clean[..., 0], scale.apply(clean), atol=1e-6)

@@ -336,6 +336,34 @@ def test_bad_input_gives_one_line_and_exit_2(tmp_path: Path, capsys: pytest.Capt
     assert not any((tmp_path / name).exists() for name in ("r", "r2", "r3", "r4"))
 
 
+def test_out_that_is_a_file_is_one_line_before_any_work(splat: Path, tmp_path: Path,
+                                                        capsys: pytest.CaptureFixture) -> None:
+    """``--out FILE`` (or a run folder under a file) is refused before the dataset is read, and the
+    file is left as it was."""
+    taken = tmp_path / "taken.txt"
+    taken.write_text("kept")
+    for out, what in ((taken, "the run folder"), (taken / "run", f"a parent of the run folder {taken / 'run'}")):
+        assert main([str(splat), "--out", str(out)] + TINY) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err == [f"train-and-evaluate: error: {taken}: is a file, not a directory ({what})"]
+    assert taken.read_text() == "kept" and sorted(p.name for p in tmp_path.iterdir()) == ["taken.txt"]
+
+
+def test_folder_that_is_no_dataset_says_what_was_looked_for(splat: Path, tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture) -> None:
+    """A generated dataset without its dataset.json is neither that nor a capture layout: the one
+    line says so and names the files each would have, instead of a missing image."""
+    bare = tmp_path / "bare"
+    shutil.copytree(splat / "rgb", bare / "rgb")
+    shutil.copy(splat / "transforms_rgb.json", bare / "transforms_rgb.json")
+    assert main([str(bare), "--out", str(tmp_path / "run")] + TINY) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"train-and-evaluate: error: {bare}: neither a generated dataset "
+                                               "(no dataset.json) nor a capture layout (no capture.json, rgb/images/")
+    assert "transforms_train.json" in err[0] and "missing file" not in err[0]
+    assert not (tmp_path / "run").exists()
+
+
 def _copy(src: Path, dst: Path) -> Path:
     shutil.copytree(src, dst)
     return dst

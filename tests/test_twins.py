@@ -14,6 +14,8 @@ import numpy as np
 import pytest
 
 from eval.harness import HarnessConfig, regenerate
+from eval.twins import COLOUR_FIXED_REASON, twin_reason
+from smokeseer.plan import COLOUR_FIXED
 from tests.test_harness import _calls, identity_train, write_tiny_dataset
 from tests.test_smokeseer_data import write_splat_dataset
 
@@ -31,15 +33,42 @@ def test_colour_prior_ablations_train_like_full_when_the_colour_is_fixed(tmp_pat
     monkeypatch.setattr(api, "haze_line_smoke_colour",
                         lambda cfg, depth, rgb: SmokeColourEstimate(np.array([0.8, 0.8, 0.82]), 500, 900, 0.9))
     ds = write_splat_dataset(tmp_path / "splat", n_rgb=8, n_thermal=6)
-    plys, psnr = {}, {}
+    plys, psnr, docs = {}, {}, {}
     for mode in ("full", "no-smoke-color", "no-mono", "no-mask"):
-        doc = api.train_and_evaluate(ds, tmp_path / mode, mode, profile="quick", seed=0, overrides=TINY)
+        doc = docs[mode] = api.train_and_evaluate(ds, tmp_path / mode, mode, profile="quick", seed=0, overrides=TINY)
         assert doc["stages"]["smoke_colour"]["source"] == "haze-lines"
         plys[mode] = (tmp_path / mode / "ply" / "surface.ply").read_bytes()
         psnr[mode] = doc["metrics"]["psnr"]
     assert plys["no-smoke-color"] == plys["full"] and plys["no-mono"] == plys["full"]
     assert psnr["no-smoke-color"] == psnr["full"] == psnr["no-mono"]
     assert plys["no-mask"] != plys["full"]
+    # The plan each run recorded: Full's dropped both colour priors, which is what the harness reads.
+    assert docs["full"]["stages"]["stage3_plan"]["dropped"] == {"smoke_color": COLOUR_FIXED, "mono": COLOUR_FIXED}
+    assert docs["no-mono"]["stages"]["stage3_plan"]["dropped"] == {"smoke_color": COLOUR_FIXED}
+    assert docs["full"]["stages"]["stage3_plan"]["loss_weights"]["mono"] == 0.0
+    assert "haze-line estimate" in twin_reason("no-mono", docs["full"])
+
+
+def _plan(smoke_colour: str, dropped: dict[str, str]) -> dict[str, Any]:
+    weights = {"render": 1.0, "smoke_alpha": 0.1, "smoke_color": 0.05, "mono": 0.1, "depth": 0.0, "mask": 0.5,
+               "thermal_smoke_opacity": 0.01}
+    return {"smoke_colour": smoke_colour, "mask_floor": "all", "depth_prior": None, "depth_camera": None,
+            "loss_weights": {k: 0.0 if k in dropped else v for k, v in weights.items()}, "dropped": dropped}
+
+
+def test_twin_reason_reads_fulls_plan_and_falls_back_for_older_runs() -> None:
+    """The plan Full recorded decides (a colour prior it dropped, for whatever reason it names);
+    runs written before plans were recorded are read by their smoke colour's source."""
+    fixed = {"stages": {"stage3_plan": _plan("haze-lines", {"smoke_color": COLOUR_FIXED, "mono": COLOUR_FIXED})}}
+    assert "(the smoke colour is held fixed at the haze-line estimate)" in twin_reason("no-mono", fixed)
+    assert twin_reason("no-smoke-alpha", fixed) is None and twin_reason("no-mask", fixed) is None
+    no_smoke = {"stages": {"stage3_plan": _plan("none", {"smoke_color": "no smoke Gaussians"})}}
+    assert "no smoke Gaussians" in twin_reason("no-smoke-color", no_smoke)
+    learned = {"stages": {"stage3_plan": _plan("learned", {}), "smoke_colour": {"source": "haze-lines"}}}
+    assert twin_reason("no-mono", learned) is None
+    assert twin_reason("no-smoke-color", {"stages": {"smoke_colour": {"source": "haze-lines"}}}) == COLOUR_FIXED_REASON
+    assert twin_reason("no-smoke-color", {"stages": {"smoke_colour": {"source": "learned"}}}) is None
+    assert twin_reason("no-mono", {"stages": {}}) is None
 
 
 def colour_fixed_train(dataset: Path, out: Path, mode: str, profile: str = "quick", seed: int = 0,

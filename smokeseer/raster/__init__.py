@@ -1,6 +1,7 @@
 """Differentiable Gaussian rasterization (pure-PyTorch CPU/any-device backend, gsplat on CUDA)."""
 
-from smokeseer.raster.api import RasterOutput, gsplat_available, rasterize
+from smokeseer.raster.api import gsplat_available, rasterize
+from smokeseer.raster.output import RasterOutput
 from smokeseer.raster.ply import GaussianPly, read_ply, write_ply
 from smokeseer.raster.sh import eval_sh
 

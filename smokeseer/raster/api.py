@@ -3,43 +3,20 @@
 from __future__ import annotations
 
 import importlib.util
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import torch
 from torch import Tensor
 
-from smokeseer.raster.finite import first_non_finite
 from smokeseer.raster.cpu_backend import composite_tiles, project_compiled
+from smokeseer.raster.finite import first_non_finite
+from smokeseer.raster.output import RasterOutput, normalised_depth
 from smokeseer.raster.projection import project_gaussians
 from smokeseer.raster.sh import eval_sh, num_sh_bases
 from smokeseer.raster.torch_backend import composite
 
 BACKENDS = ("auto", "cpu", "torch", "gsplat")
-DEPTH_ALPHA_EPS = 1e-6  # below this accumulated alpha, normalised depth is reported as 0
 RADIUS_INT_MAX = 2**30  # radii of enormous footprints saturate here instead of overflowing int32
-
-
-@dataclass
-class RasterOutput:
-    """Rendered images for C cameras plus the per-Gaussian data densification needs."""
-
-    colors: Tensor  # [C, H, W, D] background composited in
-    alphas: Tensor  # [C, H, W, 1] accumulated alpha
-    depths: Tensor | None  # [C, H, W, 1] expected view-space z (alpha-weighted; /alpha if normalised)
-    subset_alphas: Tensor | None  # [C, H, W, 1] accumulated alpha of subset_mask Gaussians, same pass
-    means2d: Tensor  # [C, N, 2] pixel centres; retains its grad for densification
-    radii: Tensor  # [C, N] int32, 0 where culled
-    visible: Tensor  # [C, N] bool
-    n_pairs: int = -1  # blended (Gaussian, pixel) pairs (cpu and torch backends; -1 from gsplat)
-    rest_depths: Tensor | None = None  # [C, H, W, 1] depth of the Gaussians outside subset_mask alone
-    rest_alphas: Tensor | None = None  # [C, H, W, 1] their alpha, composited without the subset
-
-
-def normalised_depth(depths: Tensor, alphas: Tensor) -> Tensor:
-    """Alpha-weighted depth divided by alpha: the expected depth of what the pixel sees, 0 where
-    almost nothing is seen (alpha below DEPTH_ALPHA_EPS)."""
-    ok = alphas > DEPTH_ALPHA_EPS
-    return torch.where(ok, depths / torch.where(ok, alphas, torch.ones_like(alphas)), torch.zeros_like(depths))
 
 
 def gsplat_available() -> bool:

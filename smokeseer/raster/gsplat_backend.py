@@ -9,13 +9,10 @@ differ where a Gaussian is nearly opaque or has opacity above ~0.35 at its 3-sig
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import torch
 from torch import Tensor
 
-if TYPE_CHECKING:
-    from smokeseer.raster.api import RasterOutput
+from smokeseer.raster.output import RasterOutput, normalised_depth
 
 
 def rasterize_gsplat(
@@ -23,11 +20,9 @@ def rasterize_gsplat(
     viewmats: Tensor, Ks: Tensor, width: int, height: int, *, backgrounds: Tensor | None,
     near_plane: float, far_plane: float, subset_mask: Tensor | None, render_depth: bool,
     normalize_depth: bool,
-) -> "RasterOutput":
+) -> RasterOutput:
     """Render with ``gsplat.rasterization``; ``colors`` are plain [N, D] or per-camera [C, N, D]."""
     import gsplat
-
-    from smokeseer.raster.api import RasterOutput, normalised_depth
 
     c = viewmats.shape[0]
     d = colors.shape[-1]

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from contracts.errors import DatasetError
+from scenes.cameras import quat_to_rotation
 
 CAMERA_MODELS: dict[int, tuple[str, int]] = {
     0: ("SIMPLE_PINHOLE", 3), 1: ("PINHOLE", 4), 2: ("SIMPLE_RADIAL", 4), 3: ("RADIAL", 5),
@@ -39,11 +40,8 @@ class ColmapImage:
 
     def viewmat(self) -> np.ndarray:
         """OpenCV world-to-camera 4×4 (COLMAP stores exactly that, rotation as w, x, y, z)."""
-        w, x, y, z = self.qvec / np.linalg.norm(self.qvec)
         v = np.eye(4)
-        v[:3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]]
+        v[:3, :3] = quat_to_rotation(self.qvec)
         v[:3, 3] = self.tvec
         return v
 

@@ -19,6 +19,21 @@ def c2w_gl_to_viewmat(c2w: np.ndarray) -> np.ndarray:
     return np.linalg.inv(c2w @ _GL_TO_CV)
 
 
+def viewmat_to_c2w_gl(viewmat: np.ndarray) -> np.ndarray:
+    """OpenCV world-to-camera → OpenGL camera-to-world (the inverse of ``c2w_gl_to_viewmat``)."""
+    return np.linalg.inv(viewmat) @ _GL_TO_CV
+
+
+def quat_to_rotation(q: np.ndarray) -> np.ndarray:
+    """Unit quaternion (w, x, y, z), COLMAP's order, to a 3×3 rotation (``q`` is normalised first)."""
+    w, x, y, z = q / np.linalg.norm(q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
 def camera_center(viewmat: np.ndarray) -> np.ndarray:
     return -viewmat[:3, :3].T @ viewmat[:3, 3]
 

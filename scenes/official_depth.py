@@ -23,7 +23,8 @@ import numpy as np
 
 from contracts.dataset_format import load_json
 from contracts.errors import DatasetError
-from smokeseer.data import all_or_none, downscale_depth, read_png
+from contracts.imageio import read_png
+from scenes.images import all_or_none, downscale_depth
 
 DEPTH_DIR = "images_depth"
 PARAMS_FILE = "depth_params.json"

@@ -21,14 +21,15 @@ from typing import Any
 
 import numpy as np
 
-from contracts.dataset_format import load_json, need_field
+from contracts.dataset_format import check_pose, load_json, need_field
 from contracts.errors import DatasetError
-from smokeseer.cameras import c2w_gl_to_viewmat, intrinsics
-from smokeseer.colmap_binary import read_cameras_bin, read_images_bin, read_points3d_bin
-from smokeseer.data import (Frame, ModalityData, SceneData, _factor, _gray, _set_times,
-                            box_downscale, image01, load_masks, read_png, thermal_images)
-from smokeseer.official_depth import read_depth_files, reciprocal_or_zero
-from smokeseer.thermal_scale import LINEAR_SCALE, ThermalScaleSpec
+from contracts.imageio import image01, read_png
+from scenes.cameras import c2w_gl_to_viewmat, intrinsics
+from scenes.colmap_binary import read_cameras_bin, read_images_bin, read_points3d_bin
+from scenes.images import box_downscale, gray, load_masks, rgba_on_black, thermal_images, working_factor
+from scenes.official_depth import read_depth_files, reciprocal_or_zero
+from scenes.scene import Frame, ModalityData, SceneData, set_times
+from scenes.thermal_scale import LINEAR_SCALE, ThermalScaleSpec
 
 SIDECAR = "smokeseer_interop.json"
 OFFICIAL_TEST_EVERY = 8
@@ -72,16 +73,6 @@ def official_gt_path(rel: str) -> str:
     return parts[0] + "_gt." + parts[1]
 
 
-def _rgba_on_black(arr: np.ndarray) -> np.ndarray:
-    """The official reader composites RGBA over a black background."""
-    x = image01(arr)
-    if x.ndim == 2:
-        return np.repeat(x[..., None], 3, axis=-1)
-    if x.shape[-1] == 4:
-        return x[..., :3] * x[..., 3:4]
-    return x[..., :3]
-
-
 def _read_transforms(path: Path) -> tuple[float, list[dict[str, Any]]]:
     data = load_json(path)
     fovx = need_field(data, "camera_angle_x", path, (int, float))
@@ -93,9 +84,7 @@ def _read_transforms(path: Path) -> tuple[float, list[dict[str, Any]]]:
             raise DatasetError(f"{path}: frames[{i}].file_path is missing or not a string")
         if not isinstance(fr.get("frame"), (int, float)):
             raise DatasetError(f"{path}: frames[{i}].frame (normalised time) is missing or not a number")
-        m = np.asarray(fr.get("transform_matrix", []), dtype=np.float64)
-        if m.shape != (4, 4) or not np.all(np.isfinite(m)) or abs(np.linalg.det(m[:3, :3])) < 1e-8:
-            raise DatasetError(f"{path}: frames[{i}].transform_matrix must be a finite invertible 4x4 matrix")
+        check_pose(fr.get("transform_matrix"), f"{path}: frames[{i}]")
     return float(fovx), frames
 
 
@@ -118,7 +107,7 @@ def _blender_modality(root: Path, files: list[tuple[str, str]], modality: str, m
         rel = official_image_path(fr["file_path"])
         arr = read_png(root / rel)
         h, w = arr.shape[:2]
-        factor = _factor(w, max_width)
+        factor = working_factor(w, max_width)
         f = 0.5 * w / math.tan(0.5 * fovx) / factor
         k = intrinsics(f, f, w / 2 / factor, h / 2 / factor)
         stem = Path(rel).stem
@@ -135,9 +124,9 @@ def _blender_modality(root: Path, files: list[tuple[str, str]], modality: str, m
     clean = None
     masks = None
     if modality == "rgb":
-        images = np.stack([box_downscale(_rgba_on_black(a), factor) for a in raws])
+        images = np.stack([box_downscale(rgba_on_black(a), factor) for a in raws])
         if all(c is not None for c in cleans):
-            clean = np.stack([box_downscale(_rgba_on_black(read_png(c)), factor) for c in cleans])
+            clean = np.stack([box_downscale(rgba_on_black(read_png(c)), factor) for c in cleans])
         elif any(c is not None for c in cleans):
             raise DatasetError(f"{root}: only {sum(c is not None for c in cleans)} of {len(cleans)} RGB frames "
                                "have a NAME_gt.png")
@@ -146,7 +135,7 @@ def _blender_modality(root: Path, files: list[tuple[str, str]], modality: str, m
         masks = load_masks(mask_files, factor, f"{root}/*_mask", notes)
         scale = None
     else:
-        images, scale = thermal_images(np.stack([_gray(_rgba_on_black(a)) for a in raws]), factor, thermal_scale)
+        images, scale = thermal_images(np.stack([gray(rgba_on_black(a)) for a in raws]), factor, thermal_scale)
     return ModalityData(name=modality, frames=frames_out, images=images.astype(np.float32),
                         clean=None if clean is None else clean.astype(np.float32), masks=masks, scale=scale)
 
@@ -222,7 +211,7 @@ def _load_colmap(path: Path, max_width: int, sidecar: dict[str, Any], notes: lis
     rgb, thermal = mods["rgb"], mods["thermal"]
     assert rgb is not None
     if tick > 0:
-        _set_times(rgb, thermal, sidecar.get("duration_s"))
+        set_times(rgb, thermal, sidecar.get("duration_s"))
     pts = sparse / "points3D.bin"
     points = read_points3d_bin(pts)[0] if pts.is_file() else None
     return rgb, thermal, points
@@ -234,7 +223,7 @@ def _attach_depth(path: Path, mod: ModalityData, sizes: list[tuple[int, int]], m
     scoring when the sidecar says they were written from ground truth."""
     if len(set(sizes)) != 1:
         raise DatasetError(f"{path / 'images'}: {mod.name} images differ in size")
-    files = read_depth_files(path, [f.file_stem for f in mod.frames], sizes[0], _factor(sizes[0][1], max_width),
+    files = read_depth_files(path, [f.file_stem for f in mod.frames], sizes[0], working_factor(sizes[0][1], max_width),
                              mod.name, notes)
     if files is None:
         return
@@ -245,7 +234,7 @@ def _attach_depth(path: Path, mod: ModalityData, sizes: list[tuple[int, int]], m
 
 def _colmap_modality(path: Path, modality: str, items: list, max_width: int, notes: list[str],
                      lo: int, hi: int, tick: float, origin: float, thermal_scale: ThermalScaleSpec) -> ModalityData:
-    factor = _factor(max(e[4] for e in items), max_width)
+    factor = working_factor(max(e[4] for e in items), max_width)
     frames, raws, cleans = [], [], []
     for idx, (base, number, viewmat, k, w, h) in enumerate(items):
         arr = read_png(path / "images" / base)
@@ -264,9 +253,9 @@ def _colmap_modality(path: Path, modality: str, items: list, max_width: int, not
         cleans.append(gt if gt.is_file() else None)
     clean = masks = scale = None
     if modality == "rgb":
-        images = np.stack([box_downscale(_rgba_on_black(a), factor) for a in raws])
+        images = np.stack([box_downscale(rgba_on_black(a), factor) for a in raws])
         if all(c is not None for c in cleans):
-            clean = np.stack([box_downscale(_rgba_on_black(read_png(c)), factor) for c in cleans]).astype(np.float32)
+            clean = np.stack([box_downscale(rgba_on_black(read_png(c)), factor) for c in cleans]).astype(np.float32)
         elif any(c is not None for c in cleans):
             raise DatasetError(f"{path / 'images'}: only {sum(c is not None for c in cleans)} of {len(cleans)} "
                                "RGB frames have a NAME_gt image")
@@ -275,6 +264,6 @@ def _colmap_modality(path: Path, modality: str, items: list, max_width: int, not
         masks = load_masks([path / "images_mask" / f"{f.file_stem}.png" for f in frames], factor,
                            f"{path / 'images_mask'}", notes)
     else:
-        images, scale = thermal_images(np.stack([_gray(image01(a)) for a in raws]), factor, thermal_scale)
+        images, scale = thermal_images(np.stack([gray(image01(a)) for a in raws]), factor, thermal_scale)
     return ModalityData(name=modality, frames=frames, images=images.astype(np.float32), clean=clean, masks=masks,
                         scale=scale)
