@@ -1,16 +1,16 @@
 """Where a standard-profile Stage-2 and Stage-3 iteration spends its time, part by part, at the
 Gaussian counts of a finished standard run.
 
-    python benchmarks/iteration_profile.py [--scenes house,room,food_plate] [--modes full,rgb-only]
-        [--threads 1] [--out benchmarks/results]
+    python benchmarks/iteration_profile.py [--scenes house,room] [--modes full,rgb-only] [--threads 1]
+    python benchmarks/iteration_profile.py --scenes house --modes full --checkpoints RUN/checkpoints
 
 A standard run takes 20-40 min of one thread, so each scene and mode is profiled in three steps:
 
-1. Pretraining: the standard profile at a tenth of its length (300 + 300 iterations) with every
-   schedule scaled with it (densification windows, deformation warm-up, SH degree steps), so the
-   Gaussians are trained and densified as far as a short run takes them.
+1. A trained state: a finished standard run's checkpoints (``--checkpoints``), or by default a
+   pretraining run of the standard profile at a tenth of its length (300 + 300 iterations) with
+   every schedule scaled with it (densification windows, deformation warm-up, SH degree steps).
 2. The standard profile's stages built exactly as ``train_and_evaluate`` builds them (Stage 1, the
-   haze-line smoke colour, the mask floor), loaded with the pretrained Gaussians, deformation
+   haze-line smoke colour, the mask floor), loaded with that state's Gaussians, deformation
    network and optimiser state, and the Gaussian sets grown (3DGS splits of randomly chosen
    Gaussians) or trimmed (the most transparent first) to the counts the committed standard run
    of that scene and mode (seed 0, the current standard settings; ``data/tables_standard/runs``)
@@ -20,6 +20,14 @@ A standard run takes 20-40 min of one thread, so each scene and mode is profiled
    the window): 3 warm-up, 10 timed without the profiler (thread CPU time), 1 profiler warm-up and
    20 under ``torch.profiler`` (CPU activities), and one more that closes the window.
 
+What a pretrained start gets right and wrong: the counts are the real run's, so every part whose
+cost follows the counts (projection, SH colours, the deformation network, Adam, densification,
+the snapshot) is measured at the real size. The Gaussians themselves are a short run's, fainter
+and larger than a real run's at 2400, so a pixel blends more of them and the compositing parts
+come out heavier than the real run's. Compare the total with the committed run's logged time per
+iteration (in the table): that run used an older kernel, 2.0-2.5x slower on its own, so a total
+above it says the compositing here is too heavy. ``--checkpoints`` removes the difference.
+
 ``part:`` labels (``torch.profiler.record_function``) are put around the trainer's methods from
 here, for this process only (nothing in the trainer changes); ``benchmarks/iteration_attribution.py``
 splits the capture by them and by the rasterizer's autograd Functions. The densification step runs
@@ -28,8 +36,9 @@ iterations), an upper bound, since earlier steps see fewer Gaussians. Times are 
 the profiler; ``cpu_share`` (thread CPU time over wall time of the window) says how much of it
 the process ran on a core, and the shares do not depend on it.
 
-Writes ``iteration_profile.csv`` (one row per part, keeping rows of scene/mode pairs not
-measured this time) and ``iteration_profile.md``.
+Writes ``iteration_profile.csv`` (one row per part), ``iteration_profile_ops.csv`` (each stage's
+largest single ops), both keeping the rows of scene/mode pairs not measured this time, and
+``iteration_profile.md`` from them.
 """
 from __future__ import annotations
 
@@ -87,8 +96,9 @@ class PartRow:
     share: float
     surface_gaussians: int
     smoke_gaussians: int
-    pretrained_surface: int
-    pretrained_smoke: int
+    loaded_surface: int
+    loaded_smoke: int
+    start_state: str
     iterations_profiled: int
     threads: int
     load_1min: float
@@ -111,13 +121,13 @@ class OpRow:
 @dataclass
 class Counts:
     """Gaussian counts of a committed standard run at ``WINDOW_END``, and its logged wall time per
-    Stage-3 iteration over the 100 iterations before (older code, its own machine load)."""
+    iteration of each stage over the 100 iterations before (older code, its own machine load)."""
 
     stage2: int
     surface: int
     smoke: int
     run: Path
-    stage3_ms_per_iteration: float
+    ms_per_iteration: dict[int, float]
 
 
 def labelled(fn: Callable[..., Any], label: str) -> Callable[..., Any]:
@@ -136,10 +146,12 @@ def committed_counts(scene: str, mode: str, runs: Path) -> Counts:
         if doc.get("status") != "ok" or doc.get("config_sha256") != want:
             continue
         rows = {(int(r["stage"]), int(r["iteration"])): r for r in read_train_log(metrics.parent / "train_log.csv")}
-        s2, s3, before = rows.get((2, WINDOW_END)), rows.get((3, WINDOW_END)), rows.get((3, WINDOW_END - 100))
-        if s2 is None or s3 is None or before is None:
-            raise SystemExit(f"{metrics.parent / 'train_log.csv'}: no stage 2 and 3 rows at iteration {WINDOW_END}")
-        per_it = (float(s3["wall_s"]) - float(before["wall_s"])) / 100 * 1e3
+        ends = {s: (rows.get((s, WINDOW_END - 100)), rows.get((s, WINDOW_END))) for s in (2, 3)}
+        if any(r is None for pair in ends.values() for r in pair):
+            raise SystemExit(f"{metrics.parent / 'train_log.csv'}: no stage 2 and 3 rows at iterations "
+                             f"{WINDOW_END - 100} and {WINDOW_END}")
+        per_it = {s: (float(b["wall_s"]) - float(a["wall_s"])) / 100 * 1e3 for s, (a, b) in ends.items()}
+        s2, s3 = ends[2][1], ends[3][1]
         return Counts(int(s2["n_gaussians"]), int(s3["n_gaussians"]), int(s3["n_smoke"] or 0), metrics.parent, per_it)
     raise SystemExit(f"{runs / scene / mode}: no finished seed-0 run of the current standard settings "
                      f"(config_sha256 {want[:12]}...)")
@@ -261,7 +273,7 @@ class Window:
     unprofiled_cpu_ms: float
     load: float
     sizes: tuple[int, int, int, int] = (0, 0, 0, 0)
-    """Surface and smoke Gaussians in the window, and as pretrained (before the counts were matched)."""
+    """Surface and smoke Gaussians in the window, and as loaded (before the counts were matched)."""
 
 
 def densify_steps(d: DensifyConfig, first: int, last: int) -> int:
@@ -303,38 +315,41 @@ class WindowsDone(Exception):
     """Raised after the Stage-3 window: the run stops there (no evaluation)."""
 
 
-def profile_case(dataset: Path, mode: str, counts: Counts, tmp: Path, fraction: float) -> dict[int, Window]:
-    """Pretrain, then profile one Stage-2 and one Stage-3 window (module docstring)."""
-    cfg = make_config(mode, "standard", 0)
-    t = time.perf_counter()
-    api.train_and_evaluate(dataset, tmp / "pretrain", mode, "standard", 0, scaled_overrides(cfg, fraction))
-    print(f"  pretrained in {time.perf_counter() - t:.0f} s", flush=True)
-    payload = {s: torch.load(tmp / "pretrain" / "checkpoints" / f"stage{s}.pt", map_location="cpu", weights_only=False)
-               for s in (2, 3)}
+def profile_case(dataset: Path, mode: str, counts: Counts, tmp: Path, fraction: float,
+                 checkpoints: Path | None) -> dict[int, Window]:
+    """Pretrain (unless ``checkpoints`` holds a finished run's), then profile one Stage-2 and one
+    Stage-3 window (module docstring)."""
+    if checkpoints is None:
+        t = time.perf_counter()
+        api.train_and_evaluate(dataset, tmp / "pretrain", mode, "standard", 0,
+                               scaled_overrides(make_config(mode, "standard", 0), fraction))
+        print(f"  pretrained in {time.perf_counter() - t:.0f} s", flush=True)
+        checkpoints = tmp / "pretrain" / "checkpoints"
+    payload = {s: torch.load(checkpoints / f"stage{s}.pt", map_location="cpu", weights_only=False) for s in (2, 3)}
     split_rng = torch.Generator().manual_seed(0)
     windows: dict[int, Window] = {}
 
     def stage2_window(ctx: Any, mod: Any, init_points: Any, deformable: bool, heldout_psnr: Any = None) -> Any:
         problem = Stage2Problem(ctx, mod, init_points, deformable, heldout_psnr)
         problem.load_state(payload[2])
-        pretrained = problem.g.n
+        loaded = problem.g.n
         match_count(problem.g, problem.optimizer, counts.stage2, split_rng)
         problem.strategy.step = labelled(problem.strategy.step, "densify step")
         n = problem.g.n
         with mock.patch.object(stage2, "render", labelled(stage2.render, f"{problem.color} pass")):
             windows[2] = run_window(ctx, problem, ctx.cfg.stage2.densify, ctx.cfg.stage2.iterations)
-        windows[2].sizes = (n, 0, pretrained, 0)
+        windows[2].sizes = (n, 0, loaded, 0)
         return problem.result()
 
     def stage3_window(ctx: Any, model: Any, rgb: Any, thermal: Any, switches: Any, prior: Any,
                       heldout_psnr: Any = None) -> Any:
         problem = Stage3Problem(ctx, model, rgb, thermal, switches, prior, heldout_psnr)
         problem.load_state(payload[3])
-        pretrained = (model.surface.n, model.smoke.n if model.smoke is not None else 0)
+        loaded = (model.surface.n, model.smoke.n if model.smoke is not None else 0)
         match_count(model.surface, problem.surface_optimizer, counts.surface, split_rng)
         if model.smoke is not None:
             match_count(model.smoke, problem.smoke_optimizer, counts.smoke, split_rng)
-        sizes = (model.surface.n, model.smoke.n if model.smoke is not None else 0, *pretrained)
+        sizes = (model.surface.n, model.smoke.n if model.smoke is not None else 0, *loaded)
         model.render_rgb = labelled(model.render_rgb, "rgb pass")
         model.render_thermal = labelled(model.render_thermal, "thermal pass")
         if model.deform is not None:
@@ -359,14 +374,15 @@ def git_commit() -> str:
     return done.stdout.strip() if done.returncode == 0 else "unknown"
 
 
-def rows_for(scene: str, mode: str, windows: dict[int, Window], commit: str) -> tuple[list[PartRow], list[OpRow]]:
+def rows_for(scene: str, mode: str, windows: dict[int, Window], start: str,
+             commit: str) -> tuple[list[PartRow], list[OpRow]]:
     """The parts of each stage (and their total), and the stage's ``TOP_OPS`` largest ops."""
     parts, ops = [], []
     for stage, w in sorted(windows.items()):
         total = sum(w.parts.values())
         for part in [*PART_ORDER, *(p for p in w.parts if p not in PART_ORDER), "total"]:
             ms = total if part == "total" else w.parts.get(part, 0.0)
-            parts.append(PartRow(scene, mode, stage, part, round(ms, 3), round(ms / total, 4), *w.sizes, ACTIVE,
+            parts.append(PartRow(scene, mode, stage, part, round(ms, 3), round(ms / total, 4), *w.sizes, start, ACTIVE,
                                  torch.get_num_threads(), round(w.load, 2), round(w.cpu_share, 3),
                                  round(w.unprofiled_cpu_ms, 2), commit))
         for (part, op), ms in sorted(w.ops.items(), key=lambda kv: -kv[1])[:TOP_OPS]:
@@ -391,10 +407,11 @@ def markdown(rows: list[PartRow], ops: list[OpRow], counts: dict[tuple[str, str]
     """Per stage, one column per scene/mode: ms per iteration (share); then each case's largest ops."""
     cases = list(dict.fromkeys((r.scene, r.mode) for r in rows))
     lines = ["# Where a standard iteration spends its time", "",
-             "Written by `python benchmarks/iteration_profile.py`; its docstring says how (a pretrained model grown",
-             "to a committed standard run's Gaussian counts, 20 profiled iterations ending at iteration 2400).",
+             "Written by `python benchmarks/iteration_profile.py`; its docstring says how (a trained state grown or",
+             "trimmed to a committed standard run's Gaussian counts, 20 profiled iterations ending at iteration 2400).",
              "Milliseconds per iteration, wall time under `torch.profiler`, share of the iteration in brackets;",
-             "parts under 0.05 ms everywhere are left out (all are in `iteration_profile.csv`).", ""]
+             "-: under 0.05 ms (the stage has no such pass); parts under 0.05 ms everywhere are left out",
+             "(all are in `iteration_profile.csv`, the largest single ops in `iteration_profile_ops.csv`).", ""]
     for stage in (2, 3):
         here = [r for r in rows if r.stage == stage]
         if not here:
@@ -410,26 +427,31 @@ def markdown(rows: list[PartRow], ops: list[OpRow], counts: dict[tuple[str, str]
                              + " |")
             elif any(r is not None and r.ms_per_iteration >= 0.05 for r in found):
                 lines.append(f"| {part} | " + " | ".join(
-                    f"{r.ms_per_iteration:.1f} ({100 * r.share:.0f} %)" if r else "" for r in found) + " |")
+                    f"{r.ms_per_iteration:.1f} ({100 * r.share:.0f} %)" if r and r.ms_per_iteration >= 0.05 else "-"
+                    for r in found) + " |")
         info = [get[(s, m, "total")] for s, m in cols]
         lines.append("| Gaussians (surface + smoke) | " + " | ".join(
             f"{r.surface_gaussians} + {r.smoke_gaussians}" if r.smoke_gaussians else f"{r.surface_gaussians}"
             for r in info) + " |")
-        lines.append("| pretrained, before matching the counts | " + " | ".join(
-            f"{r.pretrained_surface} + {r.pretrained_smoke}" if r.smoke_gaussians else f"{r.pretrained_surface}"
+        lines.append("| start: state loaded, its Gaussians | " + " | ".join(
+            f"{r.start_state}: {r.loaded_surface}" + (f" + {r.loaded_smoke}" if r.smoke_gaussians else "")
             for r in info) + " |")
         lines.append("| without the profiler: thread CPU ms per iteration | " + " | ".join(
             f"{r.unprofiled_cpu_ms_per_iteration:.1f}" for r in info) + " |")
         lines.append("| CPU share of the window; load (1 min) | " + " | ".join(
             f"{r.cpu_share:.2f}; {r.load_1min:.1f}" for r in info) + " |")
         lines.append("| threads; commit | " + " | ".join(f"{r.threads}; {r.commit}" for r in info) + " |")
-        if stage == 3:
-            lines.append("| the committed run's logged ms per iteration, 2300-2400 | " + " | ".join(
-                f"{counts[c].stage3_ms_per_iteration:.0f}" for c in cols) + " |")
+        lines.append("| the committed run's logged ms per iteration, 2300-2400 | " + " | ".join(
+            f"{counts[c].ms_per_iteration[stage]:.0f}" for c in cols) + " |")
         lines.append("")
     lines += ["The densification step ran once in each window; its row is that step spread over the run's 22 steps",
-              "in 3000 iterations (an upper bound: earlier steps see fewer Gaussians). The committed runs' times",
-              "are from older code at their own machine load, for scale only.", "", "## Largest ops", "",
+              "in 3000 iterations (an upper bound: earlier steps see fewer Gaussians).", "",
+              "A `pretrained` start has the real run's Gaussian counts but a short run's Gaussians, fainter and",
+              "larger than the real run's at iteration 2400: the parts that follow the counts (projection, SH",
+              "colours, deformation network, Adam, densification, snapshot) are at the real size, the compositing",
+              "parts heavier than the real run's. The committed run's logged time is the check: it ran an older",
+              "kernel, 2.0-2.5x slower on its own, at its own machine load, so a total above it means compositing",
+              "too heavy here. A `checkpoints` start is a finished run's own state.", "", "## Largest ops", "",
               "Own time of single op names within a part, ms per iteration (the backward nodes' names are",
               "torch's `evaluate_function` entries).", ""]
     for stage in (2, 3):
@@ -448,6 +470,9 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--pretrain-fraction", type=float, default=PRETRAIN_FRACTION,
                     help="pretraining length as a fraction of the standard profile's")
+    ap.add_argument("--checkpoints", type=Path,
+                    help="a finished standard run's checkpoints/ (stage2.pt, stage3.pt) to start from instead of "
+                         "pretraining: that run's trained state (one scene and mode)")
     ap.add_argument("--runs", type=Path, default=RUNS, help="committed standard runs (for the Gaussian counts)")
     ap.add_argument("--out", type=Path, default=RESULTS)
     args = ap.parse_args()
@@ -456,6 +481,14 @@ def main() -> None:
     for scene, _ in cases:
         if not (DATASETS / scene / "dataset.json").is_file():
             raise SystemExit(f"{DATASETS / scene}: no standard dataset (dataset.json missing)")
+    if args.checkpoints is not None:
+        if len(cases) != 1:
+            raise SystemExit("--checkpoints: give one scene and one mode (the run the checkpoints are of)")
+        for s in (2, 3):
+            if not (args.checkpoints / f"stage{s}.pt").is_file():
+                raise SystemExit(f"{args.checkpoints / f'stage{s}.pt'}: no such checkpoint (--checkpoints)")
+    start = (f"checkpoints {args.checkpoints.resolve().parent.name}" if args.checkpoints is not None
+             else f"pretrained {args.pretrain_fraction:g}")
     counts = {c: committed_counts(*c, args.runs) for c in cases}
     commit = git_commit()
     parts: list[PartRow] = []
@@ -465,8 +498,8 @@ def main() -> None:
         print(f"{scene} {mode}: stage 2 {c.stage2}, stage 3 {c.surface} + {c.smoke} Gaussians "
               f"(from {c.run.relative_to(ROOT) if c.run.is_relative_to(ROOT) else c.run})", flush=True)
         with tempfile.TemporaryDirectory() as tmp:
-            windows = profile_case(DATASETS / scene, mode, c, Path(tmp), args.pretrain_fraction)
-        new_parts, new_ops = rows_for(scene, mode, windows, commit)
+            windows = profile_case(DATASETS / scene, mode, c, Path(tmp), args.pretrain_fraction, args.checkpoints)
+        new_parts, new_ops = rows_for(scene, mode, windows, start, commit)
         parts += new_parts
         ops += new_ops
         for stage, w in sorted(windows.items()):
