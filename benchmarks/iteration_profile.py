@@ -70,7 +70,7 @@ from contracts.atomic import write_dataclass_csv, write_text  # noqa: E402
 from contracts.train_log import read_train_log  # noqa: E402
 from smokeseer import api, losses, stage2, trainloop  # noqa: E402
 from smokeseer.config import DensifyConfig, TrainConfig, make_config  # noqa: E402
-from smokeseer.gaussians import GaussianSet, _edit_rows, quat_to_rotmat  # noqa: E402
+from smokeseer.gaussians import GaussianSet, edit_rows, quat_to_rotmat  # noqa: E402
 from smokeseer.optim import Adam  # noqa: E402
 from smokeseer.raster import api as raster_api  # noqa: E402
 from smokeseer.stage2 import Stage2Problem  # noqa: E402
@@ -202,11 +202,11 @@ def match_count(g: GaussianSet, opt: Adam, target: int, generator: torch.Generat
             if name == "log_scales":
                 t[idx] -= math.log(1.6)
             return torch.cat([t, t[idx]])
-        _edit_rows(g, opt, grow)
+        edit_rows(g, opt, grow)
     if g.n > target:
         opacity = torch.stack([g[k].detach().reshape(g.n) for k in g.params if k.startswith("opacity")]).max(0).values
         keep = opacity.argsort(descending=True)[:target].sort().values
-        _edit_rows(g, opt, lambda name, t, moment=False: t[keep])
+        edit_rows(g, opt, lambda name, t, moment=False: t[keep])
 
 
 class ProfiledProblem(StageProblem):

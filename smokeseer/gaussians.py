@@ -87,7 +87,7 @@ def make_optimizer(gset: GaussianSet, lrs: dict[str, float]) -> Adam:
     return Adam(groups, lr=0.0, eps=1e-15, fused=True)
 
 
-def _edit_rows(gset: GaussianSet, opt: Adam, fn) -> None:
+def edit_rows(gset: GaussianSet, opt: Adam, fn) -> None:
     """Replace each per-Gaussian tensor by fn(tensor), and the Adam moments by fn(moment)
     with any appended rows' moments zeroed (3DGS: new Gaussians start with fresh moments)."""
     for group in opt.param_groups:
@@ -179,7 +179,7 @@ class DensifyStrategy:
             if name in self.opacity_keys:
                 return torch.zeros_like(t) if moment else torch.clamp_max(t, cap)
             return t
-        _edit_rows(gset, opt, fn)
+        edit_rows(gset, opt, fn)
 
     def _densify_and_prune(self, gset: GaussianSet, opt: Adam,
                            generator: torch.Generator, prune_big: bool) -> dict[str, int]:
@@ -216,7 +216,7 @@ class DensifyStrategy:
                 else:
                     split_a = split_b = split
                 return torch.cat([t, cloned, split_a, split_b])
-            _edit_rows(gset, opt, grow)
+            edit_rows(gset, opt, grow)
         n_after = gset.n
         prune = torch.zeros(n_after, dtype=torch.bool, device=dev)
         prune[split_idx] = True
@@ -234,7 +234,7 @@ class DensifyStrategy:
 
             def select(name: str, t: Tensor, moment: bool = False) -> Tensor:
                 return t[keep]
-            _edit_rows(gset, opt, select)
+            edit_rows(gset, opt, select)
         return {"cloned": int(clone_idx.numel()), "split": int(n_split), "pruned": int(prune.sum())}
 
     @staticmethod
