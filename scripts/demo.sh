@@ -9,4 +9,12 @@ OUT="${OUT:-runs/demo}"
 generate-scene --preset demo --out "$OUT/dataset" --force
 generate-scene --validate "$OUT/dataset"
 train-and-evaluate "$OUT/dataset" --mode full --out "$OUT/train" --profile quick
-python -c "import json, sys; m = json.load(open(sys.argv[1]))['metrics']; print('de-smoked test views vs clean ground truth: PSNR %.2f dB (smoky input %.2f dB), SSIM %.3f, LPIPS %s' % (m['psnr'], m['psnr_input'], m['ssim'], m['lpips'] if m['lpips'] is not None else m['lpips_status']))" "$OUT/train/metrics.json"
+python - "$OUT/train" <<'EOF'
+import json, sys
+run = sys.argv[1]
+m = json.load(open(f"{run}/metrics.json"))["metrics"]
+lpips = m["lpips"] if m["lpips"] is not None else m["lpips_status"]
+print(f"de-smoked test views vs clean ground truth: PSNR {m['psnr']:.2f} dB (smoky input {m['psnr_input']:.2f} dB), "
+      f"SSIM {m['ssim']:.3f}, LPIPS {lpips}")
+print(f"one figure per test view (smoky input | thermal | de-smoked render | clean truth): {run}/figures")
+EOF

@@ -26,6 +26,7 @@ from scenes.thermal_scale import ThermalScaleSpec
 from smokeseer.config import TrainConfig, make_config
 from smokeseer.depth_prior import DepthPriorMaps, file_depth_prior, monocular_depth_prior, rendered_depth_prior
 from smokeseer.evaluate import heldout_psnr, score, score_validation, write_plys, write_renders
+from smokeseer.figures import write_test_figures
 from smokeseer.haze_lines import SmokeColourEstimate, estimate_smoke_colour
 from smokeseer.mask_floor import never_seen_clear
 from smokeseer.model import Placed, SceneModel, init_gaussians, render
@@ -233,6 +234,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
     renders = write_renders(model, scene, out, dev)
     scores = score(renders, scene, cfg.lpips_net, cfg.lpips_weights or None, cfg.lpips_heads or None)
     validation = score_validation(model, scene, dev)
+    write_test_figures(renders, scene, out, scores["per_image"], cfg.mode, switches.use_thermal)
     write_plys(model, out, cfg.smoke_ply_times)
     wall["eval"] = time.perf_counter() - t
     wall["total"] = time.perf_counter() - t_start

@@ -2,12 +2,12 @@
 RGB-only by margins measured when this test was written, so a change that stops SmokeSeer from
 learning (or stops thermal from helping) fails CI.
 
-Measured 2026-11-23 on the 2-core machine, quick profile at 300 + 300 iterations, one thread
-(`train-and-evaluate DEMO --mode M --profile quick --iterations-stage2 300
---iterations-stage3 300`): smoky input 19.19 dB; Full 20.55 (seed 0) / 20.48 (seed 1);
-RGB-only 16.73 / 16.37. Margins: Full - input 1.29-1.36 dB, Full - RGB-only 3.8-4.1 dB. The
-thresholds below are about half of those, so seed and platform noise pass and a broken method
-does not.
+Measured 2026-11-28 on the 2-core machine on the demo's 60-degree sweep, quick profile at
+300 + 300 iterations, one thread (`train-and-evaluate DEMO --mode M --profile quick
+--iterations-stage2 300 --iterations-stage3 300`): smoky input 19.22 dB; Full 20.78 (seed 0) /
+20.46 (seed 1); RGB-only 17.45 / 17.63. Margins: Full - input 1.24-1.56 dB, Full - RGB-only
+2.8-3.3 dB. The thresholds below are about half of those, so seed and platform noise pass and
+a broken method does not.
 """
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ from smokeseer.cli import main
 BUDGET = ["--profile", "quick", "--iterations-stage2", "300", "--iterations-stage3", "300", "--no-progress",
           "--set", "stage3.test_every=150"]
 MARGIN_OVER_INPUT_DB = 0.6
-MARGIN_OVER_RGB_ONLY_DB = 2.0
+MARGIN_OVER_RGB_ONLY_DB = 1.5
 
 
 @pytest.mark.slow

@@ -18,9 +18,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from matplotlib import colormaps
 from PIL import Image
+from scipy import ndimage
 
 from smokeseer.cli import main
+from smokeseer.figures import figure_path
 from smokeseer.raster import read_ply
 from smokeseer.stage3 import Stage3Problem, smoke_free_centres
 from contracts.results_format import validate_run_dir
@@ -53,6 +56,47 @@ def _assert_complete(run: Path, thermal: bool = True) -> dict:
     return doc
 
 
+def _panels(png: Path) -> list[np.ndarray]:
+    """The figure's image panels, left to right: the large blocks of non-white pixels (title
+    glyphs are small blocks)."""
+    img = np.asarray(Image.open(png).convert("RGB"))
+    labels, _ = ndimage.label(np.any(img < 255, axis=-1))
+    boxes = [b for b in ndimage.find_objects(labels) if (b[0].stop - b[0].start) * (b[1].stop - b[1].start) > 4000]
+    return [img[b] for b in sorted(boxes, key=lambda b: b[1].start)]
+
+
+def _native(panel: np.ndarray, height: int, width: int) -> np.ndarray:
+    """A magnified panel sampled back at the centres of the source image's pixels."""
+    rows = ((np.arange(height) + 0.5) * panel.shape[0] / height).astype(int)
+    cols = ((np.arange(width) + 0.5) * panel.shape[1] / width).astype(int)
+    return panel[rows][:, cols].astype(np.float64) / 255.0
+
+
+def _assert_figures(run: Path, dataset: Path) -> None:
+    """One figure per test view with four panels, in order: the smoky input, the thermal frame
+    nearest in time, the surface render and the clean truth, each checked against its file."""
+    doc = json.loads((run / "metrics.json").read_text())
+    stems = [e["file_stem"] for e in doc["per_image"]]
+    assert sorted(p.name for p in (run / "figures").iterdir()) == sorted(figure_path(run, s).name for s in stems)
+    rgb = {f["file_stem"]: f for f in json.loads((dataset / "transforms_rgb.json").read_text())["frames"]}
+    thermal = json.loads((dataset / "transforms_thermal.json").read_text())["frames"]
+    inferno = colormaps["inferno"](np.linspace(0.0, 1.0, 256))[:, :3]
+    for stem in stems:
+        panels = _panels(figure_path(run, stem))
+        assert len(panels) == 4
+        smoky, clean, surface = (np.asarray(Image.open(p).convert("RGB"), dtype=np.float64) / 255.0 for p in
+                                 (dataset / "rgb" / "smoky" / f"{stem}.png", dataset / "rgb" / "clean" / f"{stem}.png",
+                                  run / "renders" / "surface" / f"{stem}.png"))
+        h, w = smoky.shape[:2]
+        for panel, truth in zip((panels[0], panels[2], panels[3]), (smoky, surface, clean)):
+            assert np.abs(_native(panel, h, w) - truth).mean() < 0.01
+        near = min(thermal, key=lambda f: abs(f["time"] - rgb[stem]["time"]))
+        counts = np.asarray(Image.open(dataset / "thermal" / "smoky" / f"{near['file_stem']}.png"), dtype=np.float64)
+        shown = _native(panels[1], *counts.shape)
+        level = np.argmin(((shown[..., None, :] - inferno) ** 2).sum(-1), axis=-1)
+        assert np.corrcoef(level.ravel(), counts.ravel())[0, 1] > 0.999
+
+
 @pytest.fixture(scope="module")
 def splat(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return write_splat_dataset(tmp_path_factory.mktemp("tr") / "moving", n_rgb=8, n_thermal=6)
@@ -71,6 +115,7 @@ def test_full_run_outputs_and_resume(splat: Path, tmp_path: Path) -> None:
     run = tmp_path / "run"
     assert main([str(splat), "--out", str(run)] + TINY) == 0
     doc = _assert_complete(run)
+    _assert_figures(run, splat)
     assert doc["stages"]["smoke_gaussians"] > 0 and doc["metrics"]["mask_iou"] is not None
     n_rows = len(_log_rows(run))
     # A finished run reruns without training again and gives the same scores.
@@ -138,6 +183,7 @@ def test_other_modes_run(splat: Path, tmp_path: Path, mode: str) -> None:
     run = tmp_path / mode
     assert main([str(splat), "--mode", mode, "--out", str(run)] + TINY) == 0
     doc = validate_run_dir(run)
+    _assert_figures(run, splat)
     assert doc["method"] == mode and math.isfinite(doc["metrics"]["psnr"])
     if mode == "deformable-3dgs":
         assert doc["stages"]["smoke_gaussians"] == 0 and doc["metrics"]["mask_iou"] is None
