@@ -234,7 +234,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
     renders = write_renders(model, scene, out, dev)
     scores = score(renders, scene, cfg.lpips_net, cfg.lpips_weights or None, cfg.lpips_heads or None)
     validation = score_validation(model, scene, dev)
-    write_test_figures(renders, scene, out, scores["per_image"], cfg.mode, switches.use_thermal)
+    write_test_figures(renders, scene, out, scores["per_image"], cfg.mode, plan.use_thermal)
     write_plys(model, out, cfg.smoke_ply_times)
     wall["eval"] = time.perf_counter() - t
     wall["total"] = time.perf_counter() - t_start

@@ -11,7 +11,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from contracts.atomic import atomic_path
-from smokeseer.data import ModalityData, SceneData
+from scenes.scene import ModalityData, SceneData
 from smokeseer.evaluate import TestRenders
 
 FIGURE_DIR = "figures"
