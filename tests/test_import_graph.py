@@ -19,6 +19,8 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+from tests.test_packages import find_cycle
+
 ROOT = Path(__file__).resolve().parents[1]
 PUBLIC_TRAINER_API = frozenset({"smokeseer", "smokeseer.api", "smokeseer.config", "smokeseer.plan"})
 TRAINER_CLIENTS = ("interop", "eval")
@@ -74,33 +76,6 @@ def import_graph(root: Path) -> dict[str, dict[str, int]]:
                 if target not in own:
                     edges.setdefault(target, line)
     return graph
-
-
-def find_cycle(graph: dict[str, dict[str, int]]) -> list[str] | None:
-    """One circle of the graph as [a, b, ..., a], or None."""
-    state: dict[str, int] = {}
-    stack: list[str] = []
-
-    def visit(node: str) -> list[str] | None:
-        state[node] = 1
-        stack.append(node)
-        for nxt in sorted(graph.get(node, {})):
-            if state.get(nxt) == 1:
-                return stack[stack.index(nxt):] + [nxt]
-            if nxt not in state:
-                found = visit(nxt)
-                if found:
-                    return found
-        stack.pop()
-        state[node] = 2
-        return None
-
-    for node in sorted(graph):
-        if node not in state:
-            found = visit(node)
-            if found:
-                return found
-    return None
 
 
 def internal_trainer_imports(graph: dict[str, dict[str, int]]) -> list[str]:

@@ -4,6 +4,7 @@ or inside a function."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 from contracts.source import PROJECT_PACKAGES, ModuleSource, find_module, imported_names
 
@@ -55,8 +56,8 @@ def package_graph() -> dict[str, dict[str, str]]:
     return graph
 
 
-def find_cycle(graph: dict[str, dict[str, str]]) -> list[str] | None:
-    """One cycle of the package graph as a list of packages, or None."""
+def find_cycle(graph: dict[str, dict[str, Any]]) -> list[str] | None:
+    """One cycle of a graph (node -> {neighbour: anything}) as [a, b, ..., a], or None."""
     state: dict[str, int] = {}
     stack: list[str] = []
 
