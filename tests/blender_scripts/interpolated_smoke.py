@@ -1,7 +1,8 @@
 """Renders the demo's smoke opacity at two consecutive baked frames, halfway between them, and
 with only the interpolation twin shown, using the generator's own job, scene builder, twin and
-render passes; writes the four alpha images as JSON.
-Run in a subprocess: python interpolated_smoke.py OUT.json WORK_DIR
+render passes; writes the four alpha images as JSON. The first frame looks from START_DEG on the
+demo's orbit.
+Run in a subprocess: python interpolated_smoke.py OUT.json WORK_DIR START_DEG
 """
 import json
 import os
@@ -24,11 +25,13 @@ STATES = (("start", 0, 0.0), ("end", 1, 0.0), ("halfway", 0, 0.5), ("twin_only",
 
 
 def main() -> None:
-    out, work = sys.argv[1], Path(sys.argv[2])
+    out, work, start_deg = sys.argv[1], Path(sys.argv[2]), float(sys.argv[3])
     repair_manta_hierarchy()
     spec, source = resolve_spec("demo")
     manifest = load_manifest()
-    spec = resolve_asset_materials(replace(spec, frames=2), manifest, source)
+    trajectory = replace(spec.rig.trajectory, start_deg=start_deg)
+    spec = replace(spec, frames=2, rig=replace(spec.rig, trajectory=trajectory))
+    spec = resolve_asset_materials(spec, manifest, source)
     job = make_job(spec, make_plan(spec), manifest, source, work, 1)
     built = scene_mod.build(job)
     scene_mod.bake(built.domain)
