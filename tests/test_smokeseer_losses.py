@@ -98,7 +98,7 @@ def test_smoke_priors_analytic_values() -> None:
     # Inside the mask, alpha at or above the floor is enough; below it, the gap to 1 counts.
     a = torch.tensor([0.5, 0.1, 0.3], requires_grad=True)
     loss = mask_alignment(a, torch.tensor([1.0, 1.0, 0.0]), floor=0.4)
-    assert float(loss) == pytest.approx((0.0 + 0.9 + 0.3) / 3)
+    assert float(loss.detach()) == pytest.approx((0.0 + 0.9 + 0.3) / 3)
     loss.backward()
     assert a.grad.tolist() == pytest.approx([0.0, -1 / 3, 1 / 3])
     assert float(mask_alignment(torch.tensor([0.5]), torch.tensor([1.0]), floor=1.0)) == pytest.approx(0.5)
