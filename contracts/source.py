@@ -77,12 +77,13 @@ def imported_names(module: ModuleSource) -> set[str]:
     return set(_parse(module).imports)
 
 
-def _imported_names(tree: ast.AST, module: ModuleSource) -> set[str]:
-    package = module.name if module.is_package else module.name.rpartition(".")[0]
-    names: set[str] = set()
+def import_statements(tree: ast.AST, package: str) -> list[tuple[str, int]]:
+    """Every dotted name an import statement of ``tree`` may refer to, with its line, wherever the
+    statement sits; relative imports resolve against ``package`` (the module's own for a package)."""
+    found: list[tuple[str, int]] = []
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
-            names.update(alias.name for alias in node.names)
+            found += [(alias.name, node.lineno) for alias in node.names]
         elif isinstance(node, ast.ImportFrom):
             if node.level:
                 parts = package.split(".")
@@ -90,9 +91,14 @@ def _imported_names(tree: ast.AST, module: ModuleSource) -> set[str]:
                 prefix = f"{base}.{node.module}" if node.module else base
             else:
                 prefix = node.module or ""
-            names.add(prefix)
-            names.update(f"{prefix}.{alias.name}" for alias in node.names)
-    return names
+            found.append((prefix, node.lineno))
+            found += [(f"{prefix}.{alias.name}", node.lineno) for alias in node.names]
+    return found
+
+
+def _imported_names(tree: ast.AST, module: ModuleSource) -> set[str]:
+    package = module.name if module.is_package else module.name.rpartition(".")[0]
+    return {name for name, _ in import_statements(tree, package)}
 
 
 def project_imports(module: ModuleSource, root: Path = PROJECT_ROOT) -> set[str]:

@@ -19,6 +19,7 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+from contracts.source import import_statements
 from tests.test_packages import find_cycle
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -43,25 +44,6 @@ def source_files(root: Path) -> dict[str, tuple[Path, bool]]:
     return out
 
 
-def _named(tree: ast.AST, name: str, is_package: bool) -> list[tuple[str, int]]:
-    """Every dotted name an import statement may refer to, with its line."""
-    package = name if is_package else name.rpartition(".")[0]
-    found = []
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            found += [(alias.name, node.lineno) for alias in node.names]
-        elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                parts = package.split(".")
-                base = ".".join(parts[: len(parts) - node.level + 1])
-                prefix = f"{base}.{node.module}" if node.module else base
-            else:
-                prefix = node.module or ""
-            found.append((prefix, node.lineno))
-            found += [(f"{prefix}.{alias.name}", node.lineno) for alias in node.names]
-    return found
-
-
 def import_graph(root: Path) -> dict[str, dict[str, int]]:
     """Module → {imported module: the line of the first import that reaches it}."""
     files = source_files(root)
@@ -69,7 +51,8 @@ def import_graph(root: Path) -> dict[str, dict[str, int]]:
     for name, (path, is_package) in files.items():
         own = {".".join(name.split(".")[:i]) for i in range(1, name.count(".") + 2)}
         edges = graph.setdefault(name, {})
-        for dotted, line in _named(ast.parse(path.read_text(), filename=str(path)), name, is_package):
+        for dotted, line in import_statements(ast.parse(path.read_text(), filename=str(path)),
+                                             name if is_package else name.rpartition(".")[0]):
             parts = dotted.split(".")
             reached = [".".join(parts[:i]) for i in range(1, len(parts) + 1) if ".".join(parts[:i]) in files]
             for target in reached:
