@@ -37,7 +37,7 @@ from contracts.train_log import read_train_log
 from eval.dehaze import dehaze_dataset, get_dehazer
 from eval.runs import VARIANTS, RunResult, RunSpec, config_hash
 from eval.settings import DatasetOutcome, HarnessConfig
-from eval.shared_stage2 import stage2_donors, stage2_sha, take_finished_stage2
+from eval.shared_stage2 import leaders_first, stage2_done, stage2_donors, stage2_leaders, stage2_sha, take_finished_stage2
 from eval.sources import sources_sha256
 from eval.twins import full_twins
 
@@ -121,11 +121,15 @@ def finished_run(spec: RunSpec, run_dir: Path) -> RunResult | None:
     return None
 
 
+def _lock_path(folder: Path) -> Path:
+    return folder.with_name(f".{folder.name}.lock")
+
+
 @contextmanager
 def _folder_lock(folder: Path) -> Iterator[None]:
     """Invocations that share an --out folder may plan the same dataset or run: the second waits
     for the first instead of deleting the folder it works in (POSIX flock, released if it dies)."""
-    lock = folder.with_name(f".{folder.name}.lock")
+    lock = _lock_path(folder)
     lock.parent.mkdir(parents=True, exist_ok=True)
     with lock.open("a") as fh:
         fcntl.flock(fh, fcntl.LOCK_EX)
@@ -135,15 +139,54 @@ def _folder_lock(folder: Path) -> Iterator[None]:
             fcntl.flock(fh, fcntl.LOCK_UN)
 
 
+def _lock_held(folder: Path) -> bool:
+    """Whether a process holds the folder's lock now (a run training in it)."""
+    lock = _lock_path(folder)
+    if not lock.is_file():
+        return False
+    with lock.open("a") as fh:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return True
+        fcntl.flock(fh, fcntl.LOCK_UN)
+        return False
+
+
+def wait_for_stage2(leader: Path, stage2_sha: str, poll_s: float = 2.0, start_grace_s: float = 60.0) -> float:
+    """Wait while the run folder ``leader`` is training and has no finished Stage 2 of these
+    settings; returns the seconds waited. The leader was handed to a worker first
+    (``leaders_first``) but may not have taken its lock yet, so it gets ``start_grace_s`` to
+    start; one that is not running after that (finished or dead) is not waited for."""
+    t0 = time.perf_counter()
+    while not _lock_held(leader) and not (leader / "train_log.csv").exists() \
+            and time.perf_counter() - t0 < start_grace_s:
+        time.sleep(min(poll_s, 0.5))
+    checkpoint, seen = leader / "checkpoints" / "stage2.pt", None
+    while _lock_held(leader):
+        stamp = checkpoint.stat().st_mtime_ns if checkpoint.is_file() else None
+        if stamp is not None and stamp != seen and stage2_done(leader, stage2_sha):
+            break
+        seen = stamp
+        time.sleep(poll_s)
+    return time.perf_counter() - t0
+
+
 def run_task(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int, prep_time_s: float = 0.0,
-             stage2_donors: tuple[str, ...] = (), device: str = "cpu") -> RunResult:
+             stage2_donors: tuple[str, ...] = (), device: str = "cpu", stage2_leader: str = "") -> RunResult:
     """Train and evaluate one run under its lock, and record it in harness.json before the lock
     is released; a run another invocation finished meanwhile is returned as cached. A run that
-    has not started takes a finished Stage 2 from one of ``stage2_donors`` when one has it."""
+    has not started takes a finished Stage 2 from one of ``stage2_donors`` when one has it,
+    after waiting for ``stage2_leader`` (its group's first run) if that one is in Stage 2 now."""
     with _folder_lock(Path(run_dir)):
         done = finished_run(spec, Path(run_dir))
         if done is not None:
             return done
+        if stage2_leader and not (Path(run_dir) / "train_log.csv").exists():
+            waited = wait_for_stage2(Path(stage2_leader), stage2_sha(spec))
+            if waited > 1.0:
+                log.info("%s/%s/seed %d waited %.0f s for the Stage 2 of %s", spec.scene, spec.variant, spec.seed,
+                         waited, stage2_leader)
         donor = take_finished_stage2(Path(run_dir), list(stage2_donors), stage2_sha(spec)) if stage2_donors else ""
         res = _train_run(spec, run_dir, train_fn, threads, device)
         res.prep_time_s = prep_time_s
@@ -440,12 +483,13 @@ def execute_runs(cfg: HarnessConfig, ex: _Executor, plan: Plan, train_fn: TrainF
     (or, with ``finished_only``, list them as pending); a run whose dataset failed is failed, not
     skipped."""
     results: list[RunResult] = []
-    jobs = []
+    pending = []
     threads = max(1, (os.cpu_count() or 1) // cfg.workers)
     specs = plan.runs
     donors = stage2_donors(specs, Path(cfg.out))
+    leaders = stage2_leaders(specs, Path(cfg.out))
     bar = tqdm(total=len(specs), desc="runs", unit="run", file=sys.stderr)
-    for spec in specs:
+    for spec in leaders_first(specs, Path(cfg.out)):
         run_dir = spec.run_dir(Path(cfg.out)).resolve()
         ds = dehazed[spec.scene] if VARIANTS[spec.variant].dehazer else datasets[spec.scene]
         prep = ds.wall_time_s if VARIANTS[spec.variant].dehazer else 0.0
@@ -476,8 +520,11 @@ def execute_runs(cfg: HarnessConfig, ex: _Executor, plan: Plan, train_fn: TrainF
             results.append(r)
             bar.write(_line(r))
 
-        jobs.append((run_task, (spec, str(run_dir), train_fn, threads, prep, tuple(donors[str(run_dir)]), cfg.device),
-                     ok, fail))
+        pending.append((spec, run_dir, prep, ok, fail))
+    training = {str(run_dir) for _, run_dir, _, _, _ in pending}
+    jobs = [(run_task, (spec, str(run_dir), train_fn, threads, prep, tuple(donors[str(run_dir)]), cfg.device,
+                        leaders.get(str(run_dir), "") if leaders.get(str(run_dir)) in training else ""), ok, fail)
+            for spec, run_dir, prep, ok, fail in pending]
     if jobs:
         _drain(ex, jobs, bar)
     bar.close()

@@ -7,6 +7,12 @@ The trainer keys its Stage-2 checkpoint by the settings Stage 2 depends on
 a finished Stage 2 ends with the bytes of one that trained it (tests/test_trainer.py). The
 donor's Stage-2 rows of train_log.csv come along, so the taker's logged wall time counts the
 Stage 2 it did not train, and its harness record names the donor.
+
+With several workers, two runs of a group started side by side would both train that Stage 2.
+So the harness starts every group's first run before any other member (``leaders_first``), and a
+member that starts while its group's first run is still in Stage 2 waits for it
+(``eval.harness.run_task``). ``benchmarks/stage2_sharing.py`` measures what this saves on a
+table's finished runs.
 """
 from __future__ import annotations
 
@@ -40,27 +46,57 @@ def stage2_donors(specs: list[RunSpec], out: Path) -> dict[str, list[str]]:
     return {d: [o for o in groups[k] if o != d] for d, k in keys.items()}
 
 
+def stage2_leaders(specs: list[RunSpec], out: Path) -> dict[str, str]:
+    """For each run folder after the first of its Stage-2 group (plan order), that first folder."""
+    first: dict[tuple[str, ...], str] = {}
+    leaders = {}
+    for spec in specs:
+        run_dir = str(spec.run_dir(out).resolve())
+        leader = first.setdefault(stage2_key(spec), run_dir)
+        if leader != run_dir:
+            leaders[run_dir] = leader
+    return leaders
+
+
+def leaders_first(specs: list[RunSpec], out: Path) -> list[RunSpec]:
+    """Plan order with every run that can take a Stage 2 moved behind all the runs that train
+    one, so that with several workers a taker starts after its donor has (and, but for the last
+    few, has finished Stage 2): started side by side, both would train it."""
+    leaders = stage2_leaders(specs, out)
+    return sorted(specs, key=lambda s: str(s.run_dir(out).resolve()) in leaders)
+
+
+def stage2_done(run_dir: Path, stage2_sha: str) -> bool:
+    """Whether the folder holds a finished Stage-2 checkpoint of these settings."""
+    import torch
+
+    source = run_dir / "checkpoints" / "stage2.pt"
+    if not source.is_file():
+        return False
+    try:
+        payload = torch.load(source, map_location="cpu", weights_only=False)
+    except Exception:  # being written: not finished yet
+        return False
+    return bool(payload.get("done")) and payload.get("config_sha256") == stage2_sha
+
+
 def take_finished_stage2(run_dir: Path, donors: list[str], stage2_sha: str) -> str:
     """Copy the first donor's finished Stage-2 checkpoint (and its Stage-2 log rows) into a run
     folder that has not started; returns the donor's folder, or "" when none has one yet."""
-    import torch
-
     checkpoint = run_dir / "checkpoints" / "stage2.pt"
     if checkpoint.exists() or (run_dir / "train_log.csv").exists():
         return ""
     for donor in map(Path, donors):
-        source = donor / "checkpoints" / "stage2.pt"
-        if not source.is_file() or not (donor / "train_log.csv").is_file():
+        if not (donor / "train_log.csv").is_file() or not stage2_done(donor, stage2_sha):
             continue
         try:
-            payload = torch.load(source, map_location="cpu", weights_only=False)
             rows = [r for r in read_train_log(donor / "train_log.csv") if r["stage"] == "2"]
-        except Exception:  # being written, or damaged: this donor is skipped, the run trains its own Stage 2
+        except Exception:  # damaged: this donor is skipped, the run trains its own Stage 2
             continue
-        if not (payload.get("done") and payload.get("config_sha256") == stage2_sha and rows):
+        if not rows:
             continue
         with atomic_path(checkpoint) as tmp:
-            shutil.copyfile(source, tmp)
+            shutil.copyfile(donor / "checkpoints" / "stage2.pt", tmp)
         write_rows_csv(run_dir / "train_log.csv", rows)
         return str(donor)
     return ""

@@ -27,7 +27,7 @@ from eval.harness import HarnessConfig, regenerate
 from contracts.metrics import psnr, ssim_3dgs
 from contracts.provenance import provenance
 from eval.regions import MASK
-from eval.runs import RunSpec
+from eval.runs import VARIANTS, RunSpec
 from generator.profiles import get_profile
 from tests.results_builder import write_metrics
 
@@ -466,6 +466,44 @@ def test_ablations_take_fulls_finished_stage2_and_end_as_if_they_trained_it(tmp_
     stage2_rows = lambda r: [(x["iteration"], x["loss"]) for x in csv.DictReader(open(Path(r.run_dir) / "train_log.csv"))
                              if x["stage"] == "2"]
     assert stage2_rows(taker) == stage2_rows(full) == stage2_rows(alone)
+
+
+def test_two_workers_train_one_stage2_for_full_and_its_ablations(tmp_path: Path) -> None:
+    """Two workers start Full and two Stage-3 ablations of it together. Full's group trains Stage 2
+    once: the ablations wait for Full's (they start with it or behind it), take it, and end with
+    Full's Stage-2 log rows; without the wait, each would train its own."""
+    from tests.test_smokeseer_data import write_splat_dataset
+
+    ds = write_splat_dataset(tmp_path / "splat", n_rgb=8, n_thermal=6)
+    tiny = {"stage2.iterations": 30, "stage3.iterations": 6, "stage2.init_points": 300,
+            "stage3.smoke_points": 120, "log_every": 3, "stage3.test_every": 6, "checkpoint_every": 6,
+            "deform.warmup_iterations": 3, "progress": False}
+    cfg = HarnessConfig(out=tmp_path / "out", scenes=["splat"], methods=["full"], ablations=["no-mask", "no-mono"],
+                        seeds=[0], workers=2, datasets={"splat": ds}, train_overrides=tiny)
+    results, _ = regenerate(cfg)
+    assert all(r.status == "ok" for r in results), [r.error for r in results]
+    runs = {r.variant: r for r in results}
+    assert runs["full"].stage2_from == ""
+    assert runs["no-mask"].stage2_from == runs["no-mono"].stage2_from == runs["full"].run_dir
+    rows = lambda r: [(x["iteration"], x["loss"]) for x in csv.DictReader(open(Path(r.run_dir) / "train_log.csv"))
+                      if x["stage"] == "2"]
+    assert rows(runs["no-mask"]) == rows(runs["full"]) == rows(runs["no-mono"])
+
+
+def test_leaders_first_puts_every_stage2_taker_behind_every_group_leader(tmp_path: Path) -> None:
+    """Plan order interleaves scenes' Full runs and ablations; the start order has each group's
+    first run ahead of every run that can take a Stage 2, and keeps plan order within each part."""
+    from eval.shared_stage2 import leaders_first, stage2_leaders
+
+    specs = [RunSpec(scene, variant, VARIANTS[variant].mode, 0, "quick", dict(VARIANTS[variant].overrides),
+                     f"/data/{scene}", "d" * 8, "c" * 8)
+             for scene in ("a", "b") for variant in ("full", "no-mask", "rgb-only", "no-mono")]
+    order = [(s.scene, s.variant) for s in leaders_first(specs, tmp_path)]
+    assert order == [("a", "full"), ("a", "rgb-only"), ("b", "full"), ("b", "rgb-only"),
+                     ("a", "no-mask"), ("a", "no-mono"), ("b", "no-mask"), ("b", "no-mono")]
+    leaders = stage2_leaders(specs, tmp_path)
+    assert sorted(Path(d).parts[-3] + "/" + Path(d).parts[-2] for d in leaders) == \
+        ["a/no-mask", "a/no-mono", "b/no-mask", "b/no-mono"]
 
 
 def heavy_identity_train(dataset: Path, out: Path, mode: str, profile: str = "quick", seed: int = 0,
