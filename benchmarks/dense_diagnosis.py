@@ -18,10 +18,10 @@ import torch
 from contracts.imageio import read_exr
 from contracts.metrics import psnr
 from smokeseer.api import prepare
-from smokeseer.model import make_view
-from smokeseer.stage2 import train_stage2
-from smokeseer.stage3 import build_scene_model, train_stage3
-from smokeseer.trainutil import RunContext, RunLog
+from smokeseer.model.scene import make_view
+from smokeseer.train.stage2 import train_stage2
+from smokeseer.train.stage3 import build_scene_model, train_stage3
+from smokeseer.train.util import RunContext, RunLog
 
 
 def rebuild(run: Path, overrides: dict, tmp: Path):

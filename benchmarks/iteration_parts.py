@@ -23,9 +23,9 @@ import torch.nn.functional as F
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from smokeseer.losses import ssim  # noqa: E402
-from smokeseer.trainloop import detached_copy, guard  # noqa: E402
-from smokeseer.trainutil import check_finite  # noqa: E402
+from smokeseer.train.losses import ssim  # noqa: E402
+from smokeseer.train.loop import detached_copy, guard  # noqa: E402
+from smokeseer.train.util import check_finite  # noqa: E402
 
 # 3DGS layout of one Gaussian set: means, log-scales, quaternions, opacity logit, SH DC and rest.
 SET_SHAPES = {"means": (3,), "scales": (3,), "quats": (4,), "opacity": (1,), "sh0": (1, 3), "shN": (15, 3)}

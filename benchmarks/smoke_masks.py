@@ -2,8 +2,8 @@
 
     python benchmarks/smoke_masks.py DATASET [DATASET ...]
 
-Each candidate (smokeseer/smoke_masks.py, and the multi-view residual of
-smokeseer/smoke_presence.py that ``stage1=estimate`` uses) is scored by IoU per frame against the dataset's
+Each candidate (smokeseer/stage1/smoke_masks.py, and the multi-view residual of
+smokeseer/stage1/smoke_presence.py that ``stage1=estimate`` uses) is scored by IoU per frame against the dataset's
 ``rgb/smoke_mask``. The candidate and threshold are chosen by the mean IoU over the
 *validation* frames (the training views of every dataset given); the *test* views are only
 scored afterwards. Writes benchmarks/results/smoke_masks.csv (every candidate, threshold,
@@ -25,8 +25,8 @@ import numpy as np  # noqa: E402
 
 from contracts.atomic import write_rows_csv  # noqa: E402
 from scenes.load import load_scene  # noqa: E402
-from smokeseer.smoke_masks import CANDIDATES, candidate_scores, iou  # noqa: E402
-from smokeseer.smoke_presence import ESTIMATOR, decide_smoke_presence  # noqa: E402
+from smokeseer.stage1.smoke_masks import CANDIDATES, candidate_scores, iou  # noqa: E402
+from smokeseer.stage1.smoke_presence import ESTIMATOR, decide_smoke_presence  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 THRESHOLDS = np.round(np.concatenate([[0.01, 0.02, 0.03], np.arange(0.05, 0.96, 0.05)]), 3)

@@ -1,6 +1,6 @@
 """Cost of the NaN guard's last-good snapshot in the shared stage loop.
 
-`smokeseer.trainloop.run_stage` copies the stage state (parameters and Adam moments) before
+`smokeseer.train.loop.run_stage` copies the stage state (parameters and Adam moments) before
 every optimiser step so the NaN checkpoint can hold the last good state. This measures a
 Stage 2 iteration with and without that copy, alternating the two in one process (best of
 ``--repeats``), on a generated dataset at the quick profile, and the copy alone at the paper
@@ -24,11 +24,11 @@ if str(ROOT) not in sys.path:
 
 import torch  # noqa: E402
 
-from smokeseer import trainloop  # noqa: E402
+from smokeseer.train import loop as trainloop  # noqa: E402
 from smokeseer.api import prepare, _sample  # noqa: E402
-from smokeseer.stage2 import Stage2Problem  # noqa: E402
-from smokeseer.trainloop import StageSchedule, run_stage  # noqa: E402
-from smokeseer.trainutil import RunContext, RunLog  # noqa: E402
+from smokeseer.train.stage2 import Stage2Problem  # noqa: E402
+from smokeseer.train.loop import StageSchedule, run_stage  # noqa: E402
+from smokeseer.train.util import RunContext, RunLog  # noqa: E402
 
 
 def stage2_seconds(dataset: Path, out: Path, iterations: int, snapshot: bool) -> tuple[float, int]:

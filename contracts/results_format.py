@@ -14,7 +14,7 @@ TOP_KEYS = ("format", "format_version", "scene", "dataset", "method", "profile",
 PROVENANCE_KEYS = ("commit", "version", "source_digest", "threads", "machine")
 RENDER_DIRS = ("composite", "surface", "smoke")
 STAGE3_PLAN_KEYS = ("smoke_colour", "mask_floor", "depth_prior", "depth_camera", "loss_weights", "dropped")
-"""metrics.json ``stages.stage3_plan``: what Stage 3 trained with (smokeseer/plan.py writes it)."""
+"""metrics.json ``stages.stage3_plan``: what Stage 3 trained with (smokeseer/train/plan.py writes it)."""
 
 
 class ResultsFormatError(ValueError):

@@ -12,7 +12,7 @@ from typing import Any
 
 from eval.runs import ABLATIONS, METHODS
 from smokeseer.config import LPIPS_NETS, PROFILES, make_config
-from smokeseer.plan import depth_term_on
+from smokeseer.train.plan import depth_term_on
 
 
 def default_workers() -> int:

@@ -24,18 +24,18 @@ from scenes.load import load_scene
 from scenes.scene import ModalityData, SceneData
 from scenes.thermal_scale import ThermalScaleSpec
 from smokeseer.config import TrainConfig, make_config
-from smokeseer.depth_prior import DepthPriorMaps, file_depth_prior, monocular_depth_prior, rendered_depth_prior
-from smokeseer.evaluate import heldout_psnr, score, score_validation, write_plys, write_renders
-from smokeseer.figures import write_test_figures
-from smokeseer.haze_lines import SmokeColourEstimate, estimate_smoke_colour
-from smokeseer.mask_floor import never_seen_clear
-from smokeseer.model import Placed, SceneModel, init_gaussians, render
-from smokeseer.plan import Stage3Plan, plan_stage3
-from smokeseer.splits import hold_out_validation
-from smokeseer.stage1 import Stage1Report, run_stage1
-from smokeseer.stage2 import train_stage2, views_of
-from smokeseer.stage3 import build_scene_model, train_stage3
-from smokeseer.trainutil import RunContext, RunLog
+from smokeseer.train.depth_prior import DepthPriorMaps, file_depth_prior, monocular_depth_prior, rendered_depth_prior
+from smokeseer.evaluation.scoring import heldout_psnr, score, score_validation, write_plys, write_renders
+from smokeseer.evaluation.figures import write_test_figures
+from smokeseer.stage1.haze_lines import SmokeColourEstimate, estimate_smoke_colour
+from smokeseer.train.mask_floor import never_seen_clear
+from smokeseer.model.scene import Placed, SceneModel, init_gaussians, render
+from smokeseer.train.plan import Stage3Plan, plan_stage3
+from smokeseer.train.splits import hold_out_validation
+from smokeseer.stage1.pipeline import Stage1Report, run_stage1
+from smokeseer.train.stage2 import train_stage2, views_of
+from smokeseer.train.stage3 import build_scene_model, train_stage3
+from smokeseer.train.util import RunContext, RunLog
 
 
 def _versions() -> dict[str, str]:
@@ -269,7 +269,7 @@ def haze_line_smoke_colour(cfg: TrainConfig, depth: DepthPriorMaps, rgb: Modalit
 
 
 def mask_floor_pixels(rgb: ModalityData, depth: DepthPriorMaps) -> np.ndarray:
-    """The training frames' pixels where the mask floor acts (``smokeseer.mask_floor``), with
+    """The training frames' pixels where the mask floor acts (``smokeseer.train.mask_floor``), with
     Stage 2's geometry rendered as depth at the same cameras."""
     return never_seen_clear(rgb.masks[rgb.indices("train")], depth.maps.cpu().numpy(), depth.valid.cpu().numpy(),
                             *rgb.cameras("train"))

@@ -15,7 +15,7 @@ from typing import Any
 from contracts.errors import DatasetError
 from smokeseer.config import LPIPS_NETS, MODES, PROFILES, parse_set_items
 from smokeseer.raster.extension import KernelBuildError
-from smokeseer.trainutil import NaNDetected
+from smokeseer.train.util import NaNDetected
 
 
 def build_parser() -> argparse.ArgumentParser:

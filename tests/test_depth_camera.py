@@ -11,7 +11,7 @@ import pytest
 from smokeseer.api import prepare
 from smokeseer.cli import main
 from smokeseer.config import make_config
-from smokeseer.plan import depth_camera, depth_term_on
+from smokeseer.train.plan import depth_camera, depth_term_on
 from tests.test_smokeseer_data import write_splat_dataset
 from tests.test_trainer import TINY
 

@@ -421,7 +421,7 @@ def test_table2_depth_row_differs_from_full() -> None:
     row's run does have the term; the user's overrides decide as well."""
     from eval.runs import VARIANTS
     from smokeseer.config import make_config
-    from smokeseer.plan import depth_term_on
+    from smokeseer.train.plan import depth_term_on
 
     quick, standard = settings.default_ablations("quick", {}), settings.default_ablations("standard", {})
     assert "no-depth" in quick and "stage2-depth" not in quick

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from scenes.cameras import backproject
-from smokeseer.haze_lines import HazeLineSettings, estimate_smoke_colour, fit_lines, meeting_point, observations
+from smokeseer.stage1.haze_lines import HazeLineSettings, estimate_smoke_colour, fit_lines, meeting_point, observations
 
 SMOKE = np.array([0.2, 0.3, 0.25])
 F, W, H = 100.0, 64, 48

@@ -10,9 +10,10 @@ is an edge too (except the importer's own packages, which are already running).
 
 **Public trainer API**, the only trainer modules ``interop/`` and ``eval/`` may import:
 ``smokeseer`` (the package), ``smokeseer.api`` (``prepare``, ``train_and_evaluate``),
-``smokeseer.config`` (profiles, options, ``make_config``) and ``smokeseer.plan`` (the Stage 3
-plan a run records in metrics.json; torch-free). Everything else under ``smokeseer/`` is
-internal; scenes are read through ``scenes``, never through the trainer.
+``smokeseer.config`` (profiles, options, ``make_config``) and ``smokeseer.train.plan`` (the Stage 3
+plan a run records in metrics.json; torch-free), with ``smokeseer.train``, the package on the way
+to it (its ``__init__`` holds only a docstring). Everything else under ``smokeseer/`` is internal;
+scenes are read through ``scenes``, never through the trainer.
 """
 from __future__ import annotations
 
@@ -23,7 +24,8 @@ from contracts.source import import_statements
 from tests.test_packages import find_cycle
 
 ROOT = Path(__file__).resolve().parents[1]
-PUBLIC_TRAINER_API = frozenset({"smokeseer", "smokeseer.api", "smokeseer.config", "smokeseer.plan"})
+PUBLIC_TRAINER_API = frozenset({"smokeseer", "smokeseer.api", "smokeseer.config", "smokeseer.train",
+                                "smokeseer.train.plan"})
 TRAINER_CLIENTS = ("interop", "eval")
 SKIPPED_PARTS = {"__pycache__", "build", "dist", "runs", "node_modules"}
 
@@ -82,7 +84,7 @@ def test_no_import_circle_between_files() -> None:
 
 def test_harness_and_converters_use_only_the_public_trainer_api() -> None:
     graph = import_graph(ROOT)
-    assert {"smokeseer.config", "smokeseer.plan"} <= graph["eval.settings"].keys()  # it sees the harness
+    assert {"smokeseer.config", "smokeseer.train.plan"} <= graph["eval.settings"].keys()  # it sees the harness
     assert internal_trainer_imports(graph) == []
 
 
@@ -97,9 +99,9 @@ def test_the_checks_fail_on_a_circle_and_on_an_internal_import(tmp_path: Path) -
         "other/c.py": "from pkg.b import numpy\n",
         "smokeseer/__init__.py": "",
         "smokeseer/api.py": "",
-        "smokeseer/stage3.py": "",
+        "smokeseer/train/stage3.py": "",
         "eval/__init__.py": "",
-        "eval/harness.py": "from smokeseer.api import x\n\ndef f():\n    from smokeseer.stage3 import depth_term_on\n",
+        "eval/harness.py": "from smokeseer.api import x\n\ndef f():\n    from smokeseer.train.stage3 import depth_term_on\n",
     }
     for rel, text in files.items():
         (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
@@ -107,6 +109,6 @@ def test_the_checks_fail_on_a_circle_and_on_an_internal_import(tmp_path: Path) -
     graph = import_graph(tmp_path)
     assert graph["other.c"] == {"pkg.b": 1, "pkg": 1}
     assert find_cycle(graph) == ["pkg.a", "pkg.b", "pkg.a"]
-    assert internal_trainer_imports(graph) == ["eval.harness:4 imports smokeseer.stage3"]
+    assert internal_trainer_imports(graph) == ["eval.harness:4 imports smokeseer.train.stage3"]
     (tmp_path / "pkg" / "a.py").write_text("thing = 1\n")
     assert find_cycle(import_graph(tmp_path)) is None

@@ -304,7 +304,7 @@ def test_depth_round_trip_and_its_use_as_a_prior(source: Path, outputs: dict[str
 
     from smokeseer.api import depth_prior_maps
     from smokeseer.config import make_config
-    from smokeseer.plan import plan_stage3
+    from smokeseer.train.plan import plan_stage3
 
     def depth_file_notes(cfg, scene):
         return [n for n in plan_stage3(cfg, scene, "dataset").notes if n.startswith("images_depth:")]

@@ -14,8 +14,8 @@ from benchmarks.iteration_attribution import (ADAM, DEFORM_BWD, DEFORM_FWD, LOSS
                                               attribute, pass_parts, spans_from_profiler)
 from benchmarks.iteration_profile import densify_steps, labelled, match_count, scaled_overrides
 from smokeseer.config import make_config
-from smokeseer.gaussians import GaussianSet, make_optimizer
-from smokeseer.losses import ssim
+from smokeseer.model.gaussians import GaussianSet, make_optimizer
+from smokeseer.train.losses import ssim
 from smokeseer.raster import rasterize
 
 BWD = "autograd::engine::evaluate_function: "

@@ -1,4 +1,4 @@
-"""The mask floor's reach (smokeseer/mask_floor.py) on two cameras over a plane, worked by hand,
+"""The mask floor's reach (smokeseer/train/mask_floor.py) on two cameras over a plane, worked by hand,
 and the mask term with it."""
 from __future__ import annotations
 
@@ -10,10 +10,10 @@ from contracts.imageio import read_exr_channel
 from scenes.generated import load_smoke_alpha
 from scenes.load import load_scene
 from smokeseer.config import make_config
-from smokeseer.losses import mask_alignment
-from smokeseer.mask_floor import never_seen_clear
-from smokeseer.plan import plan_stage3
-from smokeseer.stage1 import run_stage1
+from smokeseer.train.losses import mask_alignment
+from smokeseer.train.mask_floor import never_seen_clear
+from smokeseer.train.plan import plan_stage3
+from smokeseer.stage1.pipeline import run_stage1
 from tests.test_smokeseer_data import write_splat_dataset
 
 N = 20

@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from smokeseer.registration import (Sim3, pair_by_timestamp, ransac_sim3, register_rig, register_trajectories,
+from smokeseer.stage1.registration import (Sim3, pair_by_timestamp, ransac_sim3, register_rig, register_trajectories,
                                     umeyama)
 
 

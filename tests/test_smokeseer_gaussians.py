@@ -9,8 +9,8 @@ import torch
 
 from scenes.cameras import c2w_gl_to_viewmat, scene_bounds
 from smokeseer.config import DensifyConfig, make_config
-from smokeseer.gaussians import DensifyStrategy, GaussianSet, knn_log_scales, logit, make_optimizer
-from smokeseer.optim import Adam
+from smokeseer.model.gaussians import DensifyStrategy, GaussianSet, knn_log_scales, logit, make_optimizer
+from smokeseer.model.optim import Adam
 
 
 def _set(n: int, scale: float) -> GaussianSet:

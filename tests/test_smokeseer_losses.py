@@ -11,8 +11,8 @@ from hypothesis import strategies as st
 
 from contracts.metrics import ssim_3dgs
 from smokeseer.config import DeformConfig
-from smokeseer.deform import DeformNetwork, positional_encoding, temporal_opacity
-from smokeseer.losses import (align_scale_shift, depth_consistency, mask_alignment, monochromaticity,
+from smokeseer.model.deform import DeformNetwork, positional_encoding, temporal_opacity
+from smokeseer.train.losses import (align_scale_shift, depth_consistency, mask_alignment, monochromaticity,
                               render_loss, smoke_alpha_variance, smoke_color_variance, ssim)
 
 
@@ -148,8 +148,8 @@ def test_deform_network_defaults_and_zero_start() -> None:
 def test_deformation_sees_detached_canonical_positions() -> None:
     """Deformable 3DGS feeds the MLP detached positions: the canonical means get gradient only
     through the offset they receive (d loss / d means = 1 for loss = sum of deformed means)."""
-    from smokeseer.model import place_deformed
-    from smokeseer.gaussians import GaussianSet
+    from smokeseer.model.scene import place_deformed
+    from smokeseer.model.gaussians import GaussianSet
 
     torch.manual_seed(0)
     net = DeformNetwork(DeformConfig(depth=3, width=16, skip_layer=1), 1.0, torch.device("cpu"))

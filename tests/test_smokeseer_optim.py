@@ -1,4 +1,4 @@
-"""smokeseer.optim.Adam against torch.optim.Adam: same bytes, interchangeable state dicts, and no
+"""smokeseer.model.optim.Adam against torch.optim.Adam: same bytes, interchangeable state dicts, and no
 torch._dynamo import (the reason it exists)."""
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import sys
 import pytest
 import torch
 
-from smokeseer.optim import Adam
+from smokeseer.model.optim import Adam
 
 
 def _params(seed: int) -> list[torch.nn.Parameter]:
@@ -83,7 +83,7 @@ def test_mismatched_state_dict_is_refused() -> None:
 
 
 def test_no_dynamo_import() -> None:
-    code = ("import sys, torch\nfrom smokeseer.optim import Adam\n"
+    code = ("import sys, torch\nfrom smokeseer.model.optim import Adam\n"
             "p = torch.nn.Parameter(torch.zeros(3))\nfor fused in (True, None):\n"
             "    o = Adam([p], fused=fused)\n    p.grad = torch.ones(3)\n    o.step()\n    o.zero_grad()\n"
             "    o.load_state_dict(o.state_dict())\n"

@@ -29,13 +29,13 @@ def _edit(path: Path, old: str, new: str) -> None:
 
 def test_closure_follows_imports_into_other_packages(tree: Path) -> None:
     names = {m.name for m in module_closure(TRAINER, root=tree)}
-    assert {"smokeseer.stage3", "smokeseer.raster", "scenes.load", "contracts.metrics", "contracts.dataset_format"} <= names
+    assert {"smokeseer.train.stage3", "smokeseer.raster", "scenes.load", "contracts.metrics", "contracts.dataset_format"} <= names
     assert not any(n.startswith("eval") for n in names)
 
 
 def test_docstring_and_comment_edits_keep_the_key(tree: Path) -> None:
     before = code_digest(TRAINER, root=tree)
-    stage3 = tree / "smokeseer" / "stage3.py"
+    stage3 = tree / "smokeseer" / "train" / "stage3.py"
     _edit(stage3, '"""Stage 3: surface and smoke, jointly.', '"""Stage 3: surface and smoke, trained jointly.')
     _edit(stage3, "from __future__ import annotations\n", "from __future__ import annotations  # a comment\n\n")
     assert code_digest(TRAINER, root=tree) == before
@@ -85,7 +85,7 @@ def test_remembered_digest_equals_the_computed_one_and_follows_edits(tree: Path,
     computed = source._computed_digest
     monkeypatch.setattr(source, "_computed_digest", lambda *r, root: calls.append(r) or computed(*r, root=root))
     assert code_digest(TRAINER, root=tree) == first and not calls
-    _edit(tree / "smokeseer" / "losses.py", "def ", "def _unused() -> None:\n    pass\n\n\ndef ")
+    _edit(tree / "smokeseer" / "train" / "losses.py", "def ", "def _unused() -> None:\n    pass\n\n\ndef ")
     edited = code_digest(TRAINER, root=tree)
     assert calls == [(TRAINER,)] and edited != first and edited == computed(TRAINER, root=tree)
     cache.write_text("{not json")

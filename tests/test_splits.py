@@ -7,7 +7,7 @@ import pytest
 
 from scenes.scene import Frame, ModalityData
 from smokeseer.config import make_config
-from smokeseer.splits import hold_out_validation
+from smokeseer.train.splits import hold_out_validation
 
 
 def _rgb(n: int, test_every: int = 8) -> ModalityData:

@@ -23,9 +23,9 @@ from PIL import Image
 from scipy import ndimage
 
 from smokeseer.cli import main
-from smokeseer.figures import figure_path
+from smokeseer.evaluation.figures import figure_path
 from smokeseer.raster import read_ply
-from smokeseer.stage3 import Stage3Problem, smoke_free_centres
+from smokeseer.train.stage3 import Stage3Problem, smoke_free_centres
 from contracts.results_format import validate_run_dir
 from tests.test_smokeseer_data import write_splat_dataset
 
@@ -266,7 +266,7 @@ def test_mask_alpha_floor_reaches_the_mask_term(splat: Path, tmp_path: Path,
     """loss.mask_alpha_floor is the floor Stage 3's mask term uses (default 0.4, the public code's),
     and loss.mask_floor_where=never-clear or dense hands it a per-pixel map of the mask's shape
     (said in stages.notes); by default it acts on every masked pixel."""
-    import smokeseer.stage3 as stage3
+    import smokeseer.train.stage3 as stage3
 
     seen: list[tuple[float, tuple[int, ...] | None]] = []
     term = stage3.mask_alignment
@@ -481,7 +481,7 @@ def test_haze_line_smoke_colour_is_fixed_or_refused_aloud(splat: Path, tmp_path:
     (clones included) and stays so through training, with the colour priors off; on this tiny
     scene the real estimator finds too few lines, and the run says it learns the colours."""
     from smokeseer import api
-    from smokeseer.haze_lines import SmokeColourEstimate
+    from smokeseer.stage1.haze_lines import SmokeColourEstimate
 
     refused = tmp_path / "refused"
     assert main([str(splat), "--out", str(refused), "--set", "stage3.smoke_color=haze-lines"] + TINY) == 0
@@ -607,7 +607,7 @@ def test_every_tensor_is_made_on_the_parameters_device(splat: Path, tmp_path: Pa
 def test_device_check_catches_a_buffer_made_without_a_device(splat: Path, tmp_path: Path,
                                                              monkeypatch: pytest.MonkeyPatch) -> None:
     """The check above bites: densification state made the old way (no device) fails it."""
-    from smokeseer import gaussians
+    from smokeseer.model import gaussians
 
     monkeypatch.setattr(gaussians.DensifyState, "zeros",
                         classmethod(lambda cls, n, device: cls(torch.zeros(n), torch.zeros(n), torch.zeros(n))))
@@ -629,7 +629,7 @@ def test_lpips_is_scored_by_the_trainer_when_weights_exist(splat: Path, tmp_path
 
 
 def test_state_snapshot_is_an_independent_detached_copy() -> None:
-    from smokeseer.trainloop import detached_copy
+    from smokeseer.train.loop import detached_copy
 
     p = torch.nn.Parameter(torch.randn(5, 3))
     opt = torch.optim.Adam([{"params": [p], "lr": 0.1, "name": "means"}], fused=True)
@@ -649,8 +649,8 @@ def test_state_snapshot_is_an_independent_detached_copy() -> None:
 
 @pytest.mark.parametrize("bad", [float("nan"), float("inf"), float("-inf")])
 def test_guard_names_the_first_non_finite_tensor_and_passes_huge_finite_values(bad: float) -> None:
-    from smokeseer.trainloop import guard
-    from smokeseer.trainutil import NaNDetected
+    from smokeseer.train.loop import guard
+    from smokeseer.train.util import NaNDetected
 
     huge = torch.full((4, 3), 3e38)  # its 2-norm overflows to inf, yet every value is finite
     named = [("loss.render", torch.tensor(0.3)), ("a.grad", None), ("b", huge), ("c", torch.zeros(0)),

@@ -15,7 +15,7 @@ import pytest
 
 from eval.harness import HarnessConfig, regenerate
 from eval.twins import COLOUR_FIXED_REASON, twin_reason
-from smokeseer.plan import COLOUR_FIXED
+from smokeseer.train.plan import COLOUR_FIXED
 from tests.test_harness import _calls, identity_train, write_tiny_dataset
 from tests.test_smokeseer_data import write_splat_dataset
 
@@ -27,7 +27,7 @@ TINY = {"stage2.iterations": 12, "stage3.iterations": 12, "stage2.init_points": 
 def test_colour_prior_ablations_train_like_full_when_the_colour_is_fixed(tmp_path: Path,
                                                                           monkeypatch: pytest.MonkeyPatch) -> None:
     import smokeseer.api as api
-    from smokeseer.haze_lines import SmokeColourEstimate
+    from smokeseer.stage1.haze_lines import SmokeColourEstimate
 
     # The estimate itself is not under test here (tests/test_haze_lines.py): a trusted one is given.
     monkeypatch.setattr(api, "haze_line_smoke_colour",

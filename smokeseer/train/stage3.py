@@ -16,18 +16,18 @@ import torch
 
 from scenes.scene import ModalityData
 from smokeseer.config import TrainConfig
-from smokeseer.deform import DeformNetwork
-from smokeseer.depth_prior import DepthPriorMaps
-from smokeseer.gaussians import DensifyStrategy, GaussianSet, make_optimizer
-from smokeseer.losses import (depth_consistency, mask_alignment, monochromaticity, render_loss,
+from smokeseer.model.deform import DeformNetwork
+from smokeseer.train.depth_prior import DepthPriorMaps
+from smokeseer.model.gaussians import DensifyStrategy, GaussianSet, make_optimizer
+from smokeseer.train.losses import (depth_consistency, mask_alignment, monochromaticity, render_loss,
                               smoke_alpha_variance, smoke_color_variance)
-from smokeseer.model import SceneModel, add_rgb_sh, make_smoke
-from smokeseer.optim import Adam
-from smokeseer.plan import Stage3Plan
+from smokeseer.model.scene import SceneModel, add_rgb_sh, make_smoke
+from smokeseer.model.optim import Adam
+from smokeseer.train.plan import Stage3Plan
 from smokeseer.raster.output import RasterOutput
-from smokeseer.stage2 import Stage2Result, draw_index, make_background, views_of
-from smokeseer.trainloop import IterationOutput, StageProblem, StageSchedule, run_stage
-from smokeseer.trainutil import RunContext, grads_of, state_or_none, step_optimizers
+from smokeseer.train.stage2 import Stage2Result, draw_index, make_background, views_of
+from smokeseer.train.loop import IterationOutput, StageProblem, StageSchedule, run_stage
+from smokeseer.train.util import RunContext, grads_of, state_or_none, step_optimizers
 
 HeldoutPsnr = Callable[[SceneModel, int], dict[str, float | None] | None]
 

@@ -16,7 +16,7 @@ from scipy.spatial import cKDTree
 from torch import Tensor
 
 from smokeseer.config import DensifyConfig
-from smokeseer.optim import Adam
+from smokeseer.model.optim import Adam
 
 SH_C0 = 0.28209479177387814
 

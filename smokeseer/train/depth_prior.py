@@ -13,8 +13,8 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from smokeseer.gaussians import GaussianSet
-from smokeseer.model import View, place_static, render_depth
+from smokeseer.model.gaussians import GaussianSet
+from smokeseer.model.scene import View, place_static, render_depth
 
 
 @dataclass

@@ -21,8 +21,8 @@ from scenes.cameras import SceneBounds, camera_center, scene_bounds
 from scenes.images import load_masks
 from scenes.scene import ModalityData, SceneData
 from smokeseer.config import TrainConfig
-from smokeseer.registration import Sim3, register_rig
-from smokeseer.smoke_presence import ESTIMATOR, decide_smoke_presence
+from smokeseer.stage1.registration import Sim3, register_rig
+from smokeseer.stage1.smoke_presence import ESTIMATOR, decide_smoke_presence
 
 
 @dataclass

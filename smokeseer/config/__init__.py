@@ -61,7 +61,7 @@ class LossWeights:
     absorb: at 0.4 a pixel whose smoke is 0.8 opaque can be explained by half that smoke over a
     darker surface (docs/experiments/2026-11-24-dense-smoke-colour.md)."""
     mask_floor_where: str = "all"
-    """Which masked pixels the floor acts on (``smokeseer/mask_floor.py``): "all";
+    """Which masked pixels the floor acts on (``smokeseer/train/mask_floor.py``): "all";
     "never-clear", those whose surface point no other training view sees smoke-free, so that
     thin smoke over a surface seen clear elsewhere is not forced up to the floor; or "dense",
     those whose true smoke alpha (the generator's ``rgb/smoke_alpha``, read like the masks in
@@ -157,7 +157,7 @@ class Stage3Config:
     smoke_color: str = "learned"
     """Where the RGB smoke colour comes from. "learned": every smoke Gaussian learns its own from
     grey, held together by the smoke-colour and monochromaticity priors (the paper). "haze-lines":
-    one colour read off the smoky training frames before Stage 3 (``smokeseer.haze_lines``, with
+    one colour read off the smoky training frames before Stage 3 (``smokeseer.stage1.haze_lines``, with
     Stage 2's geometry) and held fixed; where the estimate is not trusted (thin smoke: the lines
     do not meet) the run learns it as the paper does and says so. Under dense smoke the images
     alone let a brighter, denser smoke stand in for a darker surface (docs/method.md)."""

@@ -1,7 +1,7 @@
 """Single-image and temporal smoke-mask candidates, needing no weights.
 
 ``stage1=estimate`` no longer uses them: its masks come from the multi-view residual of
-``smokeseer.smoke_presence``, which beat them on validation views (docs/real-captures.md). They
+``smokeseer.stage1.smoke_presence``, which beat them on validation views (docs/real-captures.md). They
 stay as the reference candidates of ``benchmarks/smoke_masks.py``.
 
 The paper's Stage 1 segments smoke with GroundedSAM, whose weights cannot be had offline. These

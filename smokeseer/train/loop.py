@@ -17,7 +17,7 @@ import torch
 from tqdm import tqdm
 
 from smokeseer.raster.finite import first_non_finite
-from smokeseer.trainutil import NaNDetected, RunContext, load_checkpoint, save_checkpoint
+from smokeseer.train.util import NaNDetected, RunContext, load_checkpoint, save_checkpoint
 
 
 @dataclass

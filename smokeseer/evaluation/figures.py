@@ -12,7 +12,7 @@ from matplotlib.figure import Figure
 
 from contracts.atomic import atomic_path
 from scenes.scene import ModalityData, SceneData
-from smokeseer.evaluate import TestRenders
+from smokeseer.evaluation.scoring import TestRenders
 
 FIGURE_DIR = "figures"
 PANEL_INCHES = 2.6

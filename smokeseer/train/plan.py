@@ -23,7 +23,7 @@ import numpy as np
 from contracts.results_format import STAGE3_PLAN_KEYS
 from scenes.scene import SceneData
 from smokeseer.config import TrainConfig
-from smokeseer.haze_lines import SmokeColourEstimate
+from smokeseer.stage1.haze_lines import SmokeColourEstimate
 
 TERMS = ("render", "smoke_alpha", "smoke_color", "mono", "depth", "mask", "thermal_smoke_opacity")
 """Stage 3's loss terms (``render`` weighs the RGB and the thermal render losses)."""

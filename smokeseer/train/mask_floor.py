@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from scenes.cameras import backproject
-from smokeseer.haze_lines import observations
+from smokeseer.stage1.haze_lines import observations
 
 DEPTH_TOLERANCE = 0.03
 """Another frame sees the point when its rendered depth there is within this fraction of the

@@ -15,9 +15,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from smokeseer.background import EnvironmentBackground, composite_over
-from smokeseer.deform import DeformNetwork, temporal_opacity
-from smokeseer.gaussians import GaussianSet, knn_log_scales, logit, rgb_to_sh_dc
+from smokeseer.model.background import EnvironmentBackground, composite_over
+from smokeseer.model.deform import DeformNetwork, temporal_opacity
+from smokeseer.model.gaussians import GaussianSet, knn_log_scales, logit, rgb_to_sh_dc
 from smokeseer.raster import RasterOutput, rasterize
 
 

@@ -13,7 +13,7 @@ from tqdm import tqdm
 
 from contracts.atomic import atomic_path
 from smokeseer.config import TrainConfig
-from smokeseer.optim import Adam
+from smokeseer.model.optim import Adam
 
 
 class NaNDetected(RuntimeError):

@@ -16,7 +16,7 @@ from PIL import Image
 from contracts.atomic import atomic_path
 from contracts.metrics import depth_errors, load_lpips, mask_iou, psnr, ssim_3dgs
 from scenes.scene import SceneData
-from smokeseer.model import SceneModel, View, make_view, sh_coeffs, smoke_sh
+from smokeseer.model.scene import SceneModel, View, make_view, sh_coeffs, smoke_sh
 from smokeseer.raster import GaussianPly, write_ply
 
 

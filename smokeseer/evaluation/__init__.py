@@ -1,0 +1,1 @@
+"""After training: scores on the held-out views, renders, PLY exports and one figure per test view."""
