@@ -17,6 +17,7 @@ import torch
 
 from contracts.imageio import read_exr
 from contracts.metrics import psnr
+from scenes.load import load_scene
 from smokeseer.api import prepare
 from smokeseer.model.scene import make_view
 from smokeseer.train.stage2 import train_stage2
@@ -49,6 +50,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         prep, model = rebuild(run, overrides, Path(tmp))
     rgb = prep.scene.rgb
+    truth = load_scene(dataset, prep.cfg.max_width, all_ground_truth=True).rgb.clean  # training frames too
     rows = []
     with torch.no_grad():
         for i, f in enumerate(rgb.frames):
@@ -59,7 +61,7 @@ def main() -> None:
             a_model = comp.subset_alphas[0, ..., 0].numpy() if model.smoke is not None else np.zeros(surf.shape[:2])
             a_true = read_exr(dataset / "rgb" / "smoke_alpha" / f"{f.file_stem}.exr")["A"]
             k_model = smoke_only.sum((0, 1)) / max(a_model.sum(), 1e-6)
-            clean = rgb.clean[i]
+            clean = truth[i]
             rows.append(dict(split=f.split, stem=f.file_stem, comp_vs_smoky=psnr(comp.colors[0].clamp(0, 1).numpy(), rgb.images[i]),
                              surf_vs_clean=psnr(surf, clean), input=psnr(rgb.images[i], clean),
                              alpha_true=float(a_true.mean()), alpha_model=float(a_model.mean()),

@@ -46,7 +46,7 @@ def view_rows(label: str, run: Path) -> tuple[list[dict[str, object]], list[tupl
     """One row of statistics and one strip of images per test view of ``run``."""
     doc = json.loads((run / "metrics.json").read_text())
     cfg = json.loads((run / "config.json").read_text())
-    scene = load_scene(Path(doc["dataset"]), int(cfg.get("max_width", 0)))
+    scene = load_scene(Path(doc["dataset"]), int(cfg.get("max_width", 0)), all_ground_truth=True)
     rgb = scene.rgb
     by_stem = {f.file_stem: i for i, f in enumerate(rgb.frames)}
     rows, strips = [], []

@@ -43,6 +43,12 @@ PASS_FILES: dict[tuple[str, str], tuple[PassFile, ...]] = {
                                  PassFile("thermal/smoke_mask", "png", np.uint8, 1)),
 }
 
+GROUND_TRUTH_FOLDERS: frozenset[str] = frozenset(
+    pf.folder for (_, name), files in PASS_FILES.items() if name in ("clean", "depth", "smoke_alpha") for pf in files
+    if pf.folder.rsplit("/", 1)[1] != "smoke_mask")
+"""The folders a real capture has no counterpart of: for scoring only. The smoke masks stay out:
+they are the declared oracle Stage 1."""
+
 
 def file_path(root: Path, pf: PassFile, stem: str) -> Path:
     return root / pf.folder / f"{stem}.{pf.ext}"

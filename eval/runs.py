@@ -37,7 +37,7 @@ METHODS: dict[str, Variant] = {
         Variant("full", "Ours (Full)", "full", "methods",
                 {"psnr": 19.92, "ssim": 0.76, "lpips": 0.247},
                 note="Stage 1 (smoke masks, thermal-to-RGB registration) read from the generator's ground truth; "
-                     "at the standard profile the mask floor acts where its smoke alpha reaches 0.4"),
+                     "at the standard profile the mask floor acts where the images say the smoke may reach 0.4"),
         Variant("full-estimated", "Ours (Full, estimated Stage 1)", "full", "methods", {},
                 note="Stage 1 estimated from the frames without downloaded weights (trainer setting "
                      "stage1=estimate, docs/real-captures.md); the paper reports no such row",

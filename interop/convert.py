@@ -42,7 +42,7 @@ def convert(src: Path, target: str, out: Path, split: str = "official", points: 
         raise ValueError(f"--split: {split!r} is not one of {', '.join(SPLITS)}")
     out = Path(out)
     check_output(out, target, split)
-    scene = load_scene(Path(src), max_width=0)
+    scene = load_scene(Path(src), max_width=0, all_ground_truth=True)
     conv = Conversion(target=target, split=split, points=points or target == "smokeseer-colmap")
     frames, origin = prepare(scene, conv)
     stage = out.parent / f".{out.name}.partial-{os.getpid()}"

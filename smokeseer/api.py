@@ -19,7 +19,6 @@ from contracts.atomic import write_json
 from contracts.provenance import provenance
 from contracts.results_format import RESULTS_FORMAT, RESULTS_FORMAT_VERSION
 from scenes.cameras import sample_in_view
-from scenes.generated import load_smoke_alpha
 from scenes.load import load_scene
 from scenes.scene import ModalityData, SceneData
 from scenes.thermal_scale import ThermalScaleSpec
@@ -28,10 +27,9 @@ from smokeseer.train.depth_prior import DepthPriorMaps, file_depth_prior, monocu
 from smokeseer.evaluation.scoring import heldout_psnr, score, score_validation, write_plys, write_renders
 from smokeseer.evaluation.figures import write_test_figures
 from smokeseer.stage1.haze_lines import SmokeColourEstimate, estimate_smoke_colour
-from smokeseer.train.mask_floor import never_seen_clear
+from smokeseer.train.mask_floor import estimated_dense, never_seen_clear
 from smokeseer.model.scene import Placed, SceneModel, init_gaussians, render
 from smokeseer.train.plan import Stage3Plan, plan_stage3
-from smokeseer.train.splits import hold_out_validation
 from smokeseer.stage1.pipeline import Stage1Report, run_stage1
 from smokeseer.train.stage2 import train_stage2, views_of
 from smokeseer.train.stage3 import build_scene_model, train_stage3
@@ -83,10 +81,10 @@ def prepare(dataset: Path, mode: str = "full", profile: str = "quick", seed: int
     if cfg.depth_prior == "mono" and not Path(cfg.mono_weights).is_file():
         raise ValueError(f"mono_weights: no TorchScript file at {cfg.mono_weights!r} (depth_prior=mono "
                          "uses weights on local disk only)")
-    scene = load_scene(dataset, cfg.max_width, ThermalScaleSpec(cfg.thermal_scale, cfg.thermal_equalised_share))
-    hold_out_validation(scene.rgb, cfg.validation_every)
+    scene = load_scene(dataset, cfg.max_width, ThermalScaleSpec(cfg.thermal_scale, cfg.thermal_equalised_share),
+                       cfg.validation_every)
     report = run_stage1(cfg, scene)
-    plan = plan_stage3(cfg, scene, report.masks)
+    plan = plan_stage3(cfg, scene)
     return PreparedRun(cfg, dataset, scene, report, plan, time.perf_counter() - t, code)
 
 
@@ -199,20 +197,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
     else:
         smoke_pts = _sample(scene.rgb, cfg.stage3.smoke_points, b, rng) if plan.use_smoke else None
         rgb_depth = (rendered_depth_prior(s2.gaussians, views_of(scene.rgb, scene.rgb.indices("train"), dev), "rgb")
-                     if plan.smoke_colour == "haze-lines" or plan.mask_floor == "never-clear" else None)
-        if plan.mask_floor != "all":
-            train = scene.rgb.indices("train")
-            masked = scene.rgb.masks[train] > 0.5
-            if plan.mask_floor == "dense":
-                plan.floor_pixels = masked & (load_smoke_alpha(scene, train) >= cfg.loss.mask_alpha_floor)
-                rest = "the rest is thinner smoke by the generator's smoke alpha (loss.mask_floor_where=dense)"
-            else:
-                plan.floor_pixels = mask_floor_pixels(scene.rgb, rgb_depth)
-                rest = "the rest are seen smoke-free from another training view (loss.mask_floor_where=never-clear)"
-            note = (f"mask floor on {100 * int(plan.floor_pixels.sum()) / max(int(masked.sum()), 1):.0f} % "
-                    f"of the masked training pixels: {rest}")
-            plan.notes.append(note)
-            ctx.log_line(f"stage 3: {note}")
+                     if plan.smoke_colour == "haze-lines" or plan.mask_floor != "all" else None)
         if plan.smoke_colour == "haze-lines":
             smoke_colour = haze_line_smoke_colour(cfg, rgb_depth, scene.rgb)
             ctx.log_line(f"stage 3: smoke colour from haze lines: {smoke_colour.describe()}")
@@ -220,6 +205,16 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
             if note:
                 plan.notes.append(note)
                 ctx.log_line(f"stage 3: {note}")
+        if plan.mask_floor != "all":
+            plan.floor_pixels = mask_floor_pixels(plan, scene.rgb, rgb_depth, cfg.loss.mask_alpha_floor)
+            masked = scene.rgb.masks[scene.rgb.indices("train")] > 0.5
+            rest = {"never-clear": "the rest are seen smoke-free from another training view",
+                    "estimated": "the rest are thinner smoke by the images (a clear view, or too far from "
+                                 "the smoke colour)"}[plan.mask_floor]
+            note = (f"mask floor on {100 * int(plan.floor_pixels.sum()) / max(int(masked.sum()), 1):.0f} % "
+                    f"of the masked training pixels: {rest} (loss.mask_floor_where={plan.mask_floor})")
+            plan.notes.append(note)
+            ctx.log_line(f"stage 3: {note}")
         model = build_scene_model(ctx, s2, plan, smoke_pts, scene.smoke_static)
         prior = depth_prior_maps(cfg, plan, s2.gaussians, scene, dev)
         if prior is not None:
@@ -268,11 +263,14 @@ def haze_line_smoke_colour(cfg: TrainConfig, depth: DepthPriorMaps, rgb: Modalit
                                  depth.valid.cpu().numpy(), *rgb.cameras("train"), np.random.default_rng(cfg.seed + 2))
 
 
-def mask_floor_pixels(rgb: ModalityData, depth: DepthPriorMaps) -> np.ndarray:
+def mask_floor_pixels(plan: Stage3Plan, rgb: ModalityData, depth: DepthPriorMaps, floor: float) -> np.ndarray:
     """The training frames' pixels where the mask floor acts (``smokeseer.train.mask_floor``), with
-    Stage 2's geometry rendered as depth at the same cameras."""
-    return never_seen_clear(rgb.masks[rgb.indices("train")], depth.maps.cpu().numpy(), depth.valid.cpu().numpy(),
-                            *rgb.cameras("train"))
+    Stage 2's geometry rendered as depth at the same cameras and the smoke colour Stage 3 holds."""
+    train = rgb.indices("train")
+    maps, valid = depth.maps.cpu().numpy(), depth.valid.cpu().numpy()
+    if plan.mask_floor == "never-clear":
+        return never_seen_clear(rgb.masks[train], maps, valid, *rgb.cameras("train"))
+    return estimated_dense(rgb.masks[train], rgb.images[train], maps, valid, *rgb.cameras("train"), plan.colour, floor)
 
 
 def smoke_colour_record(plan: Stage3Plan, estimate: SmokeColourEstimate | None) -> dict[str, Any] | None:

@@ -156,7 +156,7 @@ def test_nerfstudio_transforms_per_modality(source: Path, outputs: dict[str, Pat
 
 @pytest.mark.parametrize("layout", ["blender", "colmap"])
 def test_round_trip_through_our_loader(source: Path, outputs: dict[str, Path], layout: str) -> None:
-    ref = load_scene(source)
+    ref = load_scene(source, all_ground_truth=True)
     back = load_scene(outputs[layout])
     assert back.meta["layout"] == f"smokeseer-{layout}" and back.notes == []
     assert (back.smoke_present, back.smoke_static) == (ref.smoke_present, ref.smoke_static)
@@ -264,7 +264,7 @@ def depth_tolerance(depths: list[np.ndarray]) -> float:
 
 
 def check_official_depth(src: Path, root: Path) -> None:
-    ref = load_scene(src)
+    ref = load_scene(src, all_ground_truth=True)
     _, images = read_colmap_model(root / "sparse" / "0")
     truth = {}
     for mod in (ref.rgb, ref.thermal):
@@ -292,7 +292,7 @@ def test_colmap_depth_recovers_the_demo_depth(demo_dataset: Path, tmp_path: Path
     official decoding within the quantisation bound."""
     convert(demo_dataset, "smokeseer-colmap", tmp_path / "demo")
     check_official_depth(demo_dataset, tmp_path / "demo")
-    back, ref = load_scene(tmp_path / "demo"), load_scene(demo_dataset)
+    back, ref = load_scene(tmp_path / "demo"), load_scene(demo_dataset, all_ground_truth=True)
     tol = depth_tolerance([ref.rgb.depth, ref.thermal.depth])
     for a, b in ((ref.rgb, back.rgb), (ref.thermal, back.thermal)):
         hit = a.depth > 0
@@ -307,9 +307,9 @@ def test_depth_round_trip_and_its_use_as_a_prior(source: Path, outputs: dict[str
     from smokeseer.train.plan import plan_stage3
 
     def depth_file_notes(cfg, scene):
-        return [n for n in plan_stage3(cfg, scene, "dataset").notes if n.startswith("images_depth:")]
+        return [n for n in plan_stage3(cfg, scene).notes if n.startswith("images_depth:")]
 
-    ref, back = load_scene(source), load_scene(outputs["colmap"])
+    ref, back = load_scene(source, all_ground_truth=True), load_scene(outputs["colmap"])
     tol = depth_tolerance([ref.rgb.depth, ref.thermal.depth])
     for a, b in ((ref.rgb, back.rgb), (ref.thermal, back.thermal)):
         hit = a.depth > 0
@@ -327,14 +327,14 @@ def test_depth_round_trip_and_its_use_as_a_prior(source: Path, outputs: dict[str
     no_depth = depth_file_notes(make_config("no-depth", "standard", overrides={"depth_prior": "files"}), back)
     assert len(no_depth) == 2 and all("no depth term" in n for n in no_depth)
     # Used: the thermal training frames' inverse depth, compared as inverse depth.
-    plan = plan_stage3(files, back, "dataset")
+    plan = plan_stage3(files, back)
     assert (plan.depth_prior, plan.depth_camera) == ("files", "thermal")
     prior = depth_prior_maps(files, plan, None, back, torch.device("cpu"))
     idx = back.thermal.indices("train")
     assert prior.camera == "thermal" and prior.space == "disparity"
     np.testing.assert_array_equal(prior.maps.numpy(), back.thermal.inverse_depth[idx])
     with pytest.raises(ValueError, match="depth_prior: files needs depth maps for the thermal frames"):
-        plan_stage3(files, load_scene(outputs["blender"]), "dataset")
+        plan_stage3(files, load_scene(outputs["blender"]))
 
 
 def test_bad_depth_files_are_named(outputs: dict[str, Path], tmp_path: Path) -> None:

@@ -6,12 +6,10 @@ import numpy as np
 import pytest
 import torch
 
-from contracts.imageio import read_exr_channel
-from scenes.generated import load_smoke_alpha
 from scenes.load import load_scene
 from smokeseer.config import make_config
 from smokeseer.train.losses import mask_alignment
-from smokeseer.train.mask_floor import never_seen_clear
+from smokeseer.train.mask_floor import cube_reach, estimated_dense, never_seen_clear
 from smokeseer.train.plan import plan_stage3
 from smokeseer.stage1.pipeline import run_stage1
 from tests.test_smokeseer_data import write_splat_dataset
@@ -53,6 +51,66 @@ def test_a_hidden_clear_view_does_not_count_and_uncovered_pixels_keep_the_floor(
     assert not floor[0, :, 10:].any()
 
 
+def _smoky_frames(alpha: np.ndarray, surface: np.ndarray, smoke: np.ndarray) -> np.ndarray:
+    """Frames by the image formation I = A + T (J - A): alpha (frames, N, N), J (N, N, 3) on the
+    plane z = 5 (camera 1 sees camera 0's column u at u - 2), A (3,)."""
+    frames = np.empty((2, N, N, 3))
+    frames[0] = smoke + (1 - alpha[0, ..., None]) * (surface - smoke)
+    shifted = np.roll(surface, -2, axis=1)  # camera 1's column u sees the plane at camera 0's u + 2
+    frames[1] = smoke + (1 - alpha[1, ..., None]) * (shifted - smoke)
+    return frames
+
+
+def test_cube_reach_is_the_longest_step_inside_the_unit_cube() -> None:
+    origin = np.array([[0.5, 0.5, 0.5], [0.2, 0.9, 0.5], [0.3, 0.3, 0.3]])
+    direction = np.array([[0.25, 0.0, 0.0], [0.1, 0.05, -0.1], [0.0, 0.0, 0.0]])
+    np.testing.assert_allclose(cube_reach(origin, direction), [2.0, 2.0, np.inf])
+
+
+@pytest.mark.parametrize("smoke_known", [True, False])
+def test_estimated_floor_reads_the_density_off_a_clear_view(smoke_known: bool) -> None:
+    """Camera 0's columns 7-9 see points camera 1 sees clear (its columns 5-7), so their surface
+    colour is known. With the smoke colour the pixel's alpha is exact and the floor (0.4) acts
+    on alpha 0.5 and 0.9 but not 0.1; without it, the lower bound 1 / reach still finds the
+    alpha-0.9 pixel and drops the 0.1 one (the 0.5 one is beyond what a bound can tell)."""
+    viewmats, Ks, depths, valid = _two_cameras()
+    surface = np.full((N, N, 3), 0.1)
+    smoke = np.array([0.8, 0.8, 0.8])
+    alpha = np.zeros((2, N, N))
+    alpha[0, :, :10] = 0.6
+    alpha[0, :, 7], alpha[0, :, 8], alpha[0, :, 9] = 0.1, 0.5, 0.9
+    alpha[1, :, :5] = 0.3
+    masks = (alpha > 0.02).astype(float)
+    frames = _smoky_frames(alpha, surface, smoke)
+    got = estimated_dense(masks, frames, depths, valid, viewmats, Ks, smoke if smoke_known else None, 0.4)
+    assert not got[0, :, 10:].any() and not got[1, :, 5:].any()  # outside the masks: never
+    assert not got[0, :, 7].any() and got[0, :, 9].all()
+    assert got[0, :, 8].all() == smoke_known
+    assert (got == estimated_dense(masks, frames, depths, valid, viewmats, Ks, smoke if smoke_known else None,
+                                   0.4)).all()
+
+
+def test_estimated_floor_keeps_unpinned_points_unless_provably_thin() -> None:
+    """Camera 0's columns 2-6 land on camera 1's smoke (never seen clear), all under alpha 0.05
+    of grey smoke (0.8). Over a surface close to the smoke's colour (0.7), I = 0.705 could be
+    dense smoke over a darker surface: the upper bound 1 - 0.095/0.8 = 0.88 keeps the floor. Over
+    a dark patch (0.1), I = 0.135 is too far from the smoke colour for alpha above
+    1 - 0.665/0.8 = 0.17, so the floor leaves it. Without a smoke colour every unpinned pixel
+    keeps the floor."""
+    viewmats, Ks, depths, valid = _two_cameras()
+    smoke = np.array([0.8, 0.8, 0.8])
+    surface = np.full((N, N, 3), 0.7)
+    surface[:, 4] = 0.1  # camera 0's column 4 (camera 1's column 2) sees a dark patch
+    alpha = np.zeros((2, N, N))
+    alpha[0, :, :7] = 0.05
+    alpha[1, :, :5] = 0.3
+    masks = (alpha > 0.02).astype(float)
+    frames = _smoky_frames(alpha, surface, smoke)
+    got = estimated_dense(masks, frames, depths, valid, viewmats, Ks, smoke, 0.4)
+    assert got[0, :, [2, 3, 5, 6]].all() and not got[0, :, 4].any()
+    assert estimated_dense(masks, frames, depths, valid, viewmats, Ks, None, 0.4)[0, :, 2:7].all()
+
+
 def test_mask_term_without_floor_keeps_only_the_push_to_zero() -> None:
     alpha = torch.tensor([[0.1, 0.1, 0.5, 0.3]], requires_grad=True)
     mask = torch.tensor([[1.0, 1.0, 0.0, 0.0]])
@@ -66,31 +124,19 @@ def test_mask_term_without_floor_keeps_only_the_push_to_zero() -> None:
 
 
 def test_bad_setting_names_the_field() -> None:
-    with pytest.raises(ValueError, match="loss.mask_floor_where: 'sometimes' is not one of all, never-clear, dense"):
+    with pytest.raises(ValueError, match="loss.mask_floor_where: 'sometimes' is not one of all, never-clear, estimated"):
         make_config("full", "quick", overrides={"loss.mask_floor_where": "sometimes"})
 
 
-def test_dense_floor_reads_the_true_alpha_at_the_training_resolution(tmp_path) -> None:
-    """load_smoke_alpha is the EXR's alpha averaged over 2x2 blocks when the frames are halved
-    (48 -> 24 px wide), computed here with a plain reshape."""
-    scene = load_scene(write_splat_dataset(tmp_path / "ds", n_rgb=4, n_thermal=3), max_width=24)
-    assert scene.rgb.images.shape[1:3] == (18, 24)
-    got = load_smoke_alpha(scene, [1, 3])
-    for row, i in zip(got, (1, 3)):
-        full = read_exr_channel(tmp_path / "ds" / "rgb" / "smoke_alpha" / f"{i:04d}.exr", "A")
-        np.testing.assert_allclose(row, full.reshape(18, 2, 24, 2).mean(axis=(1, 3)), rtol=1e-6)
-    assert got.dtype == np.float32 and 0 < got.max() <= 1
-
-
-def test_dense_floor_needs_the_generators_masks(tmp_path) -> None:
-    """With Stage 1's masks from the dataset the rule is "dense"; with estimated masks the true
-    alpha would say more than the masks do, so the run keeps "never-clear" and notes it."""
+def test_floor_rule_follows_the_setting_and_needs_masks_and_smoke(tmp_path) -> None:
+    """The plan takes the configured rule, with Stage 1's masks from the dataset or estimated,
+    and "all" (nothing to gate) by default."""
     ds = write_splat_dataset(tmp_path / "ds", n_rgb=4, n_thermal=3)
-    for stage1, expected in (("ground-truth", "dense"), ("estimate", "never-clear")):
-        cfg = make_config("full", "quick", overrides={"loss.mask_floor_where": "dense", "stage1": stage1})
-        scene = load_scene(ds, cfg.max_width)
-        report = run_stage1(cfg, scene)
-        plan = plan_stage3(cfg, scene, report.masks)
-        assert plan.mask_floor == expected and plan.record()["mask_floor"] == expected
-        assert any("needs the generator's smoke alpha" in n for n in plan.notes) == (expected == "never-clear")
-    assert plan_stage3(make_config("full", "quick"), scene, report.masks).mask_floor == "all"
+    for stage1 in ("ground-truth", "estimate"):
+        for where in ("never-clear", "estimated"):
+            cfg = make_config("full", "quick", overrides={"loss.mask_floor_where": where, "stage1": stage1})
+            scene = load_scene(ds, cfg.max_width)
+            run_stage1(cfg, scene)
+            plan = plan_stage3(cfg, scene)
+            assert plan.mask_floor == where and plan.record()["mask_floor"] == where
+    assert plan_stage3(make_config("full", "quick"), scene).mask_floor == "all"

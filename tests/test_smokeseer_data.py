@@ -217,8 +217,10 @@ def test_malformed_inputs_name_the_file(splat_dataset: Path, tmp_path: Path) -> 
 
 def test_every_image_is_decoded_once_and_checked(splat_dataset: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Loading a generated dataset validates it as ``generate-scene --validate`` does without
-    decoding any image twice: the ones training uses are checked as they are read, the rest
-    (radiance, smoke alpha) are read for their check alone."""
+    decoding any image twice: the ones training uses are checked as they are read, the other
+    inputs (radiance) are read for their check alone, and ground truth (clean, depth, smoke
+    alpha) is read for the RGB evaluation frames' scores only; with ``all_ground_truth``, as
+    conversion tools ask, every file is."""
     import contracts.dataset_format as fmt
 
     reads: dict[Path, int] = {}
@@ -231,9 +233,18 @@ def test_every_image_is_decoded_once_and_checked(splat_dataset: Path, monkeypatc
 
     monkeypatch.setattr(fmt, "read_png", counting(fmt.read_png))
     monkeypatch.setattr(fmt, "read_exr_channel", counting(fmt.read_exr_channel))
-    load_scene(splat_dataset, max_width=24)
-    every = {p for p, _, _ in fmt.dataset_files(splat_dataset, json.loads((splat_dataset / "dataset.json").read_text()))}
-    assert set(reads) == every and len(every) == 8 * 5 + 6 * 7
+    scene = load_scene(splat_dataset, max_width=24)
+    files = fmt.dataset_files(splat_dataset, json.loads((splat_dataset / "dataset.json").read_text()))
+    scored = {f.file_stem for f in scene.rgb.frames if f.split != "train"}
+    assert scored and len(scored) < len(scene.rgb.frames)
+    assert set(reads) == {p for p, pf, _ in files if pf.folder not in fmt.GROUND_TRUTH_FOLDERS
+                          or (pf.folder in ("rgb/clean", "rgb/depth") and p.stem in scored)}
+    assert set(reads.values()) == {1}
+    assert np.isnan(scene.rgb.clean[scene.rgb.indices("train")]).all()
+    assert np.isfinite(scene.rgb.clean[scene.rgb.indices("test")]).all()
+    reads.clear()
+    load_scene(splat_dataset, max_width=24, all_ground_truth=True)
+    assert set(reads) == {p for p, _, _ in files} and len(files) == 8 * 5 + 6 * 7
     assert set(reads.values()) == {1}
 
 

@@ -7,7 +7,7 @@ import pytest
 
 from scenes.scene import Frame, ModalityData
 from smokeseer.config import make_config
-from smokeseer.train.splits import hold_out_validation
+from scenes.splits import hold_out_validation
 
 
 def _rgb(n: int, test_every: int = 8) -> ModalityData:
@@ -19,7 +19,7 @@ def _rgb(n: int, test_every: int = 8) -> ModalityData:
 def test_every_eighth_train_frame_is_validation_and_never_a_test_frame() -> None:
     rgb = _rgb(60)
     test_before = rgb.indices("test")
-    held = hold_out_validation(rgb, 8)
+    held = hold_out_validation(rgb.frames, 8)
     assert held == list(range(0, 60, 8))
     assert rgb.indices("val") == held
     assert rgb.indices("test") == test_before  # the test split is untouched
@@ -29,19 +29,19 @@ def test_every_eighth_train_frame_is_validation_and_never_a_test_frame() -> None
 
 def test_zero_holds_out_nothing() -> None:
     rgb = _rgb(12)
-    assert hold_out_validation(rgb, 0) == []
+    assert hold_out_validation(rgb.frames, 0) == []
     assert rgb.indices("val") == []
 
 
 @pytest.mark.parametrize("every", [-1, 1])
 def test_invalid_every_is_refused(every: int) -> None:
     with pytest.raises(ValueError, match="validation_every"):
-        hold_out_validation(_rgb(12), every)
+        hold_out_validation(_rgb(12).frames, every)
 
 
 def test_too_few_frames_left_is_refused() -> None:
     with pytest.raises(ValueError, match="validation_every: 2 would leave"):
-        hold_out_validation(_rgb(3, test_every=3), 2)
+        hold_out_validation(_rgb(3, test_every=3).frames, 2)
 
 
 def test_profiles_hold_out_validation_except_quick() -> None:

@@ -96,8 +96,8 @@ def test_unknown_kind_names_the_field() -> None:
 
 def test_loader_maps_smoky_and_clean_frames_through_one_curve(tmp_path: Path) -> None:
     ds = write_splat_dataset(tmp_path / "ds", n_rgb=4, n_thermal=4)
-    linear = load_scene(ds)
-    equalised = load_scene(ds, thermal_scale=ThermalScaleSpec("equalised"))
+    linear = load_scene(ds, all_ground_truth=True)
+    equalised = load_scene(ds, thermal_scale=ThermalScaleSpec("equalised"), all_ground_truth=True)
     assert linear.thermal.scale.kind == "linear" and equalised.thermal.scale.kind == "equalised"
     np.testing.assert_array_equal(linear.rgb.images, equalised.rgb.images)
     stems = [f.file_stem for f in equalised.thermal.frames]

@@ -261,10 +261,43 @@ def test_surface_under_smoke_gets_no_update_when_asked(tmp_path: Path) -> None:
     assert grey[1.0] < 0.05, grey
 
 
+def test_training_opens_no_ground_truth_of_its_training_frames(splat: Path, tmp_path: Path) -> None:
+    """Training reads only what a real capture has, plus the declared oracle Stage 1 (masks,
+    poses, smoke flags). A copy of the dataset whose training frames' clean frames, depth and
+    smoke alpha (every ground-truth folder, ``GROUND_TRUTH_FOLDERS``; for thermal, every frame)
+    are overwritten with bytes no reader accepts trains to the same bytes as the original, at
+    the standard profile's rules: the mask floor estimated from the images, held-out
+    validation frames, the haze-line smoke colour."""
+    import shutil
+
+    from contracts.dataset_format import GROUND_TRUTH_FOLDERS
+    from scenes.load import load_scene
+
+    standard_rules = ["--set", "loss.mask_floor_where=estimated", "--set", "validation_every=4",
+                      "--set", "stage3.smoke_color=haze-lines"]
+    scored = {f.file_stem for f in load_scene(splat, validation_every=4).rgb.frames if f.split != "train"}
+    spoiled = tmp_path / "spoiled"
+    shutil.copytree(splat, spoiled)
+    broken = 0
+    for folder in GROUND_TRUTH_FOLDERS:
+        for file in (spoiled / folder).glob("*.*"):
+            if folder.startswith("thermal/") or file.stem not in scored:
+                file.write_bytes(b"not an image")
+                broken += 1
+    assert broken > 0
+    for name, data in (("original", splat), ("spoiled", spoiled)):
+        assert main([str(data), "--out", str(tmp_path / name)] + TINY + standard_rules) == 0
+    a, b = tmp_path / "original", tmp_path / "spoiled"
+    assert (a / "ply" / "surface.ply").read_bytes() == (b / "ply" / "surface.ply").read_bytes()
+    ma, mb = (json.loads((d / "metrics.json").read_text()) for d in (a, b))
+    assert ma["metrics"] == mb["metrics"] and ma["validation"] == mb["validation"]
+    assert any("loss.mask_floor_where=estimated" in n for n in ma["stages"]["notes"])
+
+
 def test_mask_alpha_floor_reaches_the_mask_term(splat: Path, tmp_path: Path,
                                                monkeypatch: pytest.MonkeyPatch) -> None:
     """loss.mask_alpha_floor is the floor Stage 3's mask term uses (default 0.4, the public code's),
-    and loss.mask_floor_where=never-clear or dense hands it a per-pixel map of the mask's shape
+    and loss.mask_floor_where=never-clear or estimated hands it a per-pixel map of the mask's shape
     (said in stages.notes); by default it acts on every masked pixel."""
     import smokeseer.train.stage3 as stage3
 
@@ -280,15 +313,15 @@ def test_mask_alpha_floor_reaches_the_mask_term(splat: Path, tmp_path: Path,
     monkeypatch.setattr(stage3, "mask_alignment", recording)
     for name, extra, expected in (("default", [], 0.4), ("floor", ["--set", "loss.mask_alpha_floor=0.9"], 0.9),
                                   ("gated", ["--set", "loss.mask_floor_where=never-clear"], 0.4),
-                                  ("dense", ["--set", "loss.mask_floor_where=dense"], 0.4)):
+                                  ("estimated", ["--set", "loss.mask_floor_where=estimated"], 0.4)):
         seen.clear()
         assert main([str(splat), "--out", str(tmp_path / name)] + TINY + extra) == 0
         assert seen and {f for f, _ in seen} == {expected}
         gated = {shape is not None for _, shape in seen}
-        assert gated == {name in ("gated", "dense")}
+        assert gated == {name in ("gated", "estimated")}
         notes = json.loads((tmp_path / name / "metrics.json").read_text())["stages"]["notes"]
-        assert any("mask floor on" in n for n in notes) == (name in ("gated", "dense"))
-        assert any("loss.mask_floor_where=dense)" in n for n in notes) == (name == "dense")
+        assert any("mask floor on" in n for n in notes) == (name in ("gated", "estimated"))
+        assert any("loss.mask_floor_where=estimated)" in n for n in notes) == (name == "estimated")
 
 
 @pytest.mark.slow

@@ -28,7 +28,7 @@ MODES: tuple[str, ...] = (
 PROFILES: tuple[str, ...] = ("quick", "standard", "paper")
 SMOKE_COLOR_SOURCES: tuple[str, ...] = ("learned", "haze-lines")
 DEPTH_PIXELS: tuple[str, ...] = ("all", "smoky", "smoke-weighted")
-MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "dense")
+MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "estimated")
 LPIPS_NETS: tuple[str, ...] = ("alex", "vgg")
 
 
@@ -63,10 +63,9 @@ class LossWeights:
     mask_floor_where: str = "all"
     """Which masked pixels the floor acts on (``smokeseer/train/mask_floor.py``): "all";
     "never-clear", those whose surface point no other training view sees smoke-free, so that
-    thin smoke over a surface seen clear elsewhere is not forced up to the floor; or "dense",
-    those whose true smoke alpha (the generator's ``rgb/smoke_alpha``, read like the masks in
-    Stage 1) reaches the floor, so thin smoke is never forced up (masks from anywhere else:
-    "never-clear", with a note)."""
+    thin smoke over a surface seen clear elsewhere is not forced up to the floor; or "estimated",
+    those whose smoke alpha, read off the smoky frames by the image formation with the smoke
+    colour Stage 3 holds, may reach the floor."""
 
 
 @dataclass
@@ -327,7 +326,7 @@ def _standard() -> TrainConfig:
     60 frames, 200x150 RGB, 80x60 thermal): full resolution, 3000 + 3000 iterations with the
     3DGS schedules scaled to them, and a validation split for every choice. No opacity reset, a
     gated surface refinement, no depth term, the haze-line smoke colour where trusted, a
-    half-equalised thermal curve and the mask floor only on dense smoke: each chosen on the
+    half-equalised thermal curve and the mask floor where the images say the smoke may be dense: each chosen on the
     validation views, with its measurements in docs/method.md, "Profiles"."""
     s2 = Stage2Config(
         iterations=3000,
@@ -348,7 +347,7 @@ def _standard() -> TrainConfig:
     deform = DeformConfig(depth=6, width=128, skip_layer=3, warmup_iterations=500, predict_rotation_scale=True)
     return TrainConfig(profile="standard", max_width=0, thermal_scale="equalised", thermal_equalised_share=0.5,
                        sh_degree=2, sh_increase_every=800, stage2=s2, stage3=s3, deform=deform,
-                       loss=LossWeights(mask_floor_where="dense"), checkpoint_every=500, depth_prior="none")
+                       loss=LossWeights(mask_floor_where="estimated"), checkpoint_every=500, depth_prior="none")
 
 
 def _paper() -> TrainConfig:

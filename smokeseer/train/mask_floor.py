@@ -11,6 +11,22 @@ that some other training view sees smoke-free has its colour pinned there, and t
 can set the smoke over it. So with ``never-clear`` the floor acts only on masked pixels whose
 surface point (Stage 2's geometry, rendered as depth at the RGB training cameras) no other
 training frame sees outside its mask; pixels the geometry does not cover keep the floor.
+
+``estimated`` goes one step further and reads how dense the smoke is off the images themselves,
+with the image formation I = A + T (J - A) (smoke colour A, surface colour J, transmittance T):
+the frames that see one surface point give colours on a line through A.
+
+- A point seen smoke-free elsewhere has its surface colour J there (the mean of those views). With
+  A known (the haze-line estimate), the pixel's smoke alpha 1 - T is the projection of I - J on
+  A - J; without it, |I - J| over the longest step from J towards I inside the colour cube is a
+  lower bound. The floor acts where that reaches the floor: such a point's colour is pinned by
+  the clear view, so a floor missed costs little, and one forced on thin smoke costs much.
+- A point never seen clear has nothing to pin it. With A known, 1 - |I - A| over the longest
+  step from A towards I inside the cube is an upper bound on its alpha, and the floor acts
+  unless that bound is below the floor (smoke provably thinner). Without A it keeps the floor.
+
+It needs nothing a real capture lacks: Stage 1's masks, the smoky frames, Stage 2's geometry
+and the smoke colour Stage 3 holds.
 """
 from __future__ import annotations
 
@@ -43,3 +59,48 @@ def never_seen_clear(masks: np.ndarray, depths: np.ndarray, valid: np.ndarray, v
         clear[ref] = False
         floor[ref, vs, us] = ~clear.any(axis=0)
     return floor
+
+
+def cube_reach(origin: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """(n,) the s ≥ 0 at which ``origin + s * direction`` (both (n, 3)) leaves the colour cube
+    [0, 1]^3: the longest step inside the cube in units of ``direction``; inf for a zero direction."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        up = np.where(direction > 0, (1.0 - origin) / direction, np.inf)
+        down = np.where(direction < 0, -origin / direction, np.inf)
+    return np.clip(np.minimum(up, down).min(axis=1), 0.0, None)
+
+
+def estimated_dense(masks: np.ndarray, images: np.ndarray, depths: np.ndarray, valid: np.ndarray,
+                    viewmats: np.ndarray, Ks: np.ndarray, smoke_colour: np.ndarray | None, floor: float,
+                    tolerance: float = DEPTH_TOLERANCE) -> np.ndarray:
+    """(frames, H, W) bool: masked pixels whose smoke, read off the images, may reach ``floor``
+    (the module docstring gives the rule). ``images`` (frames, H, W, 3) are the smoky training
+    frames in [0, 1]; the rest as for ``never_seen_clear``."""
+    n_frames = masks.shape[0]
+    smoky = masks > 0.5
+    out = smoky & ~valid
+    stacked = np.concatenate([images.astype(np.float64), masks[..., None].astype(np.float64)], axis=-1)
+    a = None if smoke_colour is None else np.asarray(smoke_colour, dtype=np.float64)[None]
+    for ref in range(n_frames):
+        vs, us = np.nonzero(smoky[ref] & valid[ref])
+        if len(vs) == 0:
+            continue
+        points = backproject(depths[ref, vs, us].astype(np.float64), np.stack([us, vs], 1), viewmats[ref], Ks[ref])
+        seen_values, seen = observations(points, stacked, depths, valid, viewmats, Ks, tolerance)
+        clear = seen & (seen_values[..., 3] <= 0.5)
+        clear[ref] = False
+        n_clear = clear.sum(axis=0)
+        own = images[ref, vs, us].astype(np.float64)
+        surface = (seen_values[..., :3] * clear[..., None]).sum(axis=0) / np.maximum(n_clear, 1)[:, None]
+        step = own - surface
+        if a is None:
+            alpha_clear = 1.0 / np.maximum(cube_reach(surface, step), 1e-12)
+            dense_unpinned = np.ones(len(vs), dtype=bool)
+        else:
+            towards = a - surface
+            span = (towards * towards).sum(axis=1)
+            alpha_clear = np.where(span > 1e-6, (step * towards).sum(axis=1) / np.maximum(span, 1e-6), 0.0)
+            alpha_upper = 1.0 - 1.0 / np.maximum(cube_reach(np.broadcast_to(a, own.shape), own - a), 1e-12)
+            dense_unpinned = alpha_upper >= floor
+        out[ref, vs, us] = np.where(n_clear > 0, alpha_clear >= floor, dense_unpinned)
+    return out

@@ -81,7 +81,7 @@ class Stage3Plan:
     """"none" (no smoke Gaussians), "learned", or "haze-lines": held at ``colour``, the estimate
     made once Stage 2 has given the geometry (``settle_colour``)."""
     mask_floor: str
-    """Where the mask term's floor acts: "all", "never-clear" or "dense" (``loss.mask_floor_where``)."""
+    """Where the mask term's floor acts: "all", "never-clear" or "estimated" (``loss.mask_floor_where``)."""
     depth_prior: str | None
     """The prior the depth term compares with; None: the run has no depth term."""
     depth_camera: str | None
@@ -93,8 +93,8 @@ class Stage3Plan:
     colour: np.ndarray | None = None
     """The fixed RGB smoke colour, or None when the smoke Gaussians learn their colours."""
     floor_pixels: np.ndarray | None = None
-    """(training RGB frames, H, W) bool: where the mask floor acts (never-clear, set once Stage 2
-    has given the geometry, or dense); None: everywhere."""
+    """(training RGB frames, H, W) bool: where the mask floor acts (never-clear or estimated, set
+    once Stage 2 has given the geometry and the smoke colour is settled); None: everywhere."""
 
     def drop(self, term: str, why: str) -> None:
         """Take ``term`` out of the loss; the record says why when the mode asked for it."""
@@ -125,9 +125,8 @@ class Stage3Plan:
         return dict(zip(STAGE3_PLAN_KEYS, values))
 
 
-def plan_stage3(cfg: TrainConfig, scene: SceneData, masks_source: str) -> Stage3Plan:
-    """The plan from the config and the data after Stage 1 (``masks_source``: where its masks came
-    from). No smoke in the masks → no smoke Gaussians and no deformation network; static smoke →
+def plan_stage3(cfg: TrainConfig, scene: SceneData) -> Stage3Plan:
+    """The plan from the config and the data after Stage 1. No smoke in the masks → no smoke Gaussians and no deformation network; static smoke →
     no deformation network; no thermal → rgb-only. Raises ValueError when the config asks for
     depth maps the data does not have."""
     masks = scene.rgb.masks
@@ -158,7 +157,7 @@ def plan_stage3(cfg: TrainConfig, scene: SceneData, masks_source: str) -> Stage3
         plan.notes += _dropped_term_notes(cfg, plan)
     _check_depth_files(cfg, scene, plan)
     plan.notes += _depth_file_notes(cfg, scene, plan)
-    plan.mask_floor = _mask_floor(cfg, plan, scene, masks_source)
+    plan.mask_floor = _mask_floor(cfg, plan)
     if camera is not None and camera != cfg.depth_camera:
         plan.notes.append(f"depth term at the {camera} camera, not {cfg.depth_camera}: this run has no thermal input")
     return plan
@@ -203,18 +202,10 @@ def _depth_file_notes(cfg: TrainConfig, scene: SceneData, plan: Stage3Plan) -> l
     return notes
 
 
-def _mask_floor(cfg: TrainConfig, plan: Stage3Plan, scene: SceneData, masks_source: str) -> str:
-    """The pixels the mask floor acts on: "all", "never-clear" or "dense" (needs masks and smoke).
-    "dense" reads the generator's true smoke alpha, so it holds only where Stage 1's masks are that
-    dataset's own; elsewhere the run uses "never-clear" and says so in the notes."""
+def _mask_floor(cfg: TrainConfig, plan: Stage3Plan) -> str:
+    """The pixels the mask floor acts on: "all", "never-clear" or "estimated"; "all" without
+    masks or smoke, where there is nothing to gate."""
     where = cfg.loss.mask_floor_where
     if where == "all" or not (plan.use_smoke and plan.use_masks):
         return "all"
-    if where == "dense" and not (masks_source == "dataset" and scene.synthetic
-                                 and "smoke_alpha" in scene.meta.get("passes", {}).get("rgb", [])):
-        plan.notes.append(
-            f"mask floor: loss.mask_floor_where=dense needs the generator's smoke alpha behind Stage 1's masks, "
-            f"but the masks are {masks_source!r} masks of a "
-            f"{'synthetic' if scene.synthetic else 'captured'} scene; the floor acts where never seen clear instead")
-        return "never-clear"
     return where

@@ -8,12 +8,12 @@ in training; they are not scored.
 """
 from __future__ import annotations
 
-from scenes.scene import ModalityData
+from scenes.scene import Frame
 
 MIN_TRAIN_FRAMES = 2
 
 
-def hold_out_validation(rgb: ModalityData, every: int) -> list[int]:
+def hold_out_validation(frames: list[Frame], every: int) -> list[int]:
     """Relabel RGB train frames ``i % every == 0`` as ``val``; returns their indices.
 
     ``every`` 0 holds out nothing. Raises ValueError (naming ``validation_every``) when fewer than
@@ -23,11 +23,11 @@ def hold_out_validation(rgb: ModalityData, every: int) -> list[int]:
         raise ValueError(f"validation_every: must be 0 (none) or at least 2, got {every}")
     if every == 0:
         return []
-    chosen = [i for i, f in enumerate(rgb.frames) if f.split == "train" and i % every == 0]
-    remaining = len(rgb.indices("train")) - len(chosen)
+    chosen = [i for i, f in enumerate(frames) if f.split == "train" and i % every == 0]
+    remaining = sum(f.split == "train" for f in frames) - len(chosen)
     if remaining < MIN_TRAIN_FRAMES:
         raise ValueError(f"validation_every: {every} would leave {remaining} RGB training frame(s) of "
-                         f"{len(rgb.frames)}; use 0 for this dataset or a larger value")
+                         f"{len(frames)}; use 0 for this dataset or a larger value")
     for i in chosen:
-        rgb.frames[i].split = "val"
+        frames[i].split = "val"
     return chosen
