@@ -1,0 +1,14 @@
+#!/usr/bin/env bash
+# The GPU check (docs/scale-out.md): on a Linux node with an NVIDIA GPU, torch with CUDA, nvcc and
+# ninja, and no internet. WHEELS is the folder `python -m benchmarks.gpu_check.make_wheels` made.
+# Usage: scripts/gpu_check.sh WHEELS [OUT] [--budget SECONDS ...]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+if [ $# -lt 1 ]; then
+  echo "usage: scripts/gpu_check.sh WHEELS [OUT] [options of python -m benchmarks.gpu_check.run]" >&2
+  exit 2
+fi
+WHEELS="$1"
+OUT="${2:-runs/gpu_check}"
+shift $(( $# < 2 ? $# : 2 ))
+exec "${PYTHON:-python3}" -m benchmarks.gpu_check.run --wheels "$WHEELS" --out "$OUT" "$@"
