@@ -11,4 +11,9 @@ fi
 WHEELS="$1"
 OUT="${2:-runs/gpu_check}"
 shift $(( $# < 2 ? $# : 2 ))
-exec "${PYTHON:-python3}" -m benchmarks.gpu_check.run --wheels "$WHEELS" --out "$OUT" "$@"
+PY="${PYTHON:-python3}"
+if ! "$PY" -c 'import sys; sys.exit(sys.version_info < (3, 11))'; then
+  echo "gpu_check: error: $PY is Python $("$PY" -c 'import platform; print(platform.python_version())'); the project needs 3.11 or later" >&2
+  exit 2
+fi
+exec "$PY" -m benchmarks.gpu_check.run --wheels "$WHEELS" --out "$OUT" "$@"
