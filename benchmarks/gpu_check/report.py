@@ -27,13 +27,14 @@ def markdown(results: dict[str, Any]) -> str:
         lines.append(f"| {step['name']} | {step['status']} | {step['seconds']:.1f} | {step['reason']} |")
     runs = results.get("runs", {})
     if runs:
-        lines += ["", "| run | backend | Stage 2 it/s | Stage 3 it/s | iterations | peak GPU memory (GiB) | test PSNR |",
+        lines += ["", "| run | backend | Stage 2 it/s | Stage 3 it/s | iterations (Stage 2 + 3) | peak GPU memory (GiB) | test PSNR |",
                   "|---|---|---|---|---|---|---|"]
         for name, run in runs.items():
             rate = run.get("iterations_per_s", {})
             mem = run.get("peak_memory_bytes")
+            done = " + ".join(str(v) for _, v in sorted(run.get("iterations_done", {}).items())) or "—"
             lines.append(f"| {name} | {run.get('backend', '—')} | {_num(rate.get('2'), '.2f')} | "
-                         f"{_num(rate.get('3'), '.2f')} | {run.get('iterations_done', '—')} | "
+                         f"{_num(rate.get('3'), '.2f')} | {done} | "
                          f"{_num(None if mem is None else mem / 2**30, '.2f')} | {_num(run.get('psnr'), '.2f')} |")
     ref = results.get("reference")
     if ref:

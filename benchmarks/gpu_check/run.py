@@ -108,7 +108,7 @@ class Check:
     def probe(self) -> None:
         res = self.command("probe", [PY, "-m", "benchmarks.gpu_check.target"], CAPS["probe"], [], cwd=ROOT)
         if res.status == OK:
-            self.node = json.loads(Path(res.log).read_text().splitlines()[-1])
+            self.node = json.loads([ln for ln in Path(res.log).read_text().splitlines() if ln.startswith("{")][-1])
         n = self.node
         print(f"Python {n.get('python')}, torch {n.get('torch')} (CUDA {n.get('torch_cuda')}), nvcc {n.get('nvcc')}, "
               f"GPU {', '.join(n.get('gpus') or []) or 'none'} (arch {n.get('arch_list')})", flush=True)
