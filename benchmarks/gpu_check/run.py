@@ -181,21 +181,23 @@ class Check:
 
     def parity(self) -> None:
         junit = self.out / "parity.xml"
-        res = self.command("parity", [PY, "-m", "pytest", "-q", "-rA", "-p", "no:cacheprovider",
-                                      "tests/test_raster_gsplat.py", f"--junitxml={junit}", "-o",
-                                      "junit_logging=system-out"],
-                           CAPS["parity"], ["gsplat-import"], reserve_s=240,
-                           env=_env(ROOT, self.gsplat_site, self.site), cwd=ROOT)
+        argv = [PY, "-m", "pytest", "-q", "-rA", "-p", "no:cacheprovider", "tests/test_raster_gsplat.py",
+                f"--junitxml={junit}", "-o", "junit_logging=system-out"]
+        res = blocked("parity", ["gsplat-import"], self.done) or run_command(
+            "parity", argv, self.logs / "parity.log", self.budget.timeout_for(CAPS["parity"], 240 + REPORT_RESERVE_S),
+            env=_env(ROOT, self.gsplat_site, self.site), cwd=ROOT)
         if junit.is_file():
             res.detail["tests"] = parity_detail(junit)
             skipped = [k for k, v in res.detail["tests"].items() if v["outcome"].startswith("skipped")]
             if res.status == OK and skipped:
                 res.status, res.reason = FAILED, f"skipped on this node: {', '.join(skipped)}"
+        self.record(res)
 
     def train(self, name: str, args: list[str], cap_s: float, needs: list[str], with_gsplat: bool,
               reserve_s: float = 0.0) -> StepResult:
         run = self.runs / name
-        paths = (self.gsplat_site, self.site) if with_gsplat else (self.site,)
+        # The installed trainer first; the checkout after it only for benchmarks/, which is not installed.
+        paths = (self.gsplat_site, self.site, ROOT) if with_gsplat else (self.site, ROOT)
         argv = [PY, "-m", "benchmarks.gpu_check.train_run", str(self.runs / f"{name}.memory.json"), "--",
                 str(self.dataset), "--out", str(run), "--device", "cuda", "--no-progress", *args]
         return self.command(name, argv, cap_s, needs, reserve_s=reserve_s, env=_env(*paths), cwd=self.work)
@@ -210,7 +212,7 @@ class Check:
             self.command("take-stage2", [PY, "-m", "benchmarks.gpu_check.take_stage2", str(torch_run), str(donor),
                                          "full", "standard", "0", "device=cuda",
                                          f"stage3.iterations={self.torch_iterations}"],
-                         30, [], env=_env(self.site), cwd=self.work)
+                         30, [], env=_env(self.site, ROOT), cwd=self.work)
         else:
             self.record(StepResult("take-stage2", SKIPPED, reason="the gsplat run did not finish Stage 2"))
         self.train("stage3-torch", ["--profile", "standard", "--iterations-stage3", str(self.torch_iterations)],
@@ -274,6 +276,7 @@ def main(argv: list[str] | None = None) -> int:
     # Training starts afresh (clean timings); the installed packages and gsplat's build are kept.
     for old in (check.runs, check.logs):
         shutil.rmtree(old, ignore_errors=True)
+    (check.out / "parity.xml").unlink(missing_ok=True)
     check.probe()
     check.wheel_folder()
     check.install()
