@@ -88,7 +88,7 @@ class Check:
         self.wheels, self.out, self.dataset = wheels.resolve(), out.resolve(), dataset.resolve()
         self.paper_iterations, self.torch_iterations = paper_iterations, torch_iterations
         self.budget = Budget(budget_s)
-        self.work = self.out / "work"
+        self.work = self.out / "install"
         self.site, self.gsplat_site = self.work / "site", self.work / "gsplat"
         self.logs, self.runs = self.out / "logs", self.out / "runs"
         self.done: dict[str, StepResult] = {}
