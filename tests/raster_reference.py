@@ -9,6 +9,7 @@ before T < 1e-4), so the fast backend must agree with it to rounding error.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import pytest
@@ -235,3 +236,23 @@ def every_cpu_backend(request: pytest.FixtureRequest):
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(api, "_resolve_backend", resolve)
         yield request.param
+
+
+def random_scene(seed: int, n: int, c: int = 2, width: int = 40, height: int = 32, d: int = 3,
+                 dtype: torch.dtype = torch.float64, spread: float = 0.8, scale: tuple[float, float] = (0.005, 0.15)):
+    """Gaussians in front of C cameras that look at the origin from slightly different poses."""
+    g = torch.Generator().manual_seed(seed)
+    means = torch.randn(n, 3, generator=g, dtype=dtype) * spread
+    quats = torch.randn(n, 4, generator=g, dtype=dtype)
+    scales = torch.rand(n, 3, generator=g, dtype=dtype) * (scale[1] - scale[0]) + scale[0]
+    opac = torch.rand(n, generator=g, dtype=dtype)
+    colors = torch.rand(n, d, generator=g, dtype=dtype)
+    viewmats = torch.eye(4, dtype=dtype).repeat(c, 1, 1)
+    for i in range(c):
+        ang = 0.25 * i
+        viewmats[i, :3, :3] = torch.tensor([[math.cos(ang), 0, -math.sin(ang)], [0, 1, 0],
+                                             [math.sin(ang), 0, math.cos(ang)]], dtype=dtype)
+        viewmats[i, :3, 3] = torch.tensor([0.1 * i, -0.05 * i, 4.0], dtype=dtype)
+    f = 1.2 * width
+    ks = torch.tensor([[f, 0, width / 2 + 0.3], [0, f * 1.1, height / 2 - 0.2], [0, 0, 1]], dtype=dtype).repeat(c, 1, 1)
+    return means, quats, scales, opac, colors, viewmats, ks, width, height

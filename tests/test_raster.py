@@ -13,30 +13,11 @@ import smokeseer.raster.torch_backend as torch_backend
 from smokeseer.raster import eval_sh, rasterize
 from smokeseer.raster.api import view_colors
 from tests.raster_reference import dense_loss_backward, dense_rasterize, every_cpu_backend  # noqa: F401 (fixture)
+from tests.raster_reference import random_scene
 
 pytestmark = pytest.mark.usefixtures("every_cpu_backend")
 
 F64 = torch.float64
-
-
-def random_scene(seed: int, n: int, c: int = 2, width: int = 40, height: int = 32, d: int = 3,
-                 dtype: torch.dtype = F64, spread: float = 0.8, scale: tuple[float, float] = (0.005, 0.15)):
-    """Gaussians in front of C cameras that look at the origin from slightly different poses."""
-    g = torch.Generator().manual_seed(seed)
-    means = torch.randn(n, 3, generator=g, dtype=dtype) * spread
-    quats = torch.randn(n, 4, generator=g, dtype=dtype)
-    scales = torch.rand(n, 3, generator=g, dtype=dtype) * (scale[1] - scale[0]) + scale[0]
-    opac = torch.rand(n, generator=g, dtype=dtype)
-    colors = torch.rand(n, d, generator=g, dtype=dtype)
-    viewmats = torch.eye(4, dtype=dtype).repeat(c, 1, 1)
-    for i in range(c):
-        ang = 0.25 * i
-        viewmats[i, :3, :3] = torch.tensor([[math.cos(ang), 0, -math.sin(ang)], [0, 1, 0],
-                                             [math.sin(ang), 0, math.cos(ang)]], dtype=dtype)
-        viewmats[i, :3, 3] = torch.tensor([0.1 * i, -0.05 * i, 4.0], dtype=dtype)
-    f = 1.2 * width
-    ks = torch.tensor([[f, 0, width / 2 + 0.3], [0, f * 1.1, height / 2 - 0.2], [0, 0, 1]], dtype=dtype).repeat(c, 1, 1)
-    return means, quats, scales, opac, colors, viewmats, ks, width, height
 
 
 def assert_matches_dense(out, ref, tol: float) -> float:

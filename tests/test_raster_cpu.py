@@ -12,7 +12,8 @@ import pytest
 import torch
 
 from smokeseer.raster import rasterize
-from tests.test_raster import random_scene, weighted_loss
+from tests.raster_reference import random_scene
+from tests.test_raster import weighted_loss
 
 ROOT = Path(__file__).resolve().parents[1]
 
