@@ -77,6 +77,7 @@ def prepare(dataset: Path, mode: str = "full", profile: str = "quick", seed: int
     t = time.perf_counter()
     code = provenance("smokeseer.api", torch.get_num_threads())
     cfg = make_config(mode, profile, seed, overrides)
+    check_device(cfg.device)
     dataset = Path(dataset)
     if cfg.depth_prior == "mono" and not Path(cfg.mono_weights).is_file():
         raise ValueError(f"mono_weights: no TorchScript file at {cfg.mono_weights!r} (depth_prior=mono "
@@ -106,6 +107,17 @@ def train_and_evaluate(dataset: Path, out: Path, mode: str = "full", profile: st
         doc["error"] = f"{type(exc).__name__}: {exc}"
         write_json(out / "metrics.json", doc)
         raise
+
+
+def check_device(device: str) -> None:
+    """Refuse, before any work, a device this torch cannot use (one line, not a CUDA traceback)."""
+    try:
+        dev = torch.device(device)
+    except RuntimeError as exc:
+        raise ValueError(f"device: {device!r} is not a torch device ({exc})") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device: {device!r} asked for, but this torch {torch.__version__} sees no CUDA GPU "
+                         f"(built with CUDA {torch.version.cuda or 'no'}); use --device cpu")
 
 
 def check_run_dir(out: Path) -> None:

@@ -412,7 +412,13 @@ def test_bad_input_gives_one_line_and_exit_2(tmp_path: Path, capsys: pytest.Capt
     assert main([str(bad), "--out", str(tmp_path / "r4"), "--set", "depth_prior=mono",
                  "--set", "mono_weights=/nonexistent/depth.pt"]) == 2
     assert "mono_weights: no TorchScript file" in capsys.readouterr().err
-    assert not any((tmp_path / name).exists() for name in ("r", "r2", "r3", "r4"))
+    if not torch.cuda.is_available():
+        assert main([str(bad), "--out", str(tmp_path / "r5"), "--device", "cuda"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "device: 'cuda' asked for, but this torch" in err[0] and "sees no CUDA GPU" in err[0]
+    assert main([str(bad), "--out", str(tmp_path / "r6"), "--device", "gpu0"]) == 2
+    assert "device: 'gpu0' is not a torch device" in capsys.readouterr().err
+    assert not any((tmp_path / name).exists() for name in ("r", "r2", "r3", "r4", "r5", "r6"))
 
 
 def test_out_that_is_a_file_is_one_line_before_any_work(splat: Path, tmp_path: Path,
