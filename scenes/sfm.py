@@ -77,11 +77,12 @@ class SfmResult:
                 "points": int(len(self.points)), **self.stats}
 
 
-def cache_dir() -> Path:
-    """``$SMOKESEER_SFM_CACHE``, else ``$XDG_CACHE_HOME`` or ``~/.cache``, ``/smokeseer/sfm``."""
+def cache_dir() -> Path | None:
+    """``$SMOKESEER_SFM_CACHE`` (empty: no cache), else ``$XDG_CACHE_HOME`` or ``~/.cache``,
+    ``/smokeseer/sfm``."""
     env = os.environ.get(CACHE_ENV)
-    if env:
-        return Path(env)
+    if env is not None:
+        return Path(env) if env else None
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "smokeseer" / "sfm"
 
 

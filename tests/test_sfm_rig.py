@@ -1,0 +1,125 @@
+"""Thermal poses from the rig: SLERP and linear interpolation of the RGB trajectory, and the
+RGB→thermal extrinsic, against analytic cases, scipy's Slerp and the generator's own rig."""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation, Slerp
+
+from contracts.errors import DatasetError
+from generator.rig import look_at, thermal_pose
+from scenes.cameras import c2w_gl_to_viewmat, camera_center
+from scenes.rig import RigExtrinsic, apply_extrinsic, interpolate_trajectory, parse_rig, slerp, thermal_from_rig
+
+
+def _viewmat(rotation: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    v = np.eye(4)
+    v[:3, :3] = rotation
+    v[:3, 3] = -rotation @ centre
+    return v
+
+
+def _rot_z(deg: float) -> np.ndarray:
+    return Rotation.from_euler("z", deg, degrees=True).as_matrix()
+
+
+def test_slerp_matches_scipy_on_random_rotations() -> None:
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        r0, r1 = Rotation.random(2, random_state=rng.integers(1 << 30)).as_matrix()
+        w = float(rng.uniform())
+        ref = Slerp([0.0, 1.0], Rotation.from_matrix([r0, r1]))([w]).as_matrix()[0]
+        assert np.abs(slerp(r0, r1, w) - ref).max() < 1e-9
+
+
+def test_slerp_end_points_and_half_turn() -> None:
+    r0 = _rot_z(10.0)
+    r1 = r0 @ Rotation.from_rotvec([math.pi, 0.0, 0.0]).as_matrix()
+    assert np.allclose(slerp(r0, r1, 0.0), r0) and np.allclose(slerp(r0, r1, 1.0), r1)
+    half = slerp(r0, r1, 0.5)
+    assert np.allclose(half, r0 @ Rotation.from_rotvec([math.pi / 2, 0.0, 0.0]).as_matrix(), atol=1e-6)
+
+
+def test_interpolation_is_slerp_and_linear_between_frames() -> None:
+    # Frames at 0, 1 and 3 s; rotation about z 0, 30, 90 degrees; centres on a bent line.
+    times = np.array([1.0, 0.0, 3.0])  # unsorted on purpose
+    angles = {0.0: 0.0, 1.0: 30.0, 3.0: 90.0}
+    centres = {0.0: np.array([0.0, 0.0, 0.0]), 1.0: np.array([1.0, 0.0, 0.0]), 3.0: np.array([1.0, 2.0, 0.0])}
+    views = np.stack([_viewmat(_rot_z(angles[t]), centres[t]) for t in times])
+    at = np.array([0.0, 0.5, 1.0, 2.5, 3.0])
+    out = interpolate_trajectory(views, times, at)
+    for v, t in zip(out, at):
+        if t <= 1.0:
+            deg, c = 30.0 * t, np.array([t, 0.0, 0.0])
+        else:
+            w = (t - 1.0) / 2.0
+            deg, c = 30.0 + 60.0 * w, np.array([1.0, 2.0 * w, 0.0])
+        assert np.allclose(v[:3, :3], _rot_z(deg), atol=1e-12)
+        assert np.allclose(camera_center(v), c, atol=1e-12)
+
+
+def test_interpolation_refuses_to_extrapolate() -> None:
+    views = np.stack([_viewmat(np.eye(3), np.zeros(3)), _viewmat(np.eye(3), np.ones(3))])
+    ok = interpolate_trajectory(views, np.array([0.0, 1.0]), np.array([1.05]), tolerance=0.1)
+    assert np.allclose(camera_center(ok[0]), np.ones(3))
+    with pytest.raises(ValueError, match="outside the trajectory's times"):
+        interpolate_trajectory(views, np.array([0.0, 1.0]), np.array([1.2]), tolerance=0.1)
+
+
+def test_extrinsic_matches_the_generators_rig() -> None:
+    """The generator places the thermal camera ``baseline`` away in the RGB camera's Blender axes,
+    looking the same way; our extrinsic in OpenCV axes must give the same pose."""
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        c2w = look_at(rng.normal(size=3) * 3, rng.normal(size=3) * 0.3)
+        baseline_gl = rng.normal(size=3) * 0.1
+        expected = c2w_gl_to_viewmat(thermal_pose(c2w, tuple(baseline_gl)))
+        got = apply_extrinsic(c2w_gl_to_viewmat(c2w)[None], np.eye(3), baseline_gl * np.array([1.0, -1.0, -1.0]))[0]
+        assert np.allclose(got, expected, atol=1e-12)
+
+
+def test_extrinsic_rotation_and_lever_compose() -> None:
+    """A thermal camera turned 90 degrees about the RGB camera's y axis, 0.1 to its right: a world
+    point maps to thermal camera coordinates that the definition x_rgb = R x_thermal + lever
+    takes back to its RGB camera coordinates, and the centres differ by the lever."""
+    rot = Rotation.from_euler("y", 90.0, degrees=True).as_matrix()
+    lever = np.array([0.1, 0.0, 0.0])
+    rgb = _viewmat(_rot_z(20.0), np.array([1.0, 2.0, 3.0]))
+    th = apply_extrinsic(rgb[None], rot, lever)[0]
+    x_world = np.linalg.inv(rgb) @ np.array([0.3, -0.2, 2.0, 1.0])  # a point in front of the RGB camera
+    x_rgb = (rgb @ x_world)[:3]
+    x_th = (th @ x_world)[:3]
+    assert np.allclose(rot @ x_th + lever, x_rgb, atol=1e-12)
+    assert np.allclose(camera_center(th), camera_center(rgb) + rgb[:3, :3].T @ lever, atol=1e-12)
+
+
+def test_thermal_from_rig_notes_what_it_assumes() -> None:
+    views = np.stack([_viewmat(_rot_z(a), np.array([a / 10, 0.0, 0.0])) for a in (0.0, 10.0, 20.0)])
+    times = np.array([0.0, 1.0, 2.0])
+    _, notes = thermal_from_rig(views, times, np.array([0.5, 1.5]), None)
+    assert len(notes) == 1 and "not given" in notes[0] and "assumed" in notes[0]
+    rig = RigExtrinsic(np.eye(3), np.array([0.06, 0.0, 0.0]))
+    out, notes = thermal_from_rig(views, times, np.array([0.5]), rig)
+    assert "not applied" in notes[0] and np.allclose(camera_center(out[0]), [0.5, 0.0, 0.0])
+    out, notes = thermal_from_rig(views, times, np.array([0.5]), RigExtrinsic(np.eye(3), np.array([0.06, 0, 0]), 0.5))
+    assert notes == []
+    assert np.allclose(camera_center(out[0]), [0.5, 0.0, 0.0] + _rot_z(5.0).T @ [0.12, 0.0, 0.0])
+
+
+@pytest.mark.parametrize("rig, field", [
+    ({"lever_arm_m": [0.1, 0]}, "rig.lever_arm_m"),
+    ({"thermal_rotation": [[1, 0, 0], [0, 1, 0], [0, 0, -1]], "lever_arm_m": [0, 0, 0]}, "rig.thermal_rotation"),
+    ({"thermal_rotation": "identity", "lever_arm_m": [0, 0, 0]}, "rig.thermal_rotation"),
+    ({}, "rig.lever_arm_m"),
+    ({"lever_arm_m": [0, 0, 0], "metres_per_unit": -1}, "rig.metres_per_unit"),
+])
+def test_parse_rig_names_the_bad_field(rig: dict, field: str, tmp_path: Path) -> None:
+    source = tmp_path / "capture.json"
+    source.write_text(json.dumps({"rig": rig}))
+    with pytest.raises(DatasetError, match=f"capture.json: field '{field}'"):
+        parse_rig({"rig": rig}, source)
+    assert parse_rig({}, source) is None
