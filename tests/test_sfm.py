@@ -16,9 +16,13 @@ from contracts.errors import DatasetError
 from scenes.cameras import intrinsics, scene_bounds
 from scenes.load import load_scene
 from scenes.sfm import CACHE_ENV, SfmError
+from smokeseer.api import train_and_evaluate
 
 SOURCE = Path(__file__).resolve().parents[1] / "data" / "standard" / "excavator"
 STEP = 3  # every third RGB frame: 20 frames over the whole flyover
+TINY = {"stage2.iterations": 12, "stage3.iterations": 12, "stage2.init_points": 300, "stage3.smoke_points": 120,
+        "log_every": 3, "stage3.test_every": 6, "checkpoint_every": 6, "deform.warmup_iterations": 3,
+        "progress": False}
 
 
 def _write_capture(root: Path, mask_everything: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
@@ -68,9 +72,12 @@ def test_images_only_capture_is_posed_by_sfm_and_the_rig(tmp_path: Path, monkeyp
     assert th_errs["rot_median_deg"] < 0.75, th_errs
     assert any("lever arm" in n and "not applied" in n for n in scene.notes)
     assert any(n.startswith("poses from SfM") for n in scene.notes)
-    again = load_scene(tmp_path / "cap")
-    assert again.poses["rgb"]["cached"] is True
-    assert np.array_equal(np.stack([f.viewmat for f in again.rgb.frames]), est)
+    # Training reads the same capture (the SfM result now from the cache) and records the poses' source.
+    doc = train_and_evaluate(tmp_path / "cap", tmp_path / "run", "full", overrides=TINY)
+    poses = doc["stages"]["poses"]
+    assert poses["rgb"]["cached"] is True and poses["rgb"]["registered"] == len(views)
+    assert poses["thermal"] == {"source": "rig", "extrinsic": "given", "lever_applied": False}
+    assert json.loads((tmp_path / "run" / "metrics.json").read_text())["stages"]["poses"] == poses
 
 
 def test_smoke_over_everything_stops_with_one_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
