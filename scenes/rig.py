@@ -123,6 +123,65 @@ def apply_extrinsic(rgb_viewmats: np.ndarray, rotation: np.ndarray, lever: np.nd
     return out
 
 
+STRAIGHT_PATH_RATIO = 0.05
+"""Centres whose second principal spread is below this fraction of the first lie on a line."""
+
+
+@dataclass
+class RigRotationEstimate:
+    """The rig rotation found from a thermal SfM run, and how well the frames agree on it."""
+
+    rotation: np.ndarray
+    frames: int
+    residual_deg: float
+    centre_rmse: float
+
+
+def estimate_rig_rotation(rgb_viewmats: np.ndarray, rgb_times: np.ndarray, thermal_viewmats: np.ndarray,
+                          thermal_times: np.ndarray) -> RigRotationEstimate:
+    """The thermal camera's rotation in RGB camera axes, from thermal poses solved on their own
+    (their own world frame and scale): the Sim(3) between the two worlds comes from the camera
+    centres (Umeyama, thermal centres onto the RGB trajectory at the thermal instants; the lever
+    arm, small against the path, is neglected), then each frame gives
+    ``R_rig = R_rgb · W · R_thermalᵀ`` and their chordal mean is the estimate.
+
+    Centres on a straight line leave the rotation about the line unobservable: refused (as is
+    a rotation found from relative motions alone when every motion turns about one axis, the
+    drone orbit's case, which is why the centres are used)."""
+    steps = np.diff(np.sort(np.asarray(rgb_times, float)))
+    tolerance = 0.5 * float(np.median(steps)) if len(steps) else 0.0
+    inside = (thermal_times >= np.min(rgb_times) - tolerance) & (thermal_times <= np.max(rgb_times) + tolerance)
+    if inside.sum() < 3:
+        raise ValueError(f"rig estimate: {int(inside.sum())} thermal frames fall within the RGB frames' times; need 3")
+    rgb_at = interpolate_trajectory(rgb_viewmats, rgb_times, np.asarray(thermal_times)[inside], tolerance)
+    th = np.asarray(thermal_viewmats, float)[inside]
+    c_rgb = np.einsum("nji,nj->ni", rgb_at[:, :3, :3], -rgb_at[:, :3, 3])
+    c_th = np.einsum("nji,nj->ni", th[:, :3, :3], -th[:, :3, 3])
+    spread = np.linalg.svd(c_th - c_th.mean(0), compute_uv=False)
+    if spread[1] < STRAIGHT_PATH_RATIO * spread[0]:
+        raise ValueError("rig estimate: the thermal camera centres lie on a straight line, so the rotation about "
+                         "the line is unobservable from them")
+    world, scale, shift = _umeyama(c_th, c_rgb)
+    per_frame = np.einsum("nij,jk,nlk->nil", rgb_at[:, :3, :3], world, th[:, :3, :3])
+    u, _, vt = np.linalg.svd(per_frame.sum(0))
+    rotation = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
+    resid = [np.degrees(np.arccos(np.clip((np.trace(rotation.T @ r) - 1.0) / 2.0, -1.0, 1.0))) for r in per_frame]
+    fit = scale * c_th @ world.T + shift - c_rgb
+    return RigRotationEstimate(rotation, int(inside.sum()), float(np.median(resid)),
+                               float(np.sqrt(np.mean(np.sum(fit ** 2, axis=1)))))
+
+
+def _umeyama(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    """Rotation, scale and shift with dst ≈ s·R·src + t (least squares, Umeyama 1991)."""
+    mu_s, mu_d = src.mean(0), dst.mean(0)
+    xs, xd = src - mu_s, dst - mu_d
+    u, d, vt = np.linalg.svd(xd.T @ xs / len(src))
+    sign = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
+    rotation = u @ sign @ vt
+    scale = float(np.trace(np.diag(d) @ sign) / ((xs ** 2).sum() / len(src)))
+    return rotation, scale, mu_d - scale * rotation @ mu_s
+
+
 def thermal_from_rig(rgb_viewmats: np.ndarray, rgb_times: np.ndarray, thermal_times: np.ndarray,
                      rig: RigExtrinsic | None) -> tuple[np.ndarray, list[str]]:
     """Thermal poses at ``thermal_times`` from the RGB trajectory and the rig, with notes on

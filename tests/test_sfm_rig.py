@@ -13,7 +13,8 @@ from scipy.spatial.transform import Rotation, Slerp
 from contracts.errors import DatasetError
 from generator.rig import look_at, thermal_pose
 from scenes.cameras import c2w_gl_to_viewmat, camera_center
-from scenes.rig import RigExtrinsic, apply_extrinsic, interpolate_trajectory, parse_rig, slerp, thermal_from_rig
+from scenes.rig import (RigExtrinsic, apply_extrinsic, estimate_rig_rotation, interpolate_trajectory, parse_rig, slerp,
+                        thermal_from_rig)
 
 
 def _viewmat(rotation: np.ndarray, centre: np.ndarray) -> np.ndarray:
@@ -123,3 +124,53 @@ def test_parse_rig_names_the_bad_field(rig: dict, field: str, tmp_path: Path) ->
     with pytest.raises(DatasetError, match=f"capture.json: field '{field}'"):
         parse_rig({"rig": rig}, source)
     assert parse_rig({}, source) is None
+
+
+def _orbit(n: int, radius: float = 2.0, height: float = 1.0, sweep_deg: float = 150.0) -> np.ndarray:
+    angles = np.radians(np.linspace(0.0, sweep_deg, n))
+    return np.stack([c2w_gl_to_viewmat(look_at(np.array([radius * math.cos(a), radius * math.sin(a), height]),
+                                               np.zeros(3))) for a in angles])
+
+
+def _other_world(views: np.ndarray, scale: float, rotation: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """The same cameras in a world x' = (Rᵀ (x − shift)) / scale: what a separate SfM run gives."""
+    out = []
+    for v in views:
+        r, c = v[:3, :3], camera_center(v)
+        out.append(_viewmat(r @ rotation, rotation.T @ (c - shift) / scale))
+    return np.stack(out)
+
+
+def test_rig_rotation_is_recovered_from_a_separate_thermal_solution() -> None:
+    rgb = _orbit(30)
+    times = np.linspace(0.0, 3.0, 30)
+    th_times = np.linspace(0.05, 2.95, 20)
+    rig = Rotation.from_rotvec(np.radians([2.0, -3.0, 1.5])).as_matrix()
+    truth = apply_extrinsic(interpolate_trajectory(rgb, times, th_times), rig, np.zeros(3))
+    own = _other_world(truth, 0.37, Rotation.from_rotvec([0.3, -1.1, 0.4]).as_matrix(), np.array([4.0, -2.0, 1.0]))
+    est = estimate_rig_rotation(rgb, times, own, th_times)
+    assert est.frames == 20 and est.residual_deg < 1e-4  # arccos near 1 resolves ~1e-6 degrees
+    assert np.abs(est.rotation - rig).max() < 1e-6
+
+
+def test_rig_rotation_on_a_straight_path_is_refused() -> None:
+    rgb = np.stack([c2w_gl_to_viewmat(look_at(np.array([x, -3.0, 2.0]), np.array([x, 0.0, 0.0])))
+                    for x in np.linspace(-2, 2, 10)])
+    times = np.arange(10.0)
+    with pytest.raises(ValueError, match="straight line"):
+        estimate_rig_rotation(rgb, times, apply_extrinsic(rgb, np.eye(3), np.zeros(3)), times)
+
+
+def test_a_sideways_lever_on_an_orbit_biases_the_rig_rotation_by_its_angle() -> None:
+    """The documented limit: on a look-at orbit a lever along the camera's x axis moves every
+    thermal centre along the path, which reads as a turn of the whole trajectory about the orbit's
+    axis, so the estimate is off by about atan(lever / radius) about the camera's vertical."""
+    rgb = _orbit(30, radius=2.0, height=0.0)
+    times = np.linspace(0.0, 3.0, 30)
+    th_times = np.linspace(0.05, 2.95, 20)
+    truth = apply_extrinsic(interpolate_trajectory(rgb, times, th_times), np.eye(3), np.array([0.06, 0.0, 0.0]))
+    est = estimate_rig_rotation(rgb, times, truth, th_times)
+    angle = math.degrees(Rotation.from_matrix(est.rotation).magnitude())
+    assert angle == pytest.approx(math.degrees(math.atan(0.06 / 2.0)), rel=0.05)
+    axis = Rotation.from_matrix(est.rotation).as_rotvec() / math.radians(angle)
+    assert abs(axis[1]) > 0.99  # the camera's y axis: the orbit's axis seen from a level camera
