@@ -3,8 +3,9 @@
 For each dataset: SfM (``scenes.sfm``) on the smoky RGB frames at full size with the known
 intrinsics held fixed, the features masked where the true smoke opacity exceeds a threshold
 (or not at all), then the thermal poses from the rig (``scenes.rig``) with the extrinsic given
-(the generator's baseline, scaled to SfM units by the alignment) and with none (identity, zero
-lever). The SfM poses are brought onto the truth by a Sim(3): its rotation is the chordal mean
+(the generator's baseline, scaled to SfM units by the alignment), with it estimated (the rotation
+from SfM on the smoky thermal frames, ``scenes.rig.estimate_rig_rotation``, zero lever) and with
+it assumed (identity, zero lever). The SfM poses are brought onto the truth by a Sim(3): its rotation is the chordal mean
 of the per-frame rotations between the two frames (camera orientations), its scale and shift the
 least-squares fit of the camera centres. Umeyama on the centres alone cannot be used: on the
 flyovers (straight paths) the rotation about the path is undetermined by the centres (it
@@ -21,6 +22,7 @@ import argparse
 import math
 import os
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -30,8 +32,8 @@ from contracts.atomic import write_rows_csv
 from contracts.dataset_format import file_path, load_transforms, pass_file, read_pass_image, transforms_name
 from contracts.imageio import read_png
 from scenes.cameras import c2w_gl_to_viewmat, camera_center, intrinsics, scene_bounds
-from scenes.rig import RigExtrinsic, thermal_from_rig
-from scenes.sfm import SfmError, SfmSettings, run_sfm
+from scenes.rig import RigExtrinsic, estimate_rig_rotation, thermal_from_rig
+from scenes.sfm import SfmError, SfmResult, SfmSettings, run_sfm, stretched
 from smokeseer.registration import Sim3
 
 GL_TO_CV_AXES = np.array([1.0, -1.0, -1.0])
@@ -78,7 +80,8 @@ def pose_errors(est: np.ndarray, ref: np.ndarray, sim: Sim3, extent: float) -> d
             "centre_rmse_frac": float(np.sqrt(np.mean(dist ** 2)) / extent)}
 
 
-def evaluate(root: Path, mask_alpha: float | None, settings: SfmSettings) -> dict[str, object]:
+def evaluate(root: Path, mask_alpha: float | None, settings: SfmSettings,
+             thermal: tuple[SfmResult | None, str]) -> dict[str, object]:
     rgb, views, times = truth(root, "rgb")
     _, th_views, th_times = truth(root, "thermal")
     names = [f["file_stem"] for f in rgb["frames"]]
@@ -108,7 +111,17 @@ def evaluate(root: Path, mask_alpha: float | None, settings: SfmSettings) -> dic
                reproj_px=res.stats["mean_reprojection_error_px"], extent_m=round(bounds.extent, 4),
                **{k: round(v, 5) for k, v in errs.items()})
     rig = RigExtrinsic(np.eye(3), baseline_cv(root), metres_per_unit=sim.scale)
-    for label, extrinsic in (("given", rig), ("assumed", None)):
+    extrinsics = {"given": rig, "assumed": None}
+    th_res, row["rig_estimate"] = thermal
+    if th_res is not None:
+        try:
+            est = estimate_rig_rotation(res.viewmats[reg], times[reg], th_res.viewmats[th_res.registered],
+                                        th_times[th_res.registered])
+            extrinsics["estimated"] = RigExtrinsic(est.rotation, np.zeros(3))
+            row["rig_estimate"] += f", residual {est.residual_deg:.3f} deg"
+        except ValueError as exc:
+            row["rig_estimate"] += f", not estimated: {exc}"
+    for label, extrinsic in extrinsics.items():
         th_est, _ = thermal_from_rig(res.viewmats[reg], times[reg], th_times, extrinsic)
         th = pose_errors(th_est, th_views, sim, bounds.extent)
         row.update({f"thermal_{label}_rot_median_deg": round(th["rot_median_deg"], 5),
@@ -116,6 +129,22 @@ def evaluate(root: Path, mask_alpha: float | None, settings: SfmSettings) -> dic
                     f"thermal_{label}_centre_rmse_m": round(th["centre_rmse_m"], 5)})
     row["status"] = "ok"
     return row
+
+
+def thermal_sfm(root: Path, settings: SfmSettings) -> tuple[SfmResult | None, str]:
+    """SfM on the smoky thermal frames (percentile-stretched), for the rig estimate; None and why
+    when too few register."""
+    th, _, _ = truth(root, "thermal")
+    names = [f["file_stem"] for f in th["frames"]]
+    frames = stretched([read_png(root / "thermal" / "smoky" / f"{n}.png") for n in names])
+    K = intrinsics(th["fl_x"], th["fl_y"], th["cx"], th["cy"])
+    t0 = time.perf_counter()
+    try:
+        res = run_sfm(names, frames, None, K, replace(settings, min_registered=0.5), cache=None, what="thermal frames")
+    except SfmError as exc:
+        return None, f"not estimated: {exc}"
+    return res, (f"thermal SfM {int(res.registered.sum())}/{len(names)} frames in {time.perf_counter() - t0:.1f} s "
+                 f"({res.stats['keypoints_median']:.0f} features per frame)")
 
 
 def main() -> None:
@@ -130,8 +159,9 @@ def main() -> None:
     for root in args.datasets:
         if not (root / transforms_name("rgb")).is_file():
             ap.error(f"{root}: no {transforms_name('rgb')} (not a generated dataset)")
+        thermal = thermal_sfm(root, settings)
         for m in args.mask_alpha:
-            row = evaluate(root, None if m == "none" else float(m), settings)
+            row = evaluate(root, None if m == "none" else float(m), settings, thermal)
             row["load_1min"] = round(os.getloadavg()[0], 2)
             print(", ".join(f"{k}={v}" for k, v in row.items()), flush=True)
             rows.append(row)

@@ -91,20 +91,17 @@ def _thermal_by_rig(path: Path, meta: dict[str, Any], rgb: ModalityData, max_wid
     if meta.get("pose_frames") == "separate":
         raise DatasetError(f"{path / CAPTURE_FILE}: field 'pose_frames' is 'separate', but the thermal frames have no "
                            "poses of their own: the rig poses them in the RGB frame (use 'shared' or leave it out)")
-    stamps = {}
-    for modality in ("rgb", "thermal"):
+    for modality in ("rgb", "thermal"):  # the RGB ones are already on the frames
         tfile = path / modality / "timestamps.csv"
         if not tfile.is_file():
             raise DatasetError(f"{tfile}: missing; posing thermal frames from the rig needs the timestamps of both cameras")
-        stamps[modality] = read_timestamps(tfile)
+    stamps = read_timestamps(path / "thermal" / "timestamps.csv")
     files = image_files(path / "thermal" / IMAGES)
-    names = [p.stem for p in files]
-    for n in names:
-        if n not in stamps["thermal"]:
-            raise DatasetError(f"{path / 'thermal' / 'timestamps.csv'}: no row for frame {n!r}")
-    first = read_png(files[0])
-    h, w = first.shape[:2]
-    frames, record, rig_notes = pose_thermal_by_rig(rgb.frames, names, stamps["thermal"], meta, path / CAPTURE_FILE,
+    for p in files:
+        if p.stem not in stamps:
+            raise DatasetError(f"{path / 'thermal' / 'timestamps.csv'}: no row for frame {p.stem!r}")
+    h, w = read_png(files[0]).shape[:2]
+    frames, record, rig_notes = pose_thermal_by_rig(rgb.frames, files, stamps, meta, path / CAPTURE_FILE,
                                                     (h, w), path / "thermal" / "timestamps.csv")
     notes += rig_notes
     factor = working_factor(w, max_width)

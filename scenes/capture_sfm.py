@@ -3,11 +3,13 @@
 ``capture.json`` may hold the intrinsics (``intrinsics.rgb``, held fixed by SfM; estimated
 without them), SfM settings (``sfm``), and the rig's RGB→thermal extrinsic (``rig``,
 ``scenes.rig.parse_rig``). The thermal camera's intrinsics are needed to pose its frames from the
-rig, since no thermal feature is used (``intrinsics.thermal``).
+rig (``intrinsics.thermal``). Without ``rig`` the rig rotation is estimated from SfM on the
+thermal frames where they register (``scenes.rig.estimate_rig_rotation``), and the identity is
+assumed, saying why, where they do not.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -17,9 +19,9 @@ from contracts.errors import DatasetError
 from contracts.imageio import read_png
 from scenes.cameras import intrinsics
 from scenes.images import all_or_none, gray, image01
-from scenes.rig import parse_rig, thermal_from_rig
+from scenes.rig import RigExtrinsic, estimate_rig_rotation, parse_rig, thermal_from_rig
 from scenes.scene import Frame
-from scenes.sfm import SfmSettings, cache_dir, run_sfm
+from scenes.sfm import SfmError, SfmSettings, cache_dir, run_sfm, stretched
 
 INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy")
 
@@ -118,23 +120,47 @@ def pose_rgb_by_sfm(path: Path, meta: dict[str, Any], source: Path, test_every: 
     return SfmPoses(frames, kept, (h, w), res.points, record, notes)
 
 
-def pose_thermal_by_rig(rgb: list[Frame], names: list[str], stamps: dict[str, float], meta: dict[str, Any],
+def pose_thermal_by_rig(rgb: list[Frame], files: list[Path], stamps: dict[str, float], meta: dict[str, Any],
                         source: Path, size: tuple[int, int], where: Path) -> tuple[list[Frame], dict[str, Any], list[str]]:
-    """Thermal frames posed from the RGB trajectory at their timestamps and the rig extrinsic."""
+    """Thermal frames posed from the RGB trajectory at their timestamps and the rig extrinsic;
+    without ``rig`` its rotation is estimated from SfM on the thermal frames, where they register."""
     K = given_intrinsics(meta, "thermal", source)
     if K is None:
         raise DatasetError(f"{source}: field 'intrinsics.thermal' is needed to pose the thermal frames from the rig "
                            "(fl_x, fl_y, cx, cy)")
+    names = [p.stem for p in files]
     rig = parse_rig(meta, source)
     times = np.array([stamps[n] for n in names])
+    rgb_views, rgb_times = np.stack([f.viewmat for f in rgb]), np.array([f.timestamp_s for f in rgb])
+    notes: list[str] = []
+    record: dict[str, Any] = {"source": "rig", "extrinsic": "given"}
+    if rig is None:
+        rig, record["extrinsic"], notes = _estimated_rig(files, times, K, rgb_views, rgb_times, meta, source)
     try:
-        views, notes = thermal_from_rig(np.stack([f.viewmat for f in rgb]), np.array([f.timestamp_s for f in rgb]),
-                                        times, rig)
+        views, rig_notes = thermal_from_rig(rgb_views, rgb_times, times, rig)
     except ValueError as exc:
         raise DatasetError(f"{where}: {exc}") from None
+    record["lever_applied"] = rig is not None and rig.metres_per_unit is not None and bool(rig.lever_arm_m.any())
     h, w = size
     frames = [Frame(file_stem=n, viewmat=v, K=K.copy(), width=w, height=h, timestamp_s=float(t), time=0.0,
                     split="train") for n, v, t in zip(names, views, times)]
-    record = {"source": "rig", "extrinsic": "given" if rig is not None else "assumed (identity, zero lever arm)",
-              "lever_applied": rig is not None and rig.metres_per_unit is not None}
-    return frames, record, [f"thermal: {n}" for n in notes]
+    return frames, record, [f"thermal: {n}" for n in notes + rig_notes]
+
+
+def _estimated_rig(files: list[Path], times: np.ndarray, K: np.ndarray, rgb_views: np.ndarray, rgb_times: np.ndarray,
+                   meta: dict[str, Any], source: Path) -> tuple[RigExtrinsic | None, str, list[str]]:
+    """The rig rotation from thermal SfM (zero lever arm), or None (the identity is then assumed,
+    and said) when the thermal frames do not register or their path cannot fix it."""
+    settings = replace(sfm_settings(meta, source), min_registered=0.5)
+    try:
+        res = run_sfm([p.stem for p in files], stretched([read_png(p) for p in files]), None, K, settings,
+                      cache=cache_dir(), what="thermal frames")
+        est = estimate_rig_rotation(rgb_views, rgb_times, res.viewmats[res.registered], times[res.registered])
+    except (SfmError, ValueError) as exc:
+        return None, f"assumed (identity, zero lever arm): not estimated, {exc}", [f"rig not estimated: {exc}"]
+    angle = float(np.degrees(np.arccos(np.clip((np.trace(est.rotation) - 1.0) / 2.0, -1.0, 1.0))))
+    note = (f"rig rotation estimated from SfM on the thermal frames ({int(res.registered.sum())} of {len(files)} "
+            f"registered): {angle:.2f} deg from the identity, frames agree within a median {est.residual_deg:.2f} deg; "
+            "no lever arm (not estimated), and on an orbit a sideways lever tilts this estimate by about "
+            "atan(lever / radius)")
+    return RigExtrinsic(est.rotation, np.zeros(3)), f"estimated (thermal SfM, {angle:.2f} deg)", [note]

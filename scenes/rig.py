@@ -196,6 +196,8 @@ def thermal_from_rig(rgb_viewmats: np.ndarray, rgb_times: np.ndarray, thermal_ti
                      "same centre (identity rotation, zero lever arm)")
         return apply_extrinsic(rgb_at, np.eye(3), np.zeros(3)), notes
     lever = rig.lever_in_units()
+    if lever is None and not rig.lever_arm_m.any():
+        lever = np.zeros(3)
     if lever is None:
         notes.append(f"rig lever arm {rig.lever_arm_m.tolist()} m not applied: the poses have no metric scale "
                      "(set rig.metres_per_unit), so the thermal centres are the RGB centres")

@@ -99,6 +99,14 @@ def to_uint8(image: np.ndarray) -> np.ndarray:
     return (np.clip(a.astype(np.float64), 0.0, 1.0) * 255.0).round().astype(np.uint8)
 
 
+def stretched(frames: list[np.ndarray], low: float = 1.0, high: float = 99.0) -> list[np.ndarray]:
+    """Frames of raw values (thermal counts fill a narrow band of 16 bits) mapped to [0, 1] by one
+    percentile stretch over all of them, so SIFT sees their contrast and every frame the same curve."""
+    stack = np.stack([np.asarray(f, np.float64) for f in frames])
+    lo, hi = np.percentile(stack, [low, high])
+    return [np.clip((f - lo) / max(hi - lo, 1e-12), 0.0, 1.0) for f in stack]
+
+
 def digest(names: list[str], images: list[np.ndarray], masks: list[np.ndarray] | None,
            K: np.ndarray | None, settings: SfmSettings) -> str:
     """SHA-256 over the settings, the pycolmap version, the intrinsics, and every frame's name,
