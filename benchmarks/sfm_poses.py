@@ -13,7 +13,7 @@ returned 127-152 degree errors), and on orbits it tilts with the centre noise.
 
     python benchmarks/sfm_poses.py DATASET... [--mask-alpha none 0.5] [--out benchmarks/results/sfm_poses]
 
-Writes ``sfm_poses.csv`` (one row per dataset and mask setting); each SfM run is timed on its
+Writes ``OUT/NAME.csv`` (``--name``, default sfm_poses; one row per dataset and mask setting); each SfM run is timed on its
 own (no cache) and the load average is recorded.
 """
 from __future__ import annotations
@@ -153,6 +153,7 @@ def main() -> None:
     ap.add_argument("--mask-alpha", nargs="+", default=["none", "0.5"],
                     help="smoke-opacity thresholds above which features are masked ('none': no mask)")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/sfm_poses"))
+    ap.add_argument("--name", default="sfm_poses", help="the CSV's name in --out (without .csv)")
     args = ap.parse_args()
     settings = SfmSettings()
     rows = []
@@ -166,7 +167,7 @@ def main() -> None:
             print(", ".join(f"{k}={v}" for k, v in row.items()), flush=True)
             rows.append(row)
     keys = list(dict.fromkeys(k for r in rows for k in r))
-    write_rows_csv(args.out / "sfm_poses.csv", [{k: r.get(k, "") for k in keys} for r in rows])
+    write_rows_csv(args.out / f"{args.name}.csv", [{k: r.get(k, "") for k in keys} for r in rows])
 
 
 if __name__ == "__main__":
