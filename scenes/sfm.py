@@ -140,6 +140,8 @@ def run_sfm(names: list[str], images: list[np.ndarray], masks: list[np.ndarray] 
     images = [to_uint8(a) for a in images]
     if len({a.shape for a in images}) != 1:
         raise SfmError(f"sfm: the {what} differ in size ({sorted({a.shape[:2] for a in images})}); one camera is assumed")
+    if masks is not None and any(np.shape(m) != a.shape[:2] for m, a in zip(masks, images)):
+        raise ValueError("run_sfm: every mask must have its frame's height and width")
     key = digest(names, images, masks, K, settings)
     cached = None if cache is None else Path(cache) / f"{key}.npz"
     if cached is not None and cached.is_file():
@@ -169,7 +171,7 @@ def _solve(names: list[str], images: list[np.ndarray], masks: list[np.ndarray] |
     import pycolmap
     from PIL import Image
 
-    pycolmap.logging.minloglevel = 2  # COLMAP logs every step to stderr; keep warnings and errors only
+    pycolmap.logging.minloglevel = 3  # COLMAP logs every step (and its failures) to stderr; ours is the one line
     timings: dict[str, float] = {}
     h, w = images[0].shape[:2]
     up = max(1, -(-settings.min_width // w))
