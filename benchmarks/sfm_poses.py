@@ -53,7 +53,7 @@ def truth(root: Path, modality: str) -> tuple[dict, np.ndarray, np.ndarray]:
 def baseline_cv(root: Path) -> np.ndarray:
     """The generator's thermal baseline (RGB camera axes, Blender's +Y up, −Z forward) in OpenCV axes."""
     spec = yaml.safe_load((root / "scene.yaml").read_text())
-    return np.asarray(spec["rig"]["thermal"]["baseline_m"], dtype=np.float64) * GL_TO_CV_AXES
+    return np.asarray(spec["rig"]["thermal"]["baseline_m"], dtype=np.float64) * GL_TO_CV_AXES + 0.0  # no -0.0
 
 
 def align(est: np.ndarray, ref: np.ndarray) -> Sim3:
