@@ -22,7 +22,7 @@ import argparse
 import math
 import os
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -34,7 +34,6 @@ from contracts.imageio import read_png
 from scenes.cameras import c2w_gl_to_viewmat, camera_center, intrinsics, scene_bounds
 from scenes.rig import RigExtrinsic, estimate_rig_rotation, thermal_from_rig
 from scenes.sfm import SfmError, SfmResult, SfmSettings, run_sfm, stretched
-from smokeseer.registration import Sim3
 
 GL_TO_CV_AXES = np.array([1.0, -1.0, -1.0])
 
@@ -56,7 +55,23 @@ def baseline_cv(root: Path) -> np.ndarray:
     return np.asarray(spec["rig"]["thermal"]["baseline_m"], dtype=np.float64) * GL_TO_CV_AXES + 0.0  # no -0.0
 
 
-def align(est: np.ndarray, ref: np.ndarray) -> Sim3:
+@dataclass(frozen=True)
+class Alignment:
+    """x_ref = scale · rotation · x_est + translation."""
+
+    scale: float
+    rotation: np.ndarray
+    translation: np.ndarray
+
+    def viewmat(self, v: np.ndarray) -> np.ndarray:
+        """An estimated world-to-camera matrix moved into the reference world."""
+        out = np.eye(4)
+        out[:3, :3] = v[:3, :3] @ self.rotation.T
+        out[:3, 3] = -out[:3, :3] @ (self.scale * self.rotation @ camera_center(v) + self.translation)
+        return out
+
+
+def align(est: np.ndarray, ref: np.ndarray) -> Alignment:
     """The Sim(3) taking estimated poses onto the true ones: rotation from the orientations
     (``R_ref ≈ R_est · Aᵀ`` per frame, chordal mean of ``R_refᵀ R_est``), then scale and shift
     from the centres by least squares."""
@@ -67,12 +82,12 @@ def align(est: np.ndarray, ref: np.ndarray) -> Sim3:
     c_ref = np.stack([camera_center(v) for v in ref])
     d_est, d_ref = c_est - c_est.mean(0), c_ref - c_ref.mean(0)
     scale = float((d_est * d_ref).sum() / max((d_est ** 2).sum(), 1e-18))
-    return Sim3(scale=scale, rotation=rotation, translation=c_ref.mean(0) - scale * c_est.mean(0))
+    return Alignment(scale, rotation, c_ref.mean(0) - scale * c_est.mean(0))
 
 
-def pose_errors(est: np.ndarray, ref: np.ndarray, sim: Sim3, extent: float) -> dict[str, float]:
+def pose_errors(est: np.ndarray, ref: np.ndarray, sim: Alignment, extent: float) -> dict[str, float]:
     """Median and max rotation error (deg) and centre RMSE (fraction of ``extent``) after ``sim``."""
-    moved = np.stack([sim.transform_viewmat(v) for v in est])
+    moved = np.stack([sim.viewmat(v) for v in est])
     rot = np.array([rotation_error_deg(m[:3, :3], r[:3, :3]) for m, r in zip(moved, ref)])
     dist = np.linalg.norm(np.stack([camera_center(m) - camera_center(r) for m, r in zip(moved, ref)]), axis=1)
     return {"rot_median_deg": float(np.median(rot)), "rot_max_deg": float(rot.max()),

@@ -68,7 +68,7 @@ def sfm_settings(meta: dict[str, Any], source: Path) -> SfmSettings:
     block = meta.get("sfm", {})
     if not isinstance(block, dict):
         raise DatasetError(f"{source}: field 'sfm' must be an object")
-    known = {f.name: f for f in fields(SfmSettings)}
+    known = [f.name for f in fields(SfmSettings)]
     for key, value in block.items():
         if key not in known:
             raise DatasetError(f"{source}: field 'sfm.{key}' is unknown (known: {', '.join(known)})")

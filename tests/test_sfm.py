@@ -1,6 +1,7 @@
 """Structure from motion with a real pycolmap: a capture folder holding only images and timestamps
 (made from a committed generated scene, smoke and all) is posed, and the poses are checked against
-the generator's truth after a Sim(3) alignment; too few registered frames stop with one line."""
+the generator's truth after a Sim(3) alignment; too few registered frames stop with one line; the
+sequential-matching path and the cache key."""
 from __future__ import annotations
 
 import json
@@ -13,9 +14,9 @@ from PIL import Image
 
 from benchmarks.sfm_poses import align, baseline_cv, pose_errors, truth
 from contracts.errors import DatasetError
+from contracts.imageio import read_png
 from scenes.cameras import intrinsics, scene_bounds
 from scenes.load import load_scene
-from contracts.imageio import read_png
 from scenes.sfm import CACHE_ENV, SfmError, SfmSettings, digest, run_sfm
 from smokeseer.api import train_and_evaluate
 

@@ -1,5 +1,6 @@
 """Thermal poses from the rig: SLERP and linear interpolation of the RGB trajectory, and the
-RGB→thermal extrinsic, against analytic cases, scipy's Slerp and the generator's own rig."""
+RGB→thermal extrinsic, against analytic cases, scipy's Slerp and the generator's own rig; the rig
+rotation estimate; and the Sim(3) the SfM benchmark scores with."""
 from __future__ import annotations
 
 import json
@@ -10,6 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
+from benchmarks.sfm_poses import align, pose_errors
 from contracts.errors import DatasetError
 from generator.rig import look_at, thermal_pose
 from scenes.cameras import c2w_gl_to_viewmat, camera_center
@@ -174,3 +176,16 @@ def test_a_sideways_lever_on_an_orbit_biases_the_rig_rotation_by_its_angle() -> 
     assert angle == pytest.approx(math.degrees(math.atan(0.06 / 2.0)), rel=0.05)
     axis = Rotation.from_matrix(est.rotation).as_rotvec() / math.radians(angle)
     assert abs(axis[1]) > 0.99  # the camera's y axis: the orbit's axis seen from a level camera
+
+
+def test_the_benchmarks_alignment_undoes_a_similarity_even_on_a_straight_path() -> None:
+    """Scoring SfM poses needs the Sim(3) onto the truth; on a straight path the centres alone
+    leave the rotation about the path free, the orientations fix it."""
+    line = np.stack([c2w_gl_to_viewmat(look_at(np.array([x, -3.0, 2.0]), np.array([x, 0.0, 0.0])))
+                     for x in np.linspace(-2, 2, 10)])
+    for ref in (_orbit(12), line):
+        est = _other_world(ref, 0.4, Rotation.from_rotvec([0.3, -0.2, 1.0]).as_matrix(), np.array([1.0, 2.0, 3.0]))
+        sim = align(est, ref)
+        assert sim.scale == pytest.approx(0.4)
+        errs = pose_errors(est, ref, sim, 1.0)
+        assert errs["rot_max_deg"] < 1e-4 and errs["centre_rmse_m"] < 1e-9
