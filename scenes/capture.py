@@ -1,23 +1,28 @@
-"""Read our capture layout (docs/real-captures.md): RGB frames and poses, everything else optional.
+"""Read our capture layout (docs/real-captures.md): RGB frames, everything else optional.
 
 Poses per modality come from ``transforms_MODALITY.json`` or a COLMAP text model under
 ``MODALITY/sparse/``; ``MODALITY/timestamps.csv`` overrides any timestamps the poses carry.
+RGB frames without poses are posed by structure from motion, and thermal frames without poses
+then from the rig (``scenes.capture_sfm``).
 """
 from __future__ import annotations
 
 import csv
 import math
+from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from contracts.dataset_format import load_json, transforms_name
 from contracts.errors import DatasetError
 from contracts.imageio import read_png
+from scenes.capture_sfm import image_files, pose_rgb_by_sfm, pose_thermal_by_rig
 from scenes.colmap_text import read_colmap_cameras, read_colmap_images, read_colmap_points
 from scenes.images import box_downscale, check_finite, check_size, gray, load_masks, rgb01, thermal_images, working_factor
 from scenes.scene import Frame, ModalityData, SceneData, set_times
-from scenes.thermal_scale import ThermalScaleSpec
+from scenes.thermal_scale import LINEAR_SCALE, ThermalScaleSpec
 from scenes.transforms import frames_from_transforms, read_capture_transforms
 
 CAPTURE_FILE = "capture.json"
@@ -44,12 +49,18 @@ def load_capture(path: Path, max_width: int, thermal_scale: ThermalScaleSpec) ->
     smoke = meta.get("smoke", {}) if isinstance(meta.get("smoke", {}), dict) else {}
     test_every = int(meta.get("test_every", 8))
     notes: list[str] = []
+    poses: dict[str, Any] | None = None
+    points = None
     rgb = _modality(path, "rgb", max_width, test_every, notes, thermal_scale)
     if rgb is None:
-        raise DatasetError(f"{path}: no RGB poses (need {transforms_name('rgb')} or rgb/{SPARSE}/images.txt)")
+        if not image_files(path / "rgb" / IMAGES):
+            raise DatasetError(f"{path}: no RGB poses (need {transforms_name('rgb')} or rgb/{SPARSE}/images.txt) "
+                               f"and no rgb/{IMAGES}/*.png to pose by structure from motion")
+        rgb, points, poses = _rgb_by_sfm(path, meta, max_width, test_every, notes)
     thermal = _modality(path, "thermal", max_width, 0, notes, thermal_scale)
+    if thermal is None and poses is not None and image_files(path / "thermal" / IMAGES):
+        thermal, poses["thermal"] = _thermal_by_rig(path, meta, rgb, max_width, notes, thermal_scale)
     set_times(rgb, thermal, meta.get("duration_s"))
-    points = None
     pts_file = path / "rgb" / SPARSE / "points3D.txt"
     if pts_file.exists():
         points = read_colmap_points(pts_file)
@@ -57,7 +68,52 @@ def load_capture(path: Path, max_width: int, thermal_scale: ThermalScaleSpec) ->
         name=str(meta.get("scene", path.name)), path=path.resolve(), rgb=rgb, thermal=thermal,
         smoke_present=bool(smoke.get("present", True)), smoke_static=bool(smoke.get("static", False)),
         mask_threshold=float(smoke.get("mask_threshold", 0.5)), synthetic=False,
-        init_points=points, meta=meta, notes=notes)
+        init_points=points, meta=meta, notes=notes, poses=poses)
+
+
+def _rgb_by_sfm(path: Path, meta: dict[str, Any], max_width: int, test_every: int,
+                notes: list[str]) -> tuple[ModalityData, np.ndarray, dict[str, Any]]:
+    """RGB frames posed by SfM, at the working resolution, with their timestamps."""
+    sfm = pose_rgb_by_sfm(path, meta, path / CAPTURE_FILE, test_every)
+    notes += sfm.notes
+    h, w = sfm.size
+    factor = working_factor(w, max_width)
+    frames = [_scaled(f, factor) for f in sfm.frames]
+    _apply_timestamps(path, "rgb", frames, False, notes)
+    rgb = _read_images(path, "rgb", frames, sfm.files, [(h, w)] * len(frames), factor,
+                       f"the first frame, {sfm.files[0].name}", notes, LINEAR_SCALE)
+    return rgb, sfm.points, {"rgb": sfm.record}
+
+
+def _thermal_by_rig(path: Path, meta: dict[str, Any], rgb: ModalityData, max_width: int, notes: list[str],
+                    thermal_scale: ThermalScaleSpec) -> tuple[ModalityData, dict[str, Any]]:
+    """Thermal frames posed from the SfM trajectory; both cameras need real timestamps."""
+    if meta.get("pose_frames") == "separate":
+        raise DatasetError(f"{path / CAPTURE_FILE}: field 'pose_frames' is 'separate', but the thermal frames have no "
+                           "poses of their own: the rig poses them in the RGB frame (use 'shared' or leave it out)")
+    for modality in ("rgb", "thermal"):  # the RGB ones are already on the frames
+        tfile = path / modality / "timestamps.csv"
+        if not tfile.is_file():
+            raise DatasetError(f"{tfile}: missing; posing thermal frames from the rig needs the timestamps of both cameras")
+    stamps = read_timestamps(path / "thermal" / "timestamps.csv")
+    files = image_files(path / "thermal" / IMAGES)
+    for p in files:
+        if p.stem not in stamps:
+            raise DatasetError(f"{path / 'thermal' / 'timestamps.csv'}: no row for frame {p.stem!r}")
+    h, w = read_png(files[0]).shape[:2]
+    frames, record, rig_notes = pose_thermal_by_rig(rgb.frames, files, stamps, meta, path / CAPTURE_FILE,
+                                                    (h, w), path / "thermal" / "timestamps.csv")
+    notes += rig_notes
+    factor = working_factor(w, max_width)
+    frames = [_scaled(f, factor) for f in frames]
+    return _read_images(path, "thermal", frames, files, [(h, w)] * len(frames), factor,
+                        f"the first frame, {files[0].name}", notes, thermal_scale), record
+
+
+def _scaled(frame: Frame, factor: int) -> Frame:
+    k = frame.K.copy()
+    k[:2] /= factor
+    return replace(frame, K=k, width=frame.width // factor, height=frame.height // factor)
 
 
 def _modality(path: Path, modality: str, max_width: int, test_every: int, notes: list[str],
@@ -83,6 +139,12 @@ def _modality(path: Path, modality: str, max_width: int, test_every: int, notes:
     else:
         return None
     _apply_timestamps(path, modality, frames, from_poses, notes)
+    return _read_images(path, modality, frames, files, sizes, factor, source, notes, thermal_scale)
+
+
+def _read_images(path: Path, modality: str, frames: list[Frame], files: list[Path], sizes: list[tuple[int, int]],
+                 factor: int, source: str, notes: list[str], thermal_scale: ThermalScaleSpec) -> ModalityData:
+    """The frames' images (and RGB masks) at the working resolution, each checked against its size."""
     imgs = []
     for fpath, (h, w) in zip(files, sizes):
         if not fpath.suffix:

@@ -70,6 +70,9 @@ class SceneData:
     notes: list[str] = field(default_factory=list)
     """What the loader assumed or left out (no masks, no timestamps, ...): logged and written
     to metrics.json so a substitution is never silent."""
+    poses: dict[str, Any] | None = None
+    """Where the loader estimated the poses, per modality (SfM counts and timings, the rig's
+    extrinsic): None when the layout brought them. Written to metrics.json."""
 
 
 def set_times(rgb: ModalityData, thermal: ModalityData | None, duration: Any) -> None:

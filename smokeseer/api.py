@@ -258,7 +258,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
                      "pose_noise": report.pose_noise, "geometry_modality": geo.name,
                      "smoke_gaussians": model.smoke.n if model.smoke is not None else 0,
                      "surface_gaussians": model.surface.n, "deformation": plan.use_deform,
-                     "registration": report.registration, "masks": report.masks,
+                     "registration": report.registration, "masks": report.masks, "poses": scene.poses,
                      "smoke_colour": smoke_colour_record(plan, smoke_colour),
                      "thermal_scale": thermal_record,
                      "stage3_plan": None if deformable else plan.record(),
