@@ -90,25 +90,31 @@ def test_estimated_floor_reads_the_density_off_a_clear_view(smoke_known: bool) -
                                    0.4)).all()
 
 
-def test_estimated_floor_keeps_unpinned_points_unless_provably_thin() -> None:
-    """Camera 0's columns 2-6 land on camera 1's smoke (never seen clear), all under alpha 0.05
-    of grey smoke (0.8). Over a surface close to the smoke's colour (0.7), I = 0.705 could be
-    dense smoke over a darker surface: the upper bound 1 - 0.095/0.8 = 0.88 keeps the floor. Over
-    a dark patch (0.1), I = 0.135 is too far from the smoke colour for alpha above
-    1 - 0.665/0.8 = 0.17, so the floor leaves it. Without a smoke colour every unpinned pixel
-    keeps the floor."""
+def test_estimated_floor_on_unpinned_points_takes_the_middle_of_the_bounds() -> None:
+    """Camera 0's columns 2-4 land on camera 1's smoke (alpha 0.3 there), so no view sees them
+    clear; grey smoke A = 0.8. Worked by hand (per channel; lower bound 1 - r0 / max(r0, r1)
+    with r = |I - A|, upper bound 1 - r0 / 0.8):
+    - column 2, dark surface 0.1 under alpha 0.9: I0 = 0.73, I1 = 0.31; bounds 0.857 and 0.913,
+      floor kept;
+    - column 3, dark surface under alpha 0.05: I0 = 0.135, I1 = 0.31; bounds 0 and 0.169,
+      provably thin, dropped;
+    - column 4, surface 0.6 under alpha 0.05: I0 = 0.61, I1 = 0.66; bounds 0 and 0.763, the
+      middle 0.381 is under the floor, dropped (the upper bound alone could not rule it out).
+    Without a smoke colour every unpinned pixel keeps the floor."""
     viewmats, Ks, depths, valid = _two_cameras()
     smoke = np.array([0.8, 0.8, 0.8])
-    surface = np.full((N, N, 3), 0.7)
-    surface[:, 4] = 0.1  # camera 0's column 4 (camera 1's column 2) sees a dark patch
+    surface = np.full((N, N, 3), 0.1)
+    surface[:, 4] = 0.6
     alpha = np.zeros((2, N, N))
-    alpha[0, :, :7] = 0.05
+    alpha[0, :, 2], alpha[0, :, 3], alpha[0, :, 4] = 0.9, 0.05, 0.05
     alpha[1, :, :5] = 0.3
     masks = (alpha > 0.02).astype(float)
     frames = _smoky_frames(alpha, surface, smoke)
+    np.testing.assert_allclose(frames[0, 0, 2:5, 0], [0.73, 0.135, 0.61])
+    np.testing.assert_allclose(frames[1, 0, 0:3, 0], [0.31, 0.31, 0.66])
     got = estimated_dense(masks, frames, depths, valid, viewmats, Ks, smoke, 0.4)
-    assert got[0, :, [2, 3, 5, 6]].all() and not got[0, :, 4].any()
-    assert estimated_dense(masks, frames, depths, valid, viewmats, Ks, None, 0.4)[0, :, 2:7].all()
+    assert got[0, :, 2].all() and not got[0, :, 3].any() and not got[0, :, 4].any()
+    assert estimated_dense(masks, frames, depths, valid, viewmats, Ks, None, 0.4)[0, :, 2:5].all()
 
 
 def test_mask_term_without_floor_keeps_only_the_push_to_zero() -> None:

@@ -21,9 +21,14 @@ the frames that see one surface point give colours on a line through A.
   A - J; without it, |I - J| over the longest step from J towards I inside the colour cube is a
   lower bound. The floor acts where that reaches the floor: such a point's colour is pinned by
   the clear view, so a floor missed costs little, and one forced on thin smoke costs much.
-- A point never seen clear has nothing to pin it. With A known, 1 - |I - A| over the longest
-  step from A towards I inside the cube is an upper bound on its alpha, and the floor acts
-  unless that bound is below the floor (smoke provably thinner). Without A it keeps the floor.
+- A point never seen clear has nothing to pin it. With A known its alpha lies between two
+  bounds: 1 - |I - A| / max_i |I_i - A| over the views that see it (as if its clearest view
+  were clear), and 1 - |I - A| over the longest step from A towards I inside the cube (as if
+  the surface were at the cube's edge). The floor acts where their midpoint reaches it. On the
+  standard datasets the upper bound alone kept the floor on 83 % of the excavator's masked
+  pixels (19 % are that dense) and the lower bound alone on 54 % of room's (97 %); the midpoint
+  keeps 55 % and 91 % (``benchmarks/mask_floor_agreement.py``). Without A the point keeps the
+  floor.
 
 It needs nothing a real capture lacks: Stage 1's masks, the smoky frames, Stage 2's geometry
 and the smoke colour Stage 3 holds.
@@ -101,6 +106,8 @@ def estimated_dense(masks: np.ndarray, images: np.ndarray, depths: np.ndarray, v
             span = (towards * towards).sum(axis=1)
             alpha_clear = np.where(span > 1e-6, (step * towards).sum(axis=1) / np.maximum(span, 1e-6), 0.0)
             alpha_upper = 1.0 - 1.0 / np.maximum(cube_reach(np.broadcast_to(a, own.shape), own - a), 1e-12)
-            dense_unpinned = alpha_upper >= floor
+            reach_seen = (np.linalg.norm(seen_values[..., :3] - a[None], axis=-1) * seen).max(axis=0)
+            alpha_lower = 1.0 - np.linalg.norm(own - a, axis=1) / np.maximum(reach_seen, 1e-12)
+            dense_unpinned = 0.5 * (alpha_lower + alpha_upper) >= floor
         out[ref, vs, us] = np.where(n_clear > 0, alpha_clear >= floor, dense_unpinned)
     return out
