@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from contracts.errors import DatasetError
+from scenes.similarity import umeyama
 
 
 @dataclass(frozen=True)
@@ -161,7 +162,8 @@ def estimate_rig_rotation(rgb_viewmats: np.ndarray, rgb_times: np.ndarray, therm
     if spread[1] < STRAIGHT_PATH_RATIO * spread[0]:
         raise ValueError("rig estimate: the thermal camera centres lie on a straight line, so the rotation about "
                          "the line is unobservable from them")
-    world, scale, shift = _umeyama(c_th, c_rgb)
+    fit_sim3 = umeyama(c_th, c_rgb)
+    world, scale, shift = fit_sim3.rotation, fit_sim3.scale, fit_sim3.translation
     per_frame = np.einsum("nij,jk,nlk->nil", rgb_at[:, :3, :3], world, th[:, :3, :3])
     u, _, vt = np.linalg.svd(per_frame.sum(0))
     rotation = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
@@ -169,17 +171,6 @@ def estimate_rig_rotation(rgb_viewmats: np.ndarray, rgb_times: np.ndarray, therm
     fit = scale * c_th @ world.T + shift - c_rgb
     return RigRotationEstimate(rotation, int(inside.sum()), float(np.median(resid)),
                                float(np.sqrt(np.mean(np.sum(fit ** 2, axis=1)))))
-
-
-def _umeyama(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
-    """Rotation, scale and shift with dst ≈ s·R·src + t (least squares, Umeyama 1991)."""
-    mu_s, mu_d = src.mean(0), dst.mean(0)
-    xs, xd = src - mu_s, dst - mu_d
-    u, d, vt = np.linalg.svd(xd.T @ xs / len(src))
-    sign = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
-    rotation = u @ sign @ vt
-    scale = float(np.trace(np.diag(d) @ sign) / ((xs ** 2).sum() / len(src)))
-    return rotation, scale, mu_d - scale * rotation @ mu_s
 
 
 def thermal_from_rig(rgb_viewmats: np.ndarray, rgb_times: np.ndarray, thermal_times: np.ndarray,

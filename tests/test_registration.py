@@ -9,8 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from smokeseer.stage1.registration import (Sim3, pair_by_timestamp, ransac_sim3, register_rig, register_trajectories,
-                                    umeyama)
+from scenes.similarity import Sim3, umeyama
+from smokeseer.stage1.registration import pair_by_timestamp, ransac_sim3, register_rig, register_trajectories
 
 
 def _known_sim3(seed: int) -> Sim3:

@@ -20,8 +20,9 @@ import numpy as np
 from scenes.cameras import SceneBounds, camera_center, scene_bounds
 from scenes.images import load_masks
 from scenes.scene import ModalityData, SceneData
+from scenes.similarity import Sim3
 from smokeseer.config import TrainConfig
-from smokeseer.stage1.registration import Sim3, register_rig
+from smokeseer.stage1.registration import register_rig
 from smokeseer.stage1.smoke_presence import ESTIMATOR, decide_smoke_presence
 
 
