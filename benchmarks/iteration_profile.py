@@ -69,15 +69,15 @@ from benchmarks.iteration_attribution import (DENSIFY_STEP, LABEL, PART_ORDER, a
 from contracts.atomic import write_dataclass_csv, write_text  # noqa: E402
 from contracts.train_log import read_train_log  # noqa: E402
 from smokeseer import api  # noqa: E402
-from smokeseer.train import losses, stage2  # noqa: E402
-from smokeseer.train import loop as trainloop  # noqa: E402
 from smokeseer.config import DensifyConfig, DensifyWindow, TrainConfig, make_config  # noqa: E402
 from smokeseer.model.gaussians import GaussianSet, edit_rows, quat_to_rotmat  # noqa: E402
 from smokeseer.model.optim import Adam  # noqa: E402
 from smokeseer.raster import api as raster_api  # noqa: E402
+from smokeseer.train import losses, stage2  # noqa: E402
+from smokeseer.train import loop as trainloop  # noqa: E402
+from smokeseer.train.loop import IterationOutput, StageProblem, StageSchedule, run_stage  # noqa: E402
 from smokeseer.train.stage2 import Stage2Problem  # noqa: E402
 from smokeseer.train.stage3 import Stage3Problem  # noqa: E402
-from smokeseer.train.loop import IterationOutput, StageProblem, StageSchedule, run_stage  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 RUNS = ROOT / "data" / "tables_standard" / "runs"

@@ -15,8 +15,8 @@ from benchmarks.iteration_attribution import (ADAM, DEFORM_BWD, DEFORM_FWD, LOSS
 from benchmarks.iteration_profile import densify_steps, labelled, match_count, scaled_overrides
 from smokeseer.config import DensifyWindow, at_iteration, make_config
 from smokeseer.model.gaussians import GaussianSet, make_optimizer
-from smokeseer.train.losses import ssim
 from smokeseer.raster import rasterize
+from smokeseer.train.losses import ssim
 
 BWD = "autograd::engine::evaluate_function: "
 

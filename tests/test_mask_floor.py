@@ -10,10 +10,10 @@ from contracts.imageio import read_exr_channel
 from scenes.generated import load_smoke_alpha
 from scenes.load import load_scene
 from smokeseer.config import make_config
+from smokeseer.stage1.pipeline import run_stage1
 from smokeseer.train.losses import mask_alignment
 from smokeseer.train.mask_floor import never_seen_clear
 from smokeseer.train.plan import plan_stage3
-from smokeseer.stage1.pipeline import run_stage1
 from tests.test_smokeseer_data import write_splat_dataset
 
 N = 20

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from smokeseer.stage1.registration import (Sim3, pair_by_timestamp, ransac_sim3, register_rig, register_trajectories,
-                                    umeyama)
+                                           umeyama)
 
 
 def _known_sim3(seed: int) -> Sim3:

@@ -13,7 +13,7 @@ from contracts.metrics import ssim_3dgs
 from smokeseer.config import DeformConfig
 from smokeseer.model.deform import DeformNetwork, positional_encoding, temporal_opacity
 from smokeseer.train.losses import (align_scale_shift, depth_consistency, mask_alignment, monochromaticity,
-                              render_loss, smoke_alpha_variance, smoke_color_variance, ssim)
+                                    render_loss, smoke_alpha_variance, smoke_color_variance, ssim)
 
 
 def test_torch_ssim_matches_eval_metrics_numpy_implementation() -> None:

@@ -12,8 +12,8 @@ from scipy.spatial.transform import Rotation
 from scenes.cameras import camera_center
 from scenes.load import load_scene
 from smokeseer.config import make_config
-from smokeseer.stage1.registration import Sim3
 from smokeseer.stage1.pipeline import perturb_poses, run_stage1
+from smokeseer.stage1.registration import Sim3
 from tests.test_smokeseer_data import write_splat_dataset
 
 

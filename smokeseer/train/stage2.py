@@ -10,14 +10,14 @@ import numpy as np
 import torch
 
 from scenes.scene import ModalityData
-from smokeseer.model.background import EnvironmentBackground
 from smokeseer.config import DeformConfig, TrainConfig, at_iteration
+from smokeseer.model.background import EnvironmentBackground
 from smokeseer.model.deform import DeformNetwork
 from smokeseer.model.gaussians import DensifyStrategy, GaussianSet, make_optimizer
-from smokeseer.train.losses import render_loss
-from smokeseer.model.scene import View, add_rgb_sh, init_gaussians, make_view, place_deformed, render, sh_coeffs
 from smokeseer.model.optim import Adam
+from smokeseer.model.scene import View, add_rgb_sh, init_gaussians, make_view, place_deformed, render, sh_coeffs
 from smokeseer.train.loop import IterationOutput, StageProblem, StageSchedule, run_stage
+from smokeseer.train.losses import render_loss
 from smokeseer.train.util import RunContext, grads_of, state_or_none, step_optimizers
 
 

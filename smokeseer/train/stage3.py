@@ -17,16 +17,16 @@ import torch
 from scenes.scene import ModalityData
 from smokeseer.config import TrainConfig, at_iteration
 from smokeseer.model.deform import DeformNetwork
-from smokeseer.train.depth_prior import DepthPriorMaps
 from smokeseer.model.gaussians import DensifyStrategy, GaussianSet, make_optimizer
-from smokeseer.train.losses import (depth_consistency, mask_alignment, monochromaticity, render_loss,
-                              smoke_alpha_variance, smoke_color_variance)
-from smokeseer.model.scene import SceneModel, add_rgb_sh, make_smoke
 from smokeseer.model.optim import Adam
-from smokeseer.train.plan import Stage3Plan
+from smokeseer.model.scene import SceneModel, add_rgb_sh, make_smoke
 from smokeseer.raster.output import RasterOutput
-from smokeseer.train.stage2 import Stage2Result, draw_index, make_background, views_of
+from smokeseer.train.depth_prior import DepthPriorMaps
 from smokeseer.train.loop import IterationOutput, StageProblem, StageSchedule, run_stage
+from smokeseer.train.losses import (depth_consistency, mask_alignment, monochromaticity, render_loss,
+                                    smoke_alpha_variance, smoke_color_variance)
+from smokeseer.train.plan import Stage3Plan
+from smokeseer.train.stage2 import Stage2Result, draw_index, make_background, views_of
 from smokeseer.train.util import RunContext, grads_of, state_or_none, step_optimizers
 
 HeldoutPsnr = Callable[[SceneModel, int], dict[str, float | None] | None]
