@@ -23,8 +23,8 @@ import torch.nn.functional as F
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from smokeseer.train.losses import ssim  # noqa: E402
 from smokeseer.train.loop import detached_copy, guard  # noqa: E402
+from smokeseer.train.losses import ssim  # noqa: E402
 from smokeseer.train.util import check_finite  # noqa: E402
 
 # 3DGS layout of one Gaussian set: means, log-scales, quaternions, opacity logit, SH DC and rest.

@@ -69,15 +69,15 @@ from benchmarks.iteration_attribution import (DENSIFY_STEP, LABEL, PART_ORDER, a
 from contracts.atomic import write_dataclass_csv, write_text  # noqa: E402
 from contracts.train_log import read_train_log  # noqa: E402
 from smokeseer import api  # noqa: E402
-from smokeseer.train import losses, stage2  # noqa: E402
-from smokeseer.train import loop as trainloop  # noqa: E402
-from smokeseer.config import DensifyConfig, TrainConfig, make_config  # noqa: E402
+from smokeseer.config import DensifyConfig, DensifyWindow, TrainConfig, make_config  # noqa: E402
 from smokeseer.model.gaussians import GaussianSet, edit_rows, quat_to_rotmat  # noqa: E402
 from smokeseer.model.optim import Adam  # noqa: E402
 from smokeseer.raster import api as raster_api  # noqa: E402
+from smokeseer.train import losses, stage2  # noqa: E402
+from smokeseer.train import loop as trainloop  # noqa: E402
+from smokeseer.train.loop import IterationOutput, StageProblem, StageSchedule, run_stage  # noqa: E402
 from smokeseer.train.stage2 import Stage2Problem  # noqa: E402
 from smokeseer.train.stage3 import Stage3Problem  # noqa: E402
-from smokeseer.train.loop import IterationOutput, StageProblem, StageSchedule, run_stage  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 RUNS = ROOT / "data" / "tables_standard" / "runs"
@@ -160,25 +160,20 @@ def committed_counts(scene: str, mode: str, runs: Path) -> Counts:
 
 
 def scaled_overrides(cfg: TrainConfig, fraction: float) -> dict[str, Any]:
-    """Overrides that shorten both stages to ``fraction`` of their iterations and scale every
-    schedule counted in iterations with them; no held-out evaluation, no intermediate checkpoint."""
+    """Overrides that shorten both stages to ``fraction`` of their iterations and scale with them
+    the schedules counted in iterations (the windows and warm-ups are fractions of the stage, so
+    they follow by themselves); no held-out evaluation, no intermediate checkpoint."""
     def scale(v: int) -> int:
         return max(1, round(v * fraction))
 
     out: dict[str, Any] = {"stage2.iterations": scale(cfg.stage2.iterations),
                            "stage3.iterations": scale(cfg.stage3.iterations),
-                           "deform.warmup_iterations": scale(cfg.deform.warmup_iterations),
                            "sh_increase_every": scale(cfg.sh_increase_every),
                            "stage3.test_every": 0, "checkpoint_every": 0, "progress": False}
-    densify: dict[str, DensifyConfig] = {"stage2.densify": cfg.stage2.densify,
-                                         "stage3.smoke_densify": cfg.stage3.smoke_densify,
-                                         "stage3.surface_densify": cfg.stage3.surface_densify}
-    for name, d in densify.items():
-        for key in ("start", "stop", "every", "opacity_reset_every"):
-            if getattr(d, key) > 0:
-                out[f"{name}.{key}"] = scale(getattr(d, key))
-        if d.prune_big_after >= 0:
-            out[f"{name}.prune_big_after"] = scale(d.prune_big_after)
+    for name, d in (("stage2.densify", cfg.stage2.densify), ("stage3.smoke_densify", cfg.stage3.smoke_densify),
+                    ("stage3.surface_densify", cfg.stage3.surface_densify)):
+        if d.every > 0:
+            out[f"{name}.every"] = scale(d.every)
     return out
 
 
@@ -278,7 +273,7 @@ class Window:
     """Surface and smoke Gaussians in the window, and as loaded (before the counts were matched)."""
 
 
-def densify_steps(d: DensifyConfig, first: int, last: int) -> int:
+def densify_steps(d: DensifyWindow, first: int, last: int) -> int:
     """Iterations in [first, last] on which a densification step runs (``DensifyStrategy.step``)."""
     if d.every <= 0:
         return 0
@@ -300,8 +295,9 @@ def run_window(ctx: Any, problem: StageProblem, densify: DensifyConfig, stage_it
     att = attribute(spans_from_profiler(prof.events()))
     if att.steps != ACTIVE:
         raise RuntimeError(f"profiled {att.steps} steps, expected {ACTIVE}")
-    in_window = densify_steps(densify, wait + 2 + offset, wait + 1 + ACTIVE + offset)
-    spread = att.steps / in_window * densify_steps(densify, 1, stage_iterations) / stage_iterations if in_window else 0
+    window = densify.window(stage_iterations)
+    in_window = densify_steps(window, wait + 2 + offset, wait + 1 + ACTIVE + offset)
+    spread = att.steps / in_window * densify_steps(window, 1, stage_iterations) / stage_iterations if in_window else 0
 
     def per_iteration(part: str, us: float) -> float:
         return us / 1e3 / att.steps * (spread if part == DENSIFY_STEP else 1.0)

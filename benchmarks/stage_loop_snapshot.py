@@ -24,10 +24,10 @@ if str(ROOT) not in sys.path:
 
 import torch  # noqa: E402
 
-from smokeseer.train import loop as trainloop  # noqa: E402
 from smokeseer.api import prepare, _sample  # noqa: E402
-from smokeseer.train.stage2 import Stage2Problem  # noqa: E402
+from smokeseer.train import loop as trainloop  # noqa: E402
 from smokeseer.train.loop import StageSchedule, run_stage  # noqa: E402
+from smokeseer.train.stage2 import Stage2Problem  # noqa: E402
 from smokeseer.train.util import RunContext, RunLog  # noqa: E402
 
 

@@ -23,14 +23,14 @@ from scenes.load import load_scene
 from scenes.scene import ModalityData, SceneData
 from scenes.thermal_scale import ThermalScaleSpec
 from smokeseer.config import TrainConfig, make_config
-from smokeseer.train.depth_prior import DepthPriorMaps, file_depth_prior, monocular_depth_prior, rendered_depth_prior
-from smokeseer.evaluation.scoring import heldout_psnr, score, score_validation, write_plys, write_renders
 from smokeseer.evaluation.figures import write_test_figures
-from smokeseer.stage1.haze_lines import SmokeColourEstimate, estimate_smoke_colour
-from smokeseer.train.mask_floor import estimated_dense, never_seen_clear
+from smokeseer.evaluation.scoring import heldout_psnr, score, score_validation, write_plys, write_renders
 from smokeseer.model.scene import Placed, SceneModel, init_gaussians, render
-from smokeseer.train.plan import Stage3Plan, plan_stage3
+from smokeseer.stage1.haze_lines import SmokeColourEstimate, estimate_smoke_colour
 from smokeseer.stage1.pipeline import Stage1Report, run_stage1
+from smokeseer.train.depth_prior import DepthPriorMaps, file_depth_prior, monocular_depth_prior, rendered_depth_prior
+from smokeseer.train.mask_floor import estimated_dense, never_seen_clear
+from smokeseer.train.plan import Stage3Plan, plan_stage3
 from smokeseer.train.stage2 import train_stage2, views_of
 from smokeseer.train.stage3 import build_scene_model, train_stage3
 from smokeseer.train.util import RunContext, RunLog

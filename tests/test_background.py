@@ -12,8 +12,8 @@ import torch
 from PIL import Image
 
 from contracts.imageio import read_exr_channel
-from smokeseer.model.background import EnvironmentBackground, ray_directions
 from smokeseer.cli import main
+from smokeseer.model.background import EnvironmentBackground, ray_directions
 from smokeseer.model.scene import Placed, View, render
 from tests.test_smokeseer_data import write_splat_dataset
 from tests.test_trainer import TINY

@@ -442,7 +442,7 @@ def test_ablations_take_fulls_finished_stage2_and_end_as_if_they_trained_it(tmp_
     ds = write_splat_dataset(tmp_path / "splat", n_rgb=8, n_thermal=6)
     tiny = {"stage2.iterations": 12, "stage3.iterations": 12, "stage2.init_points": 300,
             "stage3.smoke_points": 120, "log_every": 3, "stage3.test_every": 6, "checkpoint_every": 6,
-            "deform.warmup_iterations": 3, "progress": False}
+            "stage2.deform_warmup": 0.25, "stage3.deform_warmup": 0.25, "progress": False}
 
     def run(out: Path, methods: list[str], ablations: list[str]) -> dict[str, RunResult]:
         cfg = HarnessConfig(out=out, scenes=["splat"], methods=methods, ablations=ablations, seeds=[0], workers=1,
@@ -477,7 +477,7 @@ def test_two_workers_train_one_stage2_for_full_and_its_ablations(tmp_path: Path)
     ds = write_splat_dataset(tmp_path / "splat", n_rgb=8, n_thermal=6)
     tiny = {"stage2.iterations": 30, "stage3.iterations": 6, "stage2.init_points": 300,
             "stage3.smoke_points": 120, "log_every": 3, "stage3.test_every": 6, "checkpoint_every": 6,
-            "deform.warmup_iterations": 3, "progress": False}
+            "stage2.deform_warmup": 0.25, "stage3.deform_warmup": 0.25, "progress": False}
     cfg = HarnessConfig(out=tmp_path / "out", scenes=["splat"], methods=["full"], ablations=["no-mask", "no-mono"],
                         seeds=[0], workers=2, datasets={"splat": ds}, train_overrides=tiny)
     results, _ = regenerate(cfg)

@@ -13,10 +13,10 @@ from torch.profiler import ProfilerActivity, profile, schedule
 from benchmarks.iteration_attribution import (ADAM, DEFORM_BWD, DEFORM_FWD, LOSSES, REST, SSIM_BWD, SSIM_FWD, Span,
                                               attribute, pass_parts, spans_from_profiler)
 from benchmarks.iteration_profile import densify_steps, labelled, match_count, scaled_overrides
-from smokeseer.config import make_config
+from smokeseer.config import DensifyWindow, at_iteration, make_config
 from smokeseer.model.gaussians import GaussianSet, make_optimizer
-from smokeseer.train.losses import ssim
 from smokeseer.raster import rasterize
+from smokeseer.train.losses import ssim
 
 BWD = "autograd::engine::evaluate_function: "
 
@@ -130,13 +130,12 @@ def test_pretraining_schedule_is_the_standard_one_scaled() -> None:
     standard = make_config("full", "standard", 0)
     short = make_config("full", "standard", 0, scaled_overrides(standard, 0.1))
     assert (short.stage2.iterations, short.stage3.iterations) == (300, 300)
-    assert (short.stage3.smoke_densify.start, short.stage3.smoke_densify.stop, short.stage3.smoke_densify.every) \
-        == (30, 240, 10)
-    assert (short.deform.warmup_iterations, short.sh_increase_every) == (50, 80)
+    assert short.stage3.smoke_densify.window(300) == DensifyWindow(30, 240, 10, 0)
+    assert (at_iteration(short.stage3.deform_warmup, 300), short.sh_increase_every) == (50, 80)
     # the standard run densifies at 300, 400, ..., 2400; the short one as often
-    assert densify_steps(standard.stage3.smoke_densify, 1, 3000) == 22
-    assert densify_steps(short.stage3.smoke_densify, 1, 300) == 22
-    assert densify_steps(standard.stage2.densify, 2381, 2400) == 1
+    assert densify_steps(standard.stage3.smoke_densify.window(3000), 1, 3000) == 22
+    assert densify_steps(short.stage3.smoke_densify.window(300), 1, 300) == 22
+    assert densify_steps(standard.stage2.densify.window(3000), 2381, 2400) == 1
 
 
 def test_match_count_grows_by_splits_and_trims_the_most_transparent() -> None:

@@ -8,10 +8,10 @@ import torch
 
 from scenes.load import load_scene
 from smokeseer.config import make_config
+from smokeseer.stage1.pipeline import run_stage1
 from smokeseer.train.losses import mask_alignment
 from smokeseer.train.mask_floor import cube_reach, estimated_dense, never_seen_clear
 from smokeseer.train.plan import plan_stage3
-from smokeseer.stage1.pipeline import run_stage1
 from tests.test_smokeseer_data import write_splat_dataset
 
 N = 20

@@ -23,7 +23,7 @@ from smokeseer.api import train_and_evaluate
 SOURCE = Path(__file__).resolve().parents[1] / "data" / "standard" / "excavator"
 STEP = 3  # every third RGB frame: 20 frames over the whole flyover
 TINY = {"stage2.iterations": 12, "stage3.iterations": 12, "stage2.init_points": 300, "stage3.smoke_points": 120,
-        "log_every": 3, "stage3.test_every": 6, "checkpoint_every": 6, "deform.warmup_iterations": 3,
+        "log_every": 3, "stage3.test_every": 6, "checkpoint_every": 6, "stage2.deform_warmup": 0.25, "stage3.deform_warmup": 0.25,
         "progress": False}
 
 

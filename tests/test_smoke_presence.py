@@ -9,9 +9,9 @@ import pytest
 
 from scenes.load import load_scene
 from smokeseer.config import make_config
+from smokeseer.stage1.pipeline import run_stage1
 from smokeseer.stage1.smoke_masks import candidate_scores, iou
 from smokeseer.stage1.smoke_presence import PresenceConfig, decide_smoke_presence, noise_sigma
-from smokeseer.stage1.pipeline import run_stage1
 from tests.test_smokeseer_data import write_splat_dataset
 
 MARGIN = 1.1

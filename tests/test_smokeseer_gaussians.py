@@ -32,15 +32,15 @@ def _with_adam_state(g: GaussianSet) -> Adam:
 
 
 def test_clone_split_prune_follow_3dgs_rules() -> None:
-    cfg = DensifyConfig(start=1, stop=100, every=1, grad_threshold=1e-3, percent_dense=0.01,
-                        opacity_reset_every=0, prune_opacity=0.005)
+    cfg = DensifyConfig(start=0.01, stop=1.0, every=1, grad_threshold=1e-3, percent_dense=0.01,
+                        opacity_reset_every=0.0, prune_opacity=0.005)
     g = _set(4, scale=0.001)
     g.params["log_scales"].data[2:] = math.log(0.5)  # rows 2, 3 are large
     g.params["opacity"].data[3] = logit(0.001)  # row 3 transparent
     opt = _with_adam_state(g)
     c = g["color"].detach().squeeze(-1).tolist()
     parent = g["log_scales"].detach()[2].exp().numpy()
-    strat = DensifyStrategy(cfg, ("opacity",), scene_extent=1.0)
+    strat = DensifyStrategy(cfg, 100, ("opacity",), scene_extent=1.0)
     grad = torch.tensor([[1.0, 0.0], [0.0, 0.0], [1.0, 0.0], [0.0, 0.0]])
     strat.accumulate(grad, torch.tensor([3, 3, 3, 3]), width=2, height=2)
     rep = strat.step(1, g, opt, torch.Generator().manual_seed(0))
@@ -65,40 +65,25 @@ def test_clone_split_prune_follow_3dgs_rules() -> None:
 
 def test_gradient_threshold_uses_ndc_units() -> None:
     """A pixel gradient g on a W-wide image is g·W/2 in NDC: below/above threshold flips."""
-    cfg = DensifyConfig(start=1, stop=10, every=1, grad_threshold=2e-4, opacity_reset_every=0)
+    cfg = DensifyConfig(start=0.1, stop=1.0, every=1, grad_threshold=2e-4, opacity_reset_every=0.0)
     for pixel_grad, expect in ((1.9e-4 / 50, 0), (2.1e-4 / 50, 1)):
         g = _set(1, scale=0.001)
         opt = _with_adam_state(g)
-        s = DensifyStrategy(cfg, ("opacity",), 1.0)
+        s = DensifyStrategy(cfg, 10, ("opacity",), 1.0)
         s.accumulate(torch.tensor([[pixel_grad, 0.0]]), torch.tensor([2]), width=100, height=10)
         assert s.step(1, g, opt, torch.Generator())["cloned"] == expect
 
 
-def test_min_opacity_keeps_faint_gaussians_from_densifying() -> None:
-    """Two equally hot small Gaussians, one faint (0.1) and one opaque (0.95): with min_opacity 0.5
-    only the opaque one is cloned; with the 3DGS default (0) both are."""
-    for min_opacity, expect in ((0.5, 1), (0.0, 2)):
-        cfg = DensifyConfig(start=1, stop=10, every=1, grad_threshold=1e-3, opacity_reset_every=0,
-                            min_opacity=min_opacity)
-        g = _set(2, scale=0.001)
-        g.params["opacity"].data[:] = torch.tensor([logit(0.1), logit(0.95)])
-        opt = _with_adam_state(g)
-        strat = DensifyStrategy(cfg, ("opacity",), 1.0)
-        strat.accumulate(torch.tensor([[1.0, 0.0], [1.0, 0.0]]), torch.tensor([3, 3]), width=2, height=2)
-        assert strat.step(1, g, opt, torch.Generator())["cloned"] == expect
-
-
-def test_prune_big_after_prunes_oversized_without_resets() -> None:
+def test_oversized_gaussians_are_pruned_only_after_the_first_reset() -> None:
     """Three cold Gaussians: one small, one wider than a tenth of the extent, one with a 30 px
-    screen radius. Without resets 3DGS never prunes them; prune_big_after=0 prunes both big ones
-    from the first step; prune_big_after=5 waits until after iteration 5."""
-    for after, it, expect in ((-1, 1, 0), (0, 1, 2), (5, 5, 0), (5, 6, 2)):
-        cfg = DensifyConfig(start=1, stop=10, every=1, grad_threshold=1e-3, opacity_reset_every=0,
-                            prune_big_after=after)
+    screen radius. 3DGS prunes the two big ones only after its first opacity reset (here half of
+    a 10-iteration stage: iteration 5), and never without resets."""
+    for reset, it, expect in ((0.0, 9, 0), (0.5, 5, 0), (0.5, 6, 2)):
+        cfg = DensifyConfig(start=0.1, stop=1.0, every=1, grad_threshold=1e-3, opacity_reset_every=reset)
         g = _set(3, scale=0.01)
         g.params["log_scales"].data[1] = math.log(0.2)
         opt = _with_adam_state(g)
-        strat = DensifyStrategy(cfg, ("opacity",), scene_extent=1.0)
+        strat = DensifyStrategy(cfg, 10, ("opacity",), scene_extent=1.0)
         strat.accumulate(torch.zeros(3, 2), torch.tensor([2, 2, 30]), width=100, height=100)
         assert strat.step(it, g, opt, torch.Generator())["pruned"] == expect
         assert g.n == 3 - expect
@@ -107,7 +92,7 @@ def test_prune_big_after_prunes_oversized_without_resets() -> None:
 def test_opacity_reset_caps_at_one_percent() -> None:
     g = _set(3, 0.01)
     opt = _with_adam_state(g)
-    DensifyStrategy(DensifyConfig(), ("opacity",), 1.0).reset_opacity(g, opt)
+    DensifyStrategy(DensifyConfig(), 15000, ("opacity",), 1.0).reset_opacity(g, opt)
     assert torch.sigmoid(g["opacity"]).max().item() == pytest.approx(0.01, rel=1e-4)
 
 
@@ -146,7 +131,7 @@ def test_gl_to_cv_conversion_and_bounds() -> None:
 def test_config_profiles_overrides_and_errors() -> None:
     paper = make_config("full", "paper")
     assert (paper.stage2.iterations, paper.stage3.iterations) == (15000, 15000)
-    assert paper.deform.warmup_iterations == 3000
+    assert (paper.stage2.deform_warmup, paper.stage3.deform_warmup) == (0.2, 0.2)
     lw = paper.loss
     assert (lw.render, lw.smoke_alpha, lw.smoke_color, lw.mono, lw.depth, lw.mask) == (1.0, 0.1, 0.05, 0.1, 2.0, 0.5)
     quick = make_config("no-mask", "quick", overrides={"stage3.iterations": "7", "progress": "false"})
@@ -160,9 +145,9 @@ def test_config_profiles_overrides_and_errors() -> None:
         make_config(overrides={"stage2.iterations": -1})
     with pytest.raises(ValueError, match="loss.mask_alpha_floor"):
         make_config(overrides={"loss.mask_alpha_floor": 0.0})
-    with pytest.raises(ValueError, match="stage3.surface_densify.prune_big_after"):
-        make_config(overrides={"stage3.surface_densify.prune_big_after": -2})
-    with pytest.raises(ValueError, match="loss.depth_pixels: must be one of"):
-        make_config(overrides={"loss.depth_pixels": "smokey"})
-    with pytest.raises(ValueError, match="loss.depth_pixels: 'smoke-weighted' needs depth_camera=rgb"):
-        make_config(profile="standard", overrides={"loss.depth_pixels": "smoke-weighted"})
+    with pytest.raises(ValueError, match=r"stage3.surface_densify.stop: a fraction of the stage's iterations"):
+        make_config(overrides={"stage3.surface_densify.stop": 2400})
+    with pytest.raises(ValueError, match="stage2.densify.start: must not be after stage2.densify.stop"):
+        make_config(overrides={"stage2.densify.start": 0.9})
+    with pytest.raises(ValueError, match="stage3.deform_warmup: a fraction"):
+        make_config(overrides={"stage3.deform_warmup": 500})

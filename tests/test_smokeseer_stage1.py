@@ -14,6 +14,7 @@ from scenes.load import load_scene
 from scenes.similarity import Sim3
 from smokeseer.config import make_config
 from smokeseer.stage1.pipeline import perturb_poses, run_stage1
+from smokeseer.stage1.registration import Sim3
 from tests.test_smokeseer_data import write_splat_dataset
 
 

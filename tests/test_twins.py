@@ -20,7 +20,7 @@ from tests.test_harness import _calls, identity_train, write_tiny_dataset
 from tests.test_smokeseer_data import write_splat_dataset
 
 TINY = {"stage2.iterations": 12, "stage3.iterations": 12, "stage2.init_points": 300, "stage3.smoke_points": 120,
-        "log_every": 3, "stage3.test_every": 6, "checkpoint_every": 6, "deform.warmup_iterations": 3,
+        "log_every": 3, "stage3.test_every": 6, "checkpoint_every": 6, "stage2.deform_warmup": 0.25, "stage3.deform_warmup": 0.25,
         "progress": False, "stage3.smoke_color": "haze-lines"}
 
 

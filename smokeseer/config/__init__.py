@@ -27,7 +27,6 @@ MODES: tuple[str, ...] = (
 )
 PROFILES: tuple[str, ...] = ("quick", "standard", "paper")
 SMOKE_COLOR_SOURCES: tuple[str, ...] = ("learned", "haze-lines")
-DEPTH_PIXELS: tuple[str, ...] = ("all", "smoky", "smoke-weighted")
 MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "estimated")
 LPIPS_NETS: tuple[str, ...] = ("alex", "vgg")
 
@@ -45,16 +44,6 @@ class LossWeights:
     mask: float = 0.5
     thermal_smoke_opacity: float = 0.01
     dssim: float = 0.2
-    depth_relative: bool = False
-    """Depth term as a relative error (L1 over the aligned prior's mean depth) instead of metres
-    (or the prior's inverse-depth units). Why: a weight on an error in metres grows with the
-    scene's size; on the standard house (extent 13 m) the metric term rivals the RGB loss."""
-    depth_pixels: str = "all"
-    """Which pixels the depth term counts (needs the depth term at the RGB camera, the camera of
-    the smoke render and masks, unless "all"): "all"; "smoky", those the smoke covers (Stage 1
-    mask, or the rendered smoke alpha above the dataset's mask threshold); "smoke-weighted", every
-    pixel weighted by the smoke alpha the same RGB pass renders there. Why: the paper means the term
-    to keep the surface in place where smoke hides it; where the RGB sees the surface it decides."""
     mask_alpha_floor: float = 0.4
     """Inside the mask, smoke alpha at or above this counts as full smoke (the public code's 0.4;
     1 is the paper's plain L1). It sets how much of a dense smoke's darkening the surface may
@@ -70,41 +59,57 @@ class LossWeights:
 
 @dataclass
 class DeformConfig:
-    """Deformable 3DGS MLP defaults: 8×256, skip at layer 4, 10 xyz / 6 t frequencies."""
+    """Deformable 3DGS MLP defaults: 8×256, skip at layer 4, 10 xyz / 6 t frequencies. Its
+    warm-up is a schedule of the stage that trains it (``stage2.deform_warmup`` for the
+    deformable-3dgs baseline, ``stage3.deform_warmup`` for the smoke)."""
 
     depth: int = 8
     width: int = 256
     skip_layer: int = 4
     xyz_frequencies: int = 10
     t_frequencies: int = 6
-    warmup_iterations: int = 3000
     lr_init: float = 8e-4
     lr_final: float = 1.6e-6
     predict_rotation_scale: bool = False  # smoke offsets in rotation and log-scale too (the paper)
 
 
+def at_iteration(fraction: float, iterations: int) -> int:
+    """The iteration a schedule fraction names in a stage of ``iterations`` (nearest, halves up).
+    Every schedule is resolved here, so ``--set stage3.iterations=6000`` moves them all."""
+    return int(fraction * iterations + 0.5)
+
+
+@dataclass(frozen=True)
+class DensifyWindow:
+    """A ``DensifyConfig`` resolved to iterations of one stage."""
+
+    start: int
+    stop: int
+    every: int
+    opacity_reset_every: int
+
+
 @dataclass
 class DensifyConfig:
-    """3DGS adaptive density control, in iterations of the stage it runs in."""
+    """3DGS adaptive density control. ``start``, ``stop`` and ``opacity_reset_every`` are fractions
+    of the iterations of the stage it runs in (3DGS: 500, 15000 and 3000 of a 15000-iteration
+    stage), so a longer stage densifies over the same share of it. ``every`` stays in iterations:
+    it sets how many gradient samples each decision averages, which the budget does not change."""
 
-    start: int = 500
-    stop: int = 15000
+    start: float = 1 / 30
+    stop: float = 1.0
     every: int = 100
     grad_threshold: float = 2e-4
     percent_dense: float = 0.01
-    opacity_reset_every: int = 3000
+    opacity_reset_every: float = 0.2
+    """0: no opacity reset."""
     prune_opacity: float = 0.005
     screen_size_threshold: float = 20.0
     max_gaussians: int = 1_000_000
-    min_opacity: float = 0.0
-    """Gaussians below this opacity are neither cloned nor split (0 = 3DGS: any). Why: a faint
-    Gaussian's screen-space gradient says its pixels want more, not that it is the surface; on
-    the standard house, clones of faint Stage-2 Gaussians in the air made a veil."""
-    prune_big_after: int = -1
-    """From this iteration on, densification also prunes oversized Gaussians (screen radius over
-    ``screen_size_threshold``, largest axis over a tenth of the scene extent); -1 = 3DGS: after
-    the first opacity reset, so never without resets. Why separate: a refinement without resets
-    otherwise keeps growing metre-sized surface Gaussians that veil the views."""
+
+    def window(self, iterations: int) -> DensifyWindow:
+        return DensifyWindow(at_iteration(self.start, iterations), at_iteration(self.stop, iterations), self.every,
+                             at_iteration(self.opacity_reset_every, iterations))
 
 
 @dataclass
@@ -132,6 +137,9 @@ class Stage2Config:
     init_opacity: float = 0.1
     init_scale_max: float = 0.02
     densify: DensifyConfig = field(default_factory=DensifyConfig)
+    deform_warmup: float = 0.2
+    """The deformable-3dgs baseline trains its deformation network from this fraction of the
+    stage on (D3DGS: 3k iterations; 3000 of the paper's 15000)."""
 
 
 @dataclass
@@ -139,12 +147,15 @@ class Stage3Config:
     """Joint surface + smoke optimisation."""
 
     iterations: int = 15000
+    deform_warmup: float = 0.2
+    """The smoke's deformation network trains from this fraction of Stage 3 on (before it, the
+    smoke is static): D3DGS's 3k-iteration warm-up, 3000 of the paper's 15000."""
     smoke_points: int = 20_000
     smoke_init_opacity: float = 0.02
     smoke_init_scale: float = 0.5
-    smoke_densify: DensifyConfig = field(default_factory=lambda: DensifyConfig(opacity_reset_every=0))
+    smoke_densify: DensifyConfig = field(default_factory=lambda: DensifyConfig(opacity_reset_every=0.0))
     train_surface_geometry: bool = True
-    surface_densify: DensifyConfig = field(default_factory=lambda: DensifyConfig(every=0, opacity_reset_every=0))
+    surface_densify: DensifyConfig = field(default_factory=lambda: DensifyConfig(every=0, opacity_reset_every=0.0))
     """3DGS density control of the surface from the RGB views' gradients ("refining geometry": the
     thermal-only Stage 2 surface is as coarse as the thermal images); ``every`` 0 is off. Needs
     ``train_surface_geometry``. On in the standard profile, which has no depth term: with the
@@ -160,11 +171,6 @@ class Stage3Config:
     Stage 2's geometry) and held fixed; where the estimate is not trusted (thin smoke: the lines
     do not meet) the run learns it as the paper does and says so. Under dense smoke the images
     alone let a brighter, denser smoke stand in for a darker surface (docs/method.md)."""
-    surface_update_max_smoke: float = 1.0
-    """A surface Gaussian whose projected centre lies inside this iteration's RGB view on smoke cover
-    above this (rendered smoke alpha, or the Stage 1 mask where the run has one) gets no gradient
-    from the iteration (Adam's momentum still moves it): its colour and shape are learnt where it
-    is seen without smoke, as the official code does with its masks. 1.0: every view counts."""
     test_every: int = 1000
 
 
@@ -195,7 +201,9 @@ class TrainConfig:
     depth_camera: str = "thermal"
     mono_weights: str = ""
     pose_noise_rot_deg: float = 0.0
+    """Robustness studies: training poses turned about a random axis by N(0, this) degrees."""
     pose_noise_trans: float = 0.0
+    """Robustness studies: training camera centres moved by N(0, this × scene extent) per axis."""
     registration: str = "auto"
     registration_lever_arm: tuple[float, ...] = ()
     stage1: str = "ground-truth"
@@ -243,21 +251,18 @@ class TrainConfig:
         if not 0.0 < self.stage3.surface_densify_max_smoke <= 1.0:
             raise ValueError("stage3.surface_densify_max_smoke: must be in (0, 1], "
                              f"got {self.stage3.surface_densify_max_smoke}")
-        if not 0.0 <= self.stage3.surface_update_max_smoke <= 1.0:
-            raise ValueError("stage3.surface_update_max_smoke: must be in [0, 1], "
-                             f"got {self.stage3.surface_update_max_smoke}")
         for name, densify in (("stage2.densify", self.stage2.densify), ("stage3.smoke_densify", self.stage3.smoke_densify),
                               ("stage3.surface_densify", self.stage3.surface_densify)):
-            if not 0.0 <= densify.min_opacity < 1.0:
-                raise ValueError(f"{name}.min_opacity: must be in [0, 1), got {densify.min_opacity}")
-            if densify.prune_big_after < -1:
-                raise ValueError(f"{name}.prune_big_after: must be -1 (after the first reset) or an iteration, "
-                                 f"got {densify.prune_big_after}")
-        if self.loss.depth_pixels not in DEPTH_PIXELS:
-            raise ValueError(f"loss.depth_pixels: must be one of {', '.join(DEPTH_PIXELS)}, got {self.loss.depth_pixels!r}")
-        if self.loss.depth_pixels != "all" and self.depth_camera != "rgb":
-            raise ValueError(f"loss.depth_pixels: {self.loss.depth_pixels!r} needs depth_camera=rgb "
-                             "(the smoke render and masks belong to the RGB frames)")
+            for key in ("start", "stop", "opacity_reset_every"):
+                if not 0.0 <= getattr(densify, key) <= 1.0:
+                    raise ValueError(f"{name}.{key}: a fraction of the stage's iterations, in [0, 1]; "
+                                     f"got {getattr(densify, key)}")
+            if densify.start > densify.stop:
+                raise ValueError(f"{name}.start: must not be after {name}.stop ({densify.start} > {densify.stop})")
+        for name, warmup in (("stage2.deform_warmup", self.stage2.deform_warmup),
+                             ("stage3.deform_warmup", self.stage3.deform_warmup)):
+            if not 0.0 <= warmup <= 1.0:
+                raise ValueError(f"{name}: a fraction of the stage's iterations, in [0, 1]; got {warmup}")
         if self.loss.mask_floor_where not in MASK_FLOOR_WHERE:
             raise ValueError(f"loss.mask_floor_where: {self.loss.mask_floor_where!r} is not one of "
                              f"{', '.join(MASK_FLOOR_WHERE)}")
@@ -286,6 +291,7 @@ class TrainConfig:
         d["mode"] = {"rgb-only": "rgb", "deformable-3dgs": "deformable-3dgs"}.get(self.mode, "thermal")
         if d["mode"] != "deformable-3dgs":
             d.pop("deform")
+            d["stage2"].pop("deform_warmup")
         if d["mode"] != "thermal":
             d.pop("thermal_scale")
             d.pop("thermal_equalised_share")
@@ -300,22 +306,25 @@ class TrainConfig:
 
 def _quick() -> TrainConfig:
     """Minutes on 2 CPU cores: reduced resolution, iterations and Gaussian counts, with the
-    3DGS schedules scaled to the shorter runs. No opacity reset: 3DGS trains 15k iterations
-    after its last reset, and a reset half-way through 1000 leaves too few to regrow opacity."""
+    3DGS schedules set for the shorter runs (windows 150-800 of 1000 and 200-600 of 800, warm-up
+    200). No opacity reset: 3DGS trains 15k iterations after its last reset, and a reset half-way
+    through 1000 leaves too few to regrow opacity."""
     s2 = Stage2Config(
         iterations=1000,
         init_points=2000,
-        densify=DensifyConfig(start=150, stop=800, every=100, opacity_reset_every=0,
+        densify=DensifyConfig(start=0.15, stop=0.8, every=100, opacity_reset_every=0.0,
                               max_gaussians=12_000),
+        deform_warmup=0.2,
     )
     s3 = Stage3Config(
         iterations=800,
+        deform_warmup=0.25,
         smoke_points=800,
-        smoke_densify=DensifyConfig(start=200, stop=600, every=100, opacity_reset_every=0,
+        smoke_densify=DensifyConfig(start=0.25, stop=0.75, every=100, opacity_reset_every=0.0,
                                     max_gaussians=4_000),
         test_every=200,
     )
-    deform = DeformConfig(depth=4, width=64, skip_layer=2, warmup_iterations=200)
+    deform = DeformConfig(depth=4, width=64, skip_layer=2)
     return TrainConfig(profile="quick", max_width=64, sh_degree=1, sh_increase_every=300,
                        stage2=s2, stage3=s3, deform=deform, checkpoint_every=200, validation_every=0,
                        depth_camera="rgb")
@@ -324,27 +333,30 @@ def _quick() -> TrainConfig:
 def _standard() -> TrainConfig:
     """The benchmark's scale on one CPU core with the compiled rasterizer (a `standard` dataset:
     60 frames, 200x150 RGB, 80x60 thermal): full resolution, 3000 + 3000 iterations with the
-    3DGS schedules scaled to them, and a validation split for every choice. No opacity reset, a
+    3DGS schedules scaled to them (densification 300-2400, warm-up 500), and a validation split
+    for every choice. No opacity reset, a
     gated surface refinement, no depth term, the haze-line smoke colour where trusted, a
     half-equalised thermal curve and the mask floor where the images say the smoke may be dense: each chosen on the
     validation views, with its measurements in docs/method.md, "Profiles"."""
     s2 = Stage2Config(
         iterations=3000,
         init_points=5000,
-        densify=DensifyConfig(start=300, stop=2400, every=100, opacity_reset_every=0,
+        densify=DensifyConfig(start=0.1, stop=0.8, every=100, opacity_reset_every=0.0,
                               max_gaussians=40_000),
+        deform_warmup=1 / 6,
     )
     s3 = Stage3Config(
         iterations=3000,
+        deform_warmup=1 / 6,
         smoke_points=2000,
-        smoke_densify=DensifyConfig(start=300, stop=2400, every=100, opacity_reset_every=0,
+        smoke_densify=DensifyConfig(start=0.1, stop=0.8, every=100, opacity_reset_every=0.0,
                                     max_gaussians=10_000),
-        surface_densify=DensifyConfig(start=300, stop=2400, every=100, opacity_reset_every=0,
+        surface_densify=DensifyConfig(start=0.1, stop=0.8, every=100, opacity_reset_every=0.0,
                                       max_gaussians=80_000),
         smoke_color="haze-lines",
         test_every=250,
     )
-    deform = DeformConfig(depth=6, width=128, skip_layer=3, warmup_iterations=500, predict_rotation_scale=True)
+    deform = DeformConfig(depth=6, width=128, skip_layer=3, predict_rotation_scale=True)
     return TrainConfig(profile="standard", max_width=0, thermal_scale="equalised", thermal_equalised_share=0.5,
                        sh_degree=2, sh_increase_every=800, stage2=s2, stage3=s3, deform=deform,
                        loss=LossWeights(mask_floor_where="estimated"), checkpoint_every=500, depth_prior="none")

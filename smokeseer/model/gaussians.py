@@ -120,10 +120,13 @@ class DensifyState:
 
 class DensifyStrategy:
     """3DGS adaptive density control: clone small / split large high-gradient Gaussians,
-    prune transparent and oversized ones, and periodically reset opacity."""
+    prune transparent and oversized ones, and periodically reset opacity, on the config's
+    schedule resolved for a stage of ``iterations``."""
 
-    def __init__(self, cfg: DensifyConfig, opacity_keys: tuple[str, ...], scene_extent: float) -> None:
+    def __init__(self, cfg: DensifyConfig, iterations: int, opacity_keys: tuple[str, ...],
+                 scene_extent: float) -> None:
         self.cfg = cfg
+        self.window = cfg.window(iterations)
         self.opacity_keys = opacity_keys
         self.extent = scene_extent
         self.state: DensifyState | None = None
@@ -154,7 +157,7 @@ class DensifyStrategy:
     def step(self, it: int, gset: GaussianSet, opt: Adam,
              generator: torch.Generator) -> dict[str, int]:
         """Run densification/pruning/reset if ``it`` (1-based) is on the schedule."""
-        c = self.cfg
+        c = self.window
         report = {"cloned": 0, "split": 0, "pruned": 0}
         if c.every <= 0 or it < c.start or it > c.stop:
             return report
@@ -166,10 +169,9 @@ class DensifyStrategy:
         return report
 
     def _prunes_big(self, it: int) -> bool:
-        c = self.cfg
-        if c.prune_big_after >= 0:
-            return it > c.prune_big_after
-        return bool(c.opacity_reset_every) and it > c.opacity_reset_every
+        """3DGS prunes oversized Gaussians only after the first opacity reset."""
+        reset = self.window.opacity_reset_every
+        return bool(reset) and it > reset
 
     def reset_opacity(self, gset: GaussianSet, opt: Adam) -> None:
         """3DGS: clamp opacities to ≤ 0.01 so floaters must earn their opacity back."""
@@ -189,8 +191,6 @@ class DensifyStrategy:
         grads = self.state.grad_accum / self.state.count.clamp_min(1.0)
         max_scale = gset["log_scales"].detach().exp().max(-1).values
         hot = grads >= c.grad_threshold
-        if c.min_opacity > 0:
-            hot &= self._opacity(gset) >= c.min_opacity
         room = max(c.max_gaussians - gset.n, 0)
         small = hot & (max_scale <= c.percent_dense * self.extent)
         large = hot & ~small

@@ -83,19 +83,12 @@ def align_scale_shift(pred: Tensor, prior: Tensor, valid: Tensor) -> tuple[Tenso
     return s.to(pred.dtype), b.to(pred.dtype)
 
 
-def depth_consistency(depth: Tensor, prior: Tensor, valid: Tensor, relative: bool = False,
-                      pixel_weight: Tensor | None = None) -> Tensor:
-    """L1 between rendered surface depth and the scale/shift-aligned prior, averaged over valid
-    pixels, each pixel's error times ``pixel_weight`` when given (in [0, 1]); with ``relative``,
-    divided by the aligned prior's mean magnitude there (detached), so the term has no unit and a
-    weight means the same in a 2 m and a 20 m scene."""
+def depth_consistency(depth: Tensor, prior: Tensor, valid: Tensor) -> Tensor:
+    """L1 between rendered surface depth and the scale/shift-aligned prior, averaged over valid pixels."""
     if valid.sum() < 2:
         return depth.sum() * 0.0
     s, b = align_scale_shift(depth, prior, valid)
-    target = s * prior[valid] + b
-    residual = (depth[valid] - target).abs()
-    error = (residual if pixel_weight is None else pixel_weight[valid] * residual).mean()
-    return error / target.abs().mean().clamp_min(1e-12) if relative else error
+    return (depth[valid] - (s * prior[valid] + b)).abs().mean()
 
 
 def mask_alignment(smoke_alpha: Tensor, mask: Tensor, floor: float, floor_where: Tensor | None = None) -> Tensor:

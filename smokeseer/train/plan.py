@@ -75,8 +75,6 @@ class Stage3Plan:
     """Whether a deformation network trains: the smoke's (moving smoke only), or the
     deformable-3dgs baseline's single set. A run without smoke Gaussians has none."""
     use_masks: bool
-    smoke_threshold: float
-    """Rendered smoke alpha above this counts as smoke: the dataset's mask threshold."""
     smoke_colour: str
     """"none" (no smoke Gaussians), "learned", or "haze-lines": held at ``colour``, the estimate
     made once Stage 2 has given the geometry (``settle_colour``)."""
@@ -139,7 +137,7 @@ def plan_stage3(cfg: TrainConfig, scene: SceneData) -> Stage3Plan:
     colour = "none" if not use_smoke else cfg.stage3.smoke_color
     plan = Stage3Plan(use_thermal=use_thermal, use_smoke=use_smoke,
                       use_deform=deformable or (use_smoke and not scene.smoke_static), use_masks=masks is not None,
-                      smoke_threshold=scene.mask_threshold, smoke_colour=colour, mask_floor="all",
+                      smoke_colour=colour, mask_floor="all",
                       depth_prior=cfg.depth_prior if depth_on else None, depth_camera=camera,
                       weights=mode_weights(cfg))
     if not depth_on:
@@ -169,9 +167,6 @@ def _dropped_term_notes(cfg: TrainConfig, plan: Stage3Plan) -> list[str]:
     notes = []
     if "depth" in plan.dropped:
         notes.append(f"depth term dropped: {plan.dropped['depth']}")
-    if plan.weights["depth"] > 0 and cfg.loss.depth_pixels == "smoky" and not plan.use_masks:
-        notes.append("depth term only where the rendered smoke alpha exceeds the dataset's mask threshold "
-                     "(loss.depth_pixels=smoky): the dataset has no smoke masks")
     if not plan.use_masks and cfg.mode != "rgb-only":
         notes.append("mask term dropped: the dataset has no smoke masks"
                      + (", so this no-mask run trains exactly like full" if cfg.mode == "no-mask" else ""))

@@ -10,14 +10,14 @@ import numpy as np
 import torch
 
 from scenes.scene import ModalityData
+from smokeseer.config import DeformConfig, TrainConfig, at_iteration
 from smokeseer.model.background import EnvironmentBackground
-from smokeseer.config import DeformConfig, TrainConfig
 from smokeseer.model.deform import DeformNetwork
 from smokeseer.model.gaussians import DensifyStrategy, GaussianSet, make_optimizer
-from smokeseer.train.losses import render_loss
-from smokeseer.model.scene import View, add_rgb_sh, init_gaussians, make_view, place_deformed, render, sh_coeffs
 from smokeseer.model.optim import Adam
+from smokeseer.model.scene import View, add_rgb_sh, init_gaussians, make_view, place_deformed, render, sh_coeffs
 from smokeseer.train.loop import IterationOutput, StageProblem, StageSchedule, run_stage
+from smokeseer.train.losses import render_loss
 from smokeseer.train.util import RunContext, grads_of, state_or_none, step_optimizers
 
 
@@ -91,7 +91,8 @@ class Stage2Problem(StageProblem):
                                  if self.deform else None)
         self.background_optimizer = (Adam(self.background.parameters(), lr=cfg.lr.background)
                                      if self.background else None)
-        self.strategy = DensifyStrategy(cfg.stage2.densify, ("opacity",), ctx.extent)
+        self.strategy = DensifyStrategy(cfg.stage2.densify, cfg.stage2.iterations, ("opacity",), ctx.extent)
+        self.deform_warmup = at_iteration(cfg.stage2.deform_warmup, cfg.stage2.iterations)
         idx = mod.indices("train")
         self.views = views_of(mod, idx, dev)
         self.images = torch.as_tensor(mod.images[idx], device=dev)
@@ -100,7 +101,7 @@ class Stage2Problem(StageProblem):
         cfg = self.cfg
         k = draw_index(self.ctx, len(self.views))
         view = self.views[k]
-        deform_on = self.deform is not None and it > cfg.deform.warmup_iterations
+        deform_on = self.deform is not None and it > self.deform_warmup
         placed = place_deformed(self.g, self.deform, view.time, self.ctx.center, deform_on)
         cols, is_sh = colors_for(self.g, self.color)
         degree = min(cfg.sh_degree, (it - 1) // max(cfg.sh_increase_every, 1)) if is_sh else None
@@ -122,7 +123,7 @@ class Stage2Problem(StageProblem):
 
     def optimizer_step(self, it: int) -> None:
         step_optimizers(it, self.cfg.stage2.iterations, self.cfg, self.ctx.extent, [self.optimizer],
-                        [self.background_optimizer], self.deform_optimizer)
+                        [self.background_optimizer], self.deform_optimizer, self.deform_warmup)
 
     def after_step(self, it: int, out: IterationOutput) -> None:
         raster, view = out.extra["raster"], out.extra["view"]

@@ -15,18 +15,18 @@ import numpy as np
 import torch
 
 from scenes.scene import ModalityData
-from smokeseer.config import TrainConfig
+from smokeseer.config import TrainConfig, at_iteration
 from smokeseer.model.deform import DeformNetwork
-from smokeseer.train.depth_prior import DepthPriorMaps
 from smokeseer.model.gaussians import DensifyStrategy, GaussianSet, make_optimizer
-from smokeseer.train.losses import (depth_consistency, mask_alignment, monochromaticity, render_loss,
-                              smoke_alpha_variance, smoke_color_variance)
-from smokeseer.model.scene import SceneModel, add_rgb_sh, make_smoke
 from smokeseer.model.optim import Adam
-from smokeseer.train.plan import Stage3Plan
+from smokeseer.model.scene import SceneModel, add_rgb_sh, make_smoke
 from smokeseer.raster.output import RasterOutput
-from smokeseer.train.stage2 import Stage2Result, draw_index, make_background, views_of
+from smokeseer.train.depth_prior import DepthPriorMaps
 from smokeseer.train.loop import IterationOutput, StageProblem, StageSchedule, run_stage
+from smokeseer.train.losses import (depth_consistency, mask_alignment, monochromaticity, render_loss,
+                                    smoke_alpha_variance, smoke_color_variance)
+from smokeseer.train.plan import Stage3Plan
+from smokeseer.train.stage2 import Stage2Result, draw_index, make_background, views_of
 from smokeseer.train.util import RunContext, grads_of, state_or_none, step_optimizers
 
 HeldoutPsnr = Callable[[SceneModel, int], dict[str, float | None] | None]
@@ -90,12 +90,13 @@ class Stage3Problem(StageProblem):
         cfg, dev = ctx.cfg, ctx.device
         self.ctx, self.cfg, self.model, self.prior, self.heldout_fn = ctx, cfg, model, prior, heldout_psnr
         self.weights = plan.weights
-        self.smoke_threshold = plan.smoke_threshold
         self.colour_fixed = plan.colour is not None
         self._make_optimizers()
-        self.strategy = DensifyStrategy(cfg.stage3.smoke_densify, ("opacity_rgb", "opacity_thermal"), ctx.extent)
+        self.strategy = DensifyStrategy(cfg.stage3.smoke_densify, cfg.stage3.iterations, ("opacity_rgb", "opacity_thermal"),
+                                        ctx.extent)
+        self.deform_warmup = at_iteration(cfg.stage3.deform_warmup, cfg.stage3.iterations)
         refine = cfg.stage3.train_surface_geometry and cfg.stage3.surface_densify.every > 0
-        self.surface_strategy = (DensifyStrategy(cfg.stage3.surface_densify, ("opacity",), ctx.extent)
+        self.surface_strategy = (DensifyStrategy(cfg.stage3.surface_densify, cfg.stage3.iterations, ("opacity",), ctx.extent)
                                  if refine else None)
         rgb_idx = rgb.indices("train")
         self.rgb_views = views_of(rgb, rgb_idx, dev)
@@ -106,7 +107,6 @@ class Stage3Problem(StageProblem):
                            if self.masks is not None and plan.floor_pixels is not None else None)
         self.th_views: list = []
         self.th_imgs = None
-        self._held_surface: torch.Tensor | None = None
         if plan.use_thermal and thermal is not None:
             th_idx = thermal.indices("train")
             self.th_views = views_of(thermal, th_idx, dev)
@@ -128,7 +128,7 @@ class Stage3Problem(StageProblem):
 
     def forward(self, it: int) -> IterationOutput:
         cfg, model, weights = self.cfg, self.model, self.weights
-        deform_on = it > cfg.deform.warmup_iterations
+        deform_on = it > self.deform_warmup
         degree = min(cfg.sh_degree, (it - 1) // max(cfg.sh_increase_every, 1))
         k = draw_index(self.ctx, len(self.rgb_views))
         view = self.rgb_views[k]
@@ -161,34 +161,16 @@ class Stage3Problem(StageProblem):
         if self.depth_on:
             terms["depth"] = self._depth_term(*depth_source)
         loss = sum(weights["render"] * v if n.startswith("render") else weights[n] * v for n, v in terms.items())
-        self._held_surface = self._surface_under_smoke(out, k)
         return IterationOutput(loss, terms, {"raster": out, "view": view, "index": k, "deform_on": deform_on})
-
-    def _surface_under_smoke(self, raster: RasterOutput, k: int) -> torch.Tensor | None:
-        """Surface Gaussians this iteration does not update (``stage3.surface_update_max_smoke``):
-        centre inside the RGB view on smoke cover above the threshold. None when every one updates."""
-        limit = self.cfg.stage3.surface_update_max_smoke
-        cover = self._smoke_cover(raster, k) if limit < 1.0 else None
-        if cover is None:
-            return None
-        inside, centre_smoke = centre_cover(raster.means2d[0, :self.model.surface.n], cover)
-        return inside & (centre_smoke > limit)
 
     def _depth_term(self, raster: RasterOutput, k: int) -> torch.Tensor:
         """The surface's own depth (from the same pass, see ``model.render``) against
         the prior of view ``k`` of the prior's camera."""
         d = raster.rest_depths[0, ..., 0]
         valid = self.prior.valid[k] & (raster.rest_alphas[0, ..., 0] > 0.5)
-        pixels, weight = self.cfg.loss.depth_pixels, None
-        if pixels == "smoky":
-            cover = self._smoke_cover(raster, k)
-            valid = valid & (cover > self.smoke_threshold) if cover is not None else torch.zeros_like(valid)
-        elif pixels == "smoke-weighted":
-            alpha = _rendered_smoke_alpha(raster)
-            weight = alpha if alpha is not None else torch.zeros_like(d)
         if self.prior.space == "disparity":
             d = 1.0 / d.clamp_min(1e-3)
-        return depth_consistency(d, self.prior.maps[k], valid, self.cfg.loss.depth_relative, weight)
+        return depth_consistency(d, self.prior.maps[k], valid)
 
     def named_gradients(self) -> list[tuple[str, torch.Tensor | None]]:
         model = self.model
@@ -207,14 +189,9 @@ class Stage3Problem(StageProblem):
         return named
 
     def optimizer_step(self, it: int) -> None:
-        if self._held_surface is not None:
-            keep = (~self._held_surface).to(self.model.surface["means"].dtype)
-            for p in self.model.surface.params.values():
-                if p.grad is not None:
-                    p.grad.mul_(keep.view(-1, *([1] * (p.dim() - 1))))
         step_optimizers(it, self.cfg.stage3.iterations, self.cfg, self.ctx.extent,
                         [self.surface_optimizer, self.smoke_optimizer], [self.background_optimizer],
-                        self.deform_optimizer)
+                        self.deform_optimizer, self.deform_warmup)
 
     def after_step(self, it: int, out: IterationOutput) -> None:
         """Density control from the RGB render's screen-space gradients: the smoke's, and the
@@ -295,18 +272,11 @@ def smoke_free_centres(means2d: torch.Tensor, smoke_cover: torch.Tensor | None, 
     model (``None``) makes every Gaussian clear."""
     if smoke_cover is None:
         return torch.ones(means2d.shape[0], dtype=torch.bool, device=means2d.device)
-    inside, cover = centre_cover(means2d, smoke_cover)
-    return inside & (cover <= max_smoke)
-
-
-def centre_cover(means2d: torch.Tensor, smoke_cover: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """(whether each projected centre lies in the image, the smoke cover of its pixel; clamped to
-    the border for centres outside)."""
     h, w = smoke_cover.shape
     px = means2d[:, 0].detach().floor()
     py = means2d[:, 1].detach().floor()
     inside = (px >= 0) & (px < w) & (py >= 0) & (py < h)
-    return inside, smoke_cover[py.clamp(0, h - 1).long(), px.clamp(0, w - 1).long()]
+    return inside & (smoke_cover[py.clamp(0, h - 1).long(), px.clamp(0, w - 1).long()] <= max_smoke)
 
 
 def train_stage3(ctx: RunContext, model: SceneModel, rgb: ModalityData, thermal: ModalityData | None,

@@ -37,10 +37,11 @@ def exp_lr(step: int, total: int, lr_init: float, lr_final: float) -> float:
 def step_optimizers(it: int, total: int, cfg: TrainConfig, extent: float,
                     gaussian_optimizers: Sequence[Adam | None],
                     other_optimizers: Sequence[Adam | None],
-                    deform_optimizer: Adam | None) -> None:
-    """One optimiser step of a stage: the Gaussian sets' ``means`` learning rate decays as in 3DGS
-    (a group frozen at lr 0 stays frozen), every optimiser steps and clears its gradients, and the
-    deformation network follows its own decay and only steps after its warm-up."""
+                    deform_optimizer: Adam | None, deform_warmup: int) -> None:
+    """One optimiser step of a stage of ``total`` iterations: the Gaussian sets' ``means`` learning
+    rate decays over the stage as in 3DGS (a group frozen at lr 0 stays frozen), every optimiser
+    steps and clears its gradients, and the deformation network follows its own decay over the
+    stage and only steps after its warm-up (an iteration of the stage)."""
     for opt in gaussian_optimizers:
         for group in opt.param_groups if opt is not None else ():
             if group["name"] == "means" and group["lr"] > 0:
@@ -52,7 +53,7 @@ def step_optimizers(it: int, total: int, cfg: TrainConfig, extent: float,
     if deform_optimizer is not None:
         for group in deform_optimizer.param_groups:
             group["lr"] = exp_lr(it, total, cfg.deform.lr_init, cfg.deform.lr_final)
-        if it > cfg.deform.warmup_iterations:
+        if it > deform_warmup:
             deform_optimizer.step()
         deform_optimizer.zero_grad(set_to_none=True)
 
