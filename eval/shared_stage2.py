@@ -1,6 +1,7 @@
-"""One Stage 2 per geometry: runs of a plan that differ only in Stage 3 (Table 2's ablations beside
-Full, on the same scene, seed, dataset and trainer code) take the finished Stage-2 checkpoint of
-the first of them instead of training the same Stage 2 again.
+"""One Stage 2 per geometry: runs of a plan that differ only in Stage 3 or in Stage 1's masks
+(Table 2's ablations and "Full, estimated Stage 1" beside Full, on the same scene, seed, dataset
+and trainer code) take the finished Stage-2 checkpoint of the first of them instead of training
+the same Stage 2 again.
 
 The trainer keys its Stage-2 checkpoint by the settings Stage 2 depends on
 (``TrainConfig.stage2_sha256``) and stores the run's RNG state in it, so a run that resumes from

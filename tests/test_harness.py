@@ -478,16 +478,38 @@ def test_two_workers_train_one_stage2_for_full_and_its_ablations(tmp_path: Path)
     tiny = {"stage2.iterations": 30, "stage3.iterations": 6, "stage2.init_points": 300,
             "stage3.smoke_points": 120, "log_every": 3, "stage3.test_every": 6, "checkpoint_every": 6,
             "stage2.deform_warmup": 0.25, "stage3.deform_warmup": 0.25, "progress": False}
-    cfg = HarnessConfig(out=tmp_path / "out", scenes=["splat"], methods=["full"], ablations=["no-mask", "no-mono"],
-                        seeds=[0], workers=2, datasets={"splat": ds}, train_overrides=tiny)
+    cfg = HarnessConfig(out=tmp_path / "out", scenes=["splat"], methods=["full", "full-estimated"],
+                        ablations=["no-mask", "no-mono"], seeds=[0], workers=2, datasets={"splat": ds},
+                        train_overrides=tiny)
     results, _ = regenerate(cfg)
     assert all(r.status == "ok" for r in results), [r.error for r in results]
     runs = {r.variant: r for r in results}
     assert runs["full"].stage2_from == ""
-    assert runs["no-mask"].stage2_from == runs["no-mono"].stage2_from == runs["full"].run_dir
+    takers = ("no-mask", "no-mono", "full-estimated")
+    assert {runs[v].stage2_from for v in takers} == {runs["full"].run_dir}
     rows = lambda r: [(x["iteration"], x["loss"]) for x in csv.DictReader(open(Path(r.run_dir) / "train_log.csv"))
                       if x["stage"] == "2"]
-    assert rows(runs["no-mask"]) == rows(runs["full"]) == rows(runs["no-mono"])
+    assert all(rows(runs[v]) == rows(runs["full"]) for v in takers)
+
+
+def test_stage1_from_images_trains_the_same_stage2(tmp_path: Path) -> None:
+    """Why "Full, estimated Stage 1" may take Full's Stage 2: Stage 2 reads no mask, so a run
+    that estimates Stage 1 trains, on its own, the Stage 2 of one that reads the dataset's."""
+    from smokeseer.cli import main
+    from smokeseer.config import make_config
+    from tests.test_smokeseer_data import write_splat_dataset
+
+    ds = write_splat_dataset(tmp_path / "splat", n_rgb=8, n_thermal=6)
+    tiny = ["--iterations-stage2", "20", "--iterations-stage3", "2", "--no-progress", "--set", "stage2.init_points=300",
+            "--set", "stage3.smoke_points=120", "--set", "log_every=2"]
+    for stage1 in ("ground-truth", "estimate"):
+        assert main([str(ds), "--out", str(tmp_path / stage1), "--set", f"stage1={stage1}"] + tiny) == 0
+    rows = {s: [(x["iteration"], x["loss"], x["n_gaussians"])
+                for x in csv.DictReader(open(tmp_path / s / "train_log.csv")) if x["stage"] == "2"]
+            for s in ("ground-truth", "estimate")}
+    assert len(rows["estimate"]) == 10 and rows["estimate"] == rows["ground-truth"]
+    assert make_config("full", "standard", overrides={"stage1": "estimate"}).stage2_sha256() == \
+        make_config("full", "standard").stage2_sha256()
 
 
 def test_leaders_first_puts_every_stage2_taker_behind_every_group_leader(tmp_path: Path) -> None:

@@ -283,10 +283,12 @@ class TrainConfig:
 
     def stage2_sha256(self) -> str:
         """Hash of the settings Stage 2 depends on, so a Stage 2 checkpoint is reused by runs
-        that differ only in Stage 3 (ablations, Stage 3 budgets) on the same geometry."""
+        that differ only in Stage 3 (ablations, Stage 3 budgets) or in where Stage 1's masks come
+        from (Stage 2 reads no mask: ``stage1``, ``mask_dir``) on the same geometry."""
         d = self.to_dict()
         for key in ("stage3", "loss", "depth_prior", "depth_camera", "mono_weights", "smoke_ply_times", "progress",
-                    "log_every", "checkpoint_every", "profile", "lpips_net", "lpips_weights", "lpips_heads"):
+                    "log_every", "checkpoint_every", "profile", "lpips_net", "lpips_weights", "lpips_heads",
+                    "stage1", "mask_dir"):
             d.pop(key)
         d["mode"] = {"rgb-only": "rgb", "deformable-3dgs": "deformable-3dgs"}.get(self.mode, "thermal")
         if d["mode"] != "deformable-3dgs":
