@@ -47,7 +47,7 @@ def main() -> None:
     images = {}
     for label, offset, weight, twin_shown in STATES:
         path = str(work / f"{label}.exr")
-        render.show_smoke_state(built, True, weight)
+        render.show_smoke_state(built, True, weight, 1.0)
         if twin_shown:
             bpy.data.objects[built.domain_next].hide_render = False
         render.render_to(path, frame.c2w, frame.blender_frame + offset)
