@@ -100,14 +100,17 @@ def measure(scene: str, ladder: list[int], frames: int, work: Path, reuse: bool)
     for n in ladder:
         for modality in ("rgb", "thermal"):
             cam = spec.rig.rgb if modality == "rgb" else spec.rig.thermal
-            reference = RATIO * n
+
+            def db(reference: int) -> float | str:
+                """PSNR of this rung against rung `reference`; empty where that was not rendered."""
+                if reference not in renders or reference == n:
+                    return ""
+                return round(psnr(renders[n][modality], renders[reference][modality], peak[modality]), 2)
+
             rows.append({
                 "scene": scene, "modality": modality, "width": cam.width, "height": cam.height,
                 "frames": len(renders[n][modality]), "clean_samples": n,
-                f"psnr_vs_{RATIO}x_db": round(psnr(renders[n][modality], renders[reference][modality], peak[modality]), 2)
-                if reference in renders else "",
-                "psnr_vs_top_db": round(psnr(renders[n][modality], renders[top][modality], peak[modality]), 2)
-                if n != top else "",
+                f"psnr_vs_{RATIO}x_db": db(RATIO * n), "psnr_vs_top_db": db(top),
                 "top_samples": top,
                 "seconds_per_frame": round(metas[n]["timings_s"]["render"][f"{modality}.clean"], 3),
                 "load_1min": round(loads[n], 2),

@@ -138,7 +138,7 @@ def rendered_coefficients(spec: SceneSpec, plan: Plan) -> dict[str, Any] | None:
 
 
 def _metadata(spec: SceneSpec, plan: Plan, sensor: ThermalSensor | None, summary: dict[str, Any],
-              stats: dict[str, Any], timings: dict[str, Any], code: str, bake: dict[str, Any]) -> dict[str, Any]:
+              stats: dict[str, Any], timings: dict[str, Any], code: str, bake: dict[str, Any] | None) -> dict[str, Any]:
     optics = plan.optics
     coeffs = rendered_coefficients(spec, plan)
     meta: dict[str, Any] = {
@@ -187,12 +187,14 @@ def generate(spec: SceneSpec, out: Path, manifest: Manifest | None = None, sourc
     work = _staging(out, spec, code)
     threads = threads or max(1, os.cpu_count() or 1)
     job = make_job(spec, plan, manifest, source, work, threads, meshes)
-    key = bake_key(job, code)
-    if bake_store is not None and spec.has_smoke:
-        job = bake_in(job, bake_folder(Path(bake_store).resolve(), spec.name, key))
-    reused = spec.has_smoke and is_baked(job)
-    if reused:
-        log.info("reusing the finished bake in %s", Path(job.blend_path).parent)
+    bake: dict[str, Any] | None = None  # a smoke-free scene has no bake
+    if spec.has_smoke:
+        key = bake_key(job, code)
+        if bake_store is not None:
+            job = bake_in(job, bake_folder(Path(bake_store).resolve(), spec.name, key))
+        bake = {"sha256": key, "reused": is_baked(job)}
+        if bake["reused"]:
+            log.info("reusing the finished bake in %s", Path(job.blend_path).parent)
     log.info("scene %s: %d RGB + %d thermal frames, passes %s, sim %d^3 over %d frames",
              spec.name, len(plan.frames["rgb"]), len(plan.frames["thermal"]),
              ",".join(f"{m}.{p}" for m, ps in spec.passes.items() for p in ps), spec.sim.resolution,
@@ -215,7 +217,6 @@ def generate(spec: SceneSpec, out: Path, manifest: Manifest | None = None, sourc
                "worker": summary.get("wall_s"), "postprocess": post_s,
                "render": {k: v["seconds_per_frame"] for k, v in summary["passes"].items()},
                "total": time.perf_counter() - started}
-    bake = {"sha256": key, "reused": reused} if spec.has_smoke else None
     write_json(dataset / "dataset.json", _metadata(spec, plan, sensor, summary, stats, timings, code, bake))
     validate_dataset(dataset)
     if out.exists():
