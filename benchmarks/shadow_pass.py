@@ -44,6 +44,6 @@ for kind in ("lit_through_smoke", "clean", "smoky"):
         path = out / kind / f"{f.stem}.png"
         if path.exists():
             continue
-        render.show_smoke_state(built, kind != "clean", f.next_weight)
+        render.show_smoke_state(built, kind != "clean", f.next_weight, 1.0)
         render.render_to(str(path), f.c2w, f.blender_frame)
         print(kind, f.stem, flush=True)

@@ -28,6 +28,12 @@ MODALITY_PASSES = {"rgb": ("smoky", "clean", "depth", "smoke_alpha"),
                    "thermal": ("smoky", "clean", "depth", "smoke_alpha")}
 
 
+def built_scene_path(blend_path: str) -> Path:
+    """The bake stage's description of the saved scene (`blender.scene.BuiltScene`), written
+    after the scene, so its presence means the bake finished."""
+    return Path(blend_path).with_suffix(".built.json")
+
+
 class JobError(ValueError):
     """A job file that does not match this contract."""
 
@@ -169,6 +175,7 @@ class CameraJob:
     render: ImageSize
     depth: ImageSize
     samples: int
+    clean_samples: int
     denoise: str
     volume_step_rate: float
     frames: tuple[FrameJob, ...]
@@ -190,6 +197,7 @@ class WorkerJob:
     sources: tuple[SourceJob, ...]
     smoke_rgb: RgbSmokeJob
     smoke_thermal: ThermalSmokeJob
+    density_scale: float
     cameras: dict[str, CameraJob]
     passes: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
@@ -294,6 +302,7 @@ def check(job: WorkerJob, source: str) -> None:
     need(job.sim.fps > 0 and job.sim.resolution >= 8 and job.sim.frame_end >= 1, "sim",
          "fps must be positive, resolution at least 8, frame_end at least 1")
     need(job.threads >= 1, "threads", "must be at least 1")
+    need(job.density_scale >= 0.0, "density_scale", "must not be negative")
     for modality, passes in job.passes.items():
         need(modality in MODALITY_PASSES and modality in job.cameras, f"passes.{modality}",
              "unknown modality or no camera for it")
@@ -302,7 +311,8 @@ def check(job: WorkerJob, source: str) -> None:
     for modality, cam in job.cameras.items():
         where = f"cameras.{modality}"
         need(cam.denoise in DENOISERS, f"{where}.denoise", f"must be one of {', '.join(DENOISERS)}")
-        need(cam.samples >= 1 and cam.volume_step_rate > 0, where, "samples and volume_step_rate must be positive")
+        need(cam.samples >= 1 and cam.clean_samples >= 1 and cam.volume_step_rate > 0, where,
+             "samples, clean_samples and volume_step_rate must be positive")
         for size_name, size in (("render", cam.render), ("depth", cam.depth)):
             need(size.width >= 1 and size.height >= 1 and size.fl_x > 0, f"{where}.{size_name}",
                  "width, height and fl_x must be positive")

@@ -47,6 +47,7 @@ def pass_setup(modality: str, name: str, camera: CameraJob) -> PassSetup:
     fmt = "PNG" if modality == "rgb" else "EXR"
     bounces = 4 if modality == "rgb" else 0
     denoise = camera.denoise if name == "smoky" else "none"
+    samples = camera.clean_samples if name == "clean" else samples
     return PassSetup(name == "smoky", False, samples, bounces, False, fmt, denoise=denoise,
                      volume_step_rate=step_rate)
 
@@ -131,17 +132,19 @@ def apply_pass(setup: PassSetup, built: BuiltScene, camera: ImageSize) -> None:
         settings.exr_codec = "ZIP"
 
 
-def show_smoke_state(built: BuiltScene, visible: bool, next_weight: float) -> None:
+def show_smoke_state(built: BuiltScene, visible: bool, next_weight: float, density_scale: float) -> None:
     """The smoke at a fractional frame: the domain shows the current baked frame weighted
-    1-w, its twin the next baked frame weighted w; a twin with weight 0 is hidden."""
+    k(1-w), its twin the next baked frame weighted kw, k the density scale (every smoke
+    coefficient scales with the weight); a domain with weight 0 is hidden."""
     if not built.domain:
         return
+    visible = visible and density_scale > 0.0
     current = bpy.data.objects[built.domain]
-    current[SMOKE_WEIGHT] = 1.0 - next_weight
+    current[SMOKE_WEIGHT] = density_scale * (1.0 - next_weight)
     current.hide_render = not visible
     if built.domain_next:
         twin = bpy.data.objects[built.domain_next]
-        twin[SMOKE_WEIGHT] = next_weight
+        twin[SMOKE_WEIGHT] = density_scale * next_weight
         twin.hide_render = not visible or next_weight == 0.0
     elif next_weight != 0.0:
         raise RuntimeError("a fractional frame needs the interpolation twin of the smoke domain")

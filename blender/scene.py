@@ -202,9 +202,22 @@ def bake(domain_name: str) -> None:
         raise RuntimeError(f"Mantaflow bake did not finish: {result}")
 
 
+#: How far the interpolation twin is moved along (1, 1, 1), in voxels of the domain.
+TWIN_OFFSET_VOXELS = 1e-3
+
+
 def add_interpolation_twin(built: BuiltScene) -> None:
     """After the bake: a second domain reading the same cache one frame ahead
-    (`cache_frame_offset` -1), so a render between baked frames can blend the two."""
+    (`cache_frame_offset` -1), so a render between baked frames can blend the two.
+
+    The twin is moved by a thousandth of a voxel along each axis, so no face of its box lies
+    in the plane of the domain's face. With coincident faces, a ray that enters one volume
+    continues from a point on the other's face, and float rounding decides whether that face
+    is still ahead: from some views most rays entered only one of the two volumes, and the
+    domain at full weight rendered almost no smoke while its twin was shown (demo orbit at
+    -30 degrees: mean alpha 0.003 instead of 0.136). A thousandth of a voxel is hundreds of
+    float steps at scene scale, and it moves the next frame's smoke by 1/1000 of the grid
+    spacing, far below what trilinear lookup or Monte Carlo noise resolve."""
     if not built.domain:
         return
     dom = bpy.data.objects[built.domain]
@@ -212,6 +225,8 @@ def add_interpolation_twin(built: BuiltScene) -> None:
     twin = dom.copy()
     twin.data = dom.data
     twin.name = f"{dom.name}.next"
+    voxel = max(dom.dimensions) / dom.modifiers["Fluid"].domain_settings.resolution_max
+    twin.location = tuple(c + TWIN_OFFSET_VOXELS * voxel for c in dom.location)
     bpy.context.scene.collection.objects.link(twin)
     twin.modifiers["Fluid"].domain_settings.cache_frame_offset = -1
     twin[materials.SMOKE_WEIGHT] = 0.0

@@ -19,7 +19,7 @@ import traceback
 from pathlib import Path
 from typing import Any
 
-from blender.job import JobError, WorkerJob
+from blender.job import JobError, WorkerJob, built_scene_path
 from contracts.atomic import atomic_path, write_text
 
 
@@ -31,20 +31,16 @@ def emit(kind: str, **payload: Any) -> None:
 STAGES = ("bake", "render")
 
 
-def _built_path(job: WorkerJob) -> Path:
-    return Path(job.blend_path).with_suffix(".built.json")
-
-
 def _open_baked(job: WorkerJob):
     """The baked scene saved by the `bake` stage."""
     import bpy
 
     from blender import scene as scene_mod
 
-    if not (Path(job.blend_path).exists() and _built_path(job).exists()):
+    if not (Path(job.blend_path).exists() and built_scene_path(job.blend_path).exists()):
         raise RuntimeError(f"{job.blend_path}: no baked scene; run the bake stage first")
     bpy.ops.wm.open_mainfile(filepath=job.blend_path)
-    built = scene_mod.BuiltScene.from_json(json.loads(_built_path(job).read_text()))
+    built = scene_mod.BuiltScene.from_json(json.loads(built_scene_path(job.blend_path).read_text()))
     scene_mod.prepare_for_rendering(built)
     return built
 
@@ -53,7 +49,7 @@ def _bake(job: WorkerJob) -> None:
     """Build, bake, add the twin and save; the timings go into the summary for the render stage."""
     from blender import scene as scene_mod
 
-    blend, built_path = Path(job.blend_path), _built_path(job)
+    blend, built_path = Path(job.blend_path), built_scene_path(job.blend_path)
     if blend.exists() and built_path.exists():
         emit("stage", name="bake", status="reused")
         return
@@ -109,7 +105,7 @@ def _render_all(job: WorkerJob, built) -> dict[str, Any]:
                 fresh = not path.exists()
                 if fresh:
                     t0 = time.perf_counter()
-                    render.show_smoke_state(built, setup.smoke_visible, frame.next_weight)
+                    render.show_smoke_state(built, setup.smoke_visible, frame.next_weight, job.density_scale)
                     render.render_to(str(path), frame.c2w, frame.blender_frame)
                     seconds += time.perf_counter() - t0
                     done += 1

@@ -181,6 +181,17 @@ def dataset_files(root: Path, meta: dict[str, Any]) -> list[tuple[Path, PassFile
     return out
 
 
+def density_scale(meta: dict[str, Any], meta_path: Path) -> float:
+    """The factor k on every smoke coefficient the dataset was rendered with (``smoke.density_scale``):
+    its smoke opacity is 1 - (1 - alpha)^k of the same bake at k = 1, and k = 0 renders no smoke.
+    Datasets made before the field existed were rendered at 1."""
+    value = meta["smoke"].get("density_scale", 1.0)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+        raise DatasetError(f"{meta_path}: field 'smoke.density_scale' must be a finite number, at least 0, "
+                           f"got {value!r}")
+    return float(value)
+
+
 def validate_dataset(root: Path, check_images: bool = True) -> dict[str, Any]:
     """Raise DatasetError on the first problem; return dataset.json on success. Without
     ``check_images`` every file must exist, and the reader checks each one as it reads it
@@ -197,6 +208,7 @@ def validate_dataset(root: Path, check_images: bool = True) -> dict[str, Any]:
     for key, kind in (("scene", str), ("seed", int), ("passes", dict), ("smoke", dict), ("versions", dict),
                       ("duration_s", (int, float)), ("sim_fps", int)):
         need_field(meta, key, meta_path, kind)
+    density_scale(meta, meta_path)
     for path, pf, shape in dataset_files(root, meta):
         if check_images:
             read_pass_image(path, pf, shape)

@@ -19,7 +19,9 @@ def resolve_spec(preset_or_spec: str | Path, overrides: Overrides | None = None)
 
 
 def generate(preset_or_spec: str | Path, out: Path, *, force: bool = False, show_progress: bool = True,
-             threads: int | None = None, **overrides: object) -> Path:
-    """Generate a dataset; keyword overrides are the CLI's (frames, resolution, samples, ...)."""
+             threads: int | None = None, bake_store: Path | None = None, **overrides: object) -> Path:
+    """Generate a dataset; keyword overrides are the CLI's (frames, resolution, samples, ...);
+    `bake_store` keeps the bake for other datasets of the same simulation (generator.bakes)."""
     spec, source = resolve_spec(preset_or_spec, Overrides(**overrides))  # type: ignore[arg-type]
-    return _generate(spec, Path(out), source=source, force=force, show_progress=show_progress, threads=threads)
+    return _generate(spec, Path(out), source=source, force=force, show_progress=show_progress, threads=threads,
+                     bake_store=bake_store)

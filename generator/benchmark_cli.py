@@ -20,6 +20,7 @@ import os
 import platform
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -80,8 +81,8 @@ def extinction_scale(alphas: np.ndarray, threshold: float, target: float) -> flo
     return float(np.exp(0.5 * (lo + hi)))
 
 
-def _resolved(scene: str, profile: Profile) -> SceneSpec:
-    spec, source = resolve_spec(scene, profile.overrides)
+def _resolved(scene: str, profile: Profile, density_scale: float | None) -> SceneSpec:
+    spec, source = resolve_spec(scene, replace(profile.overrides, density_scale=density_scale))
     return resolve_asset_materials(spec, load_manifest(), source)
 
 
@@ -91,14 +92,16 @@ def _finished(out: Path, spec: SceneSpec) -> bool:
 
 
 def run_scene(scene: str, profile: Profile, out_root: Path, force: bool, threads: int | None,
-              show_progress: bool) -> dict[str, Any]:
-    """Generate (or reuse) one scene; returns its benchmark record."""
-    spec = _resolved(scene, profile)
+              show_progress: bool, density_scale: float | None, bake_store: Path | None) -> dict[str, Any]:
+    """Generate (or reuse) one scene; returns its benchmark record. `density_scale` overrides
+    the preset's; `bake_store` keeps and reuses the bakes (generator.bakes)."""
+    spec = _resolved(scene, profile, density_scale)
     out = out_root / scene
     reused = not force and _finished(out, spec)
     started = time.perf_counter()
     if not reused:
-        generate(scene, out, force=True, show_progress=show_progress, threads=threads, **profile.kwargs())
+        generate(scene, out, force=True, show_progress=show_progress, threads=threads, bake_store=bake_store,
+                 density_scale=density_scale, **profile.kwargs())
     wall = time.perf_counter() - started
     meta = json.loads((out / "dataset.json").read_text())
     size, n_files = folder_size(out)
@@ -110,7 +113,8 @@ def run_scene(scene: str, profile: Profile, out_root: Path, force: bool, threads
     target = OPACITY_PER_DENSITY * spec.smoke.density
     return {
         "scene": scene, "paper_analogue": BENCHMARK_SCENES[scene], "status": "reused" if reused else "generated",
-        "density": spec.smoke.density, "fire": spec.has_fire, "strong_motion": strong_motion(spec),
+        "density": spec.smoke.density, "density_scale": spec.smoke.density_scale, "fire": spec.has_fire,
+        "strong_motion": strong_motion(spec),
         "frames": frames, "seconds": meta["timings_s"]["total"] if reused else wall,
         "size_bytes": size, "files": n_files, "stats": meta.get("stats", {}),
         "opacity_in_smoke": float(inside.mean()) if inside.size else None, "target_opacity": target,
@@ -149,7 +153,9 @@ def markdown_table(records: list[dict[str, Any]], profile: Profile) -> str:
             f"| {_fmt(s.get('thermal_mean_smoke_alpha'), '.4f')} | {_fmt(s.get('psnr_smoky_vs_clean'), '.1f')} |")
     total_s = sum(r["seconds"] for r in records)
     total_mb = sum(r["size_bytes"] for r in records) / 1e6
-    return (f"Profile `{profile.name}` ({profile.description}).\n\n" + head + "\n".join(rows)
+    scales = sorted({r["density_scale"] for r in records})
+    k = "" if scales in ([], [1.0]) else f", density scale {', '.join(f'{v:g}' for v in scales)}"
+    return (f"Profile `{profile.name}` ({profile.description}){k}.\n\n" + head + "\n".join(rows)
             + f"\n\nTotal: {total_s:.0f} s, {total_mb:.1f} MB.\n")
 
 
@@ -161,6 +167,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenes", help=f"comma-separated subset of: {','.join(BENCHMARK_SCENES)}")
     p.add_argument("--force", action="store_true", help="regenerate scenes that are already finished")
     p.add_argument("--threads", type=int, help="render threads per scene (default: all cores)")
+    p.add_argument("--density-scale", type=float, metavar="K",
+                   help="scale every smoke coefficient by K in every scene: opacity 1-(1-a)^K, 0 = no smoke")
+    p.add_argument("--bake-cache", type=Path, metavar="DIR",
+                   help="keep each scene's Mantaflow bake in DIR; a run at another --density-scale only renders")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     return p
 
@@ -175,12 +185,18 @@ def main(argv: list[str] | None = None) -> int:
               f"choose from {', '.join(BENCHMARK_SCENES)}", file=sys.stderr)
         return 2
     profile = get_profile(args.profile)
+    try:  # a bad option is one line before any scene starts, not ten failed scenes
+        _resolved(scenes[0], profile, args.density_scale)
+    except GeneratorError as exc:
+        print(f"generate-benchmark: error: {exc}", file=sys.stderr)
+        return 2
     args.out.mkdir(parents=True, exist_ok=True)
     records, failed = [], []
     started = time.perf_counter()
     for scene in scenes:
         try:
-            record = run_scene(scene, profile, args.out, args.force, args.threads, not args.quiet)
+            record = run_scene(scene, profile, args.out, args.force, args.threads, not args.quiet,
+                               args.density_scale, args.bake_cache)
         except (GeneratorError, DatasetError) as exc:
             print(f"{scene:<11} FAILED: {exc}", file=sys.stderr)
             failed.append(scene)
@@ -192,6 +208,7 @@ def main(argv: list[str] | None = None) -> int:
         print(scene_line(record), flush=True)
     summary = {
         "profile": profile.name, "description": profile.description, "overrides": profile.kwargs(),
+        "density_scale": args.density_scale,
         "scenes": records, "failed": failed, "wall_seconds": time.perf_counter() - started,
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
     }

@@ -43,6 +43,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sim-resolution", type=int, help="Mantaflow voxels along the domain's longest side")
     p.add_argument("--seed", type=int, help="seed for the renderer and sensor noise")
     p.add_argument("--passes", help="e.g. 'rgb', 'thermal', 'rgb.smoky,rgb.clean,thermal.depth'")
+    p.add_argument("--density-scale", type=float, metavar="K",
+                   help="scale every smoke coefficient by K: opacity 1-(1-a)^K, 0 = no smoke (default: the spec's)")
+    p.add_argument("--bake-cache", type=Path, metavar="DIR",
+                   help="keep the Mantaflow bake in DIR and reuse a finished one of the same simulation")
     p.add_argument("--threads", type=int, help="render threads (default: all cores)")
     p.add_argument("--force", action="store_true", help="replace an existing output folder")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -70,7 +74,8 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     out = generate(args.spec or args.preset, args.out, force=args.force, show_progress=not args.quiet,
                    threads=args.threads, frames=args.frames, resolution=args.resolution,
                    thermal_resolution=args.thermal_resolution, samples=args.samples,
-                   sim_resolution=args.sim_resolution, seed=args.seed, passes=args.passes)
+                   sim_resolution=args.sim_resolution, seed=args.seed, passes=args.passes,
+                   density_scale=args.density_scale, bake_store=args.bake_cache)
     print(out)
     return 0
 

@@ -130,7 +130,8 @@ def _camera(spec: SceneSpec, k: Intrinsics, supersample: int, cam: CameraSpec, f
     return CameraJob(
         render=ImageSize(k.width * supersample, k.height * supersample, k.fl_x * supersample),
         depth=ImageSize(k.width, k.height, k.fl_x),
-        samples=cam.samples, denoise=effective_denoise(spec, cam), volume_step_rate=cam.volume_step_rate,
+        samples=cam.samples, clean_samples=cam.clean_samples, denoise=effective_denoise(spec, cam),
+        volume_step_rate=cam.volume_step_rate,
         frames=tuple(FrameJob(stem=f.stem, blender_frame=f.base_frame, next_weight=f.next_weight,
                               c2w=tuple(tuple(float(v) for v in row) for row in f.c2w)) for f in frames),
     )
@@ -205,6 +206,7 @@ def make_job(spec: SceneSpec, plan: Plan, manifest: Manifest, source: str, work:
                               anisotropy=coeffs["anisotropy"], fire=fire),
         smoke_thermal=ThermalSmokeJob(absorption_per_density=coeffs["lwir_absorption"],
                                       ambient_radiance=float(band_radiance(lights.ambient_temperature_k)), fire=fire),
+        density_scale=spec.smoke.density_scale,
         cameras={
             "rgb": _camera(spec, plan.intrinsics["rgb"], 1, spec.rig.rgb, plan.frames["rgb"]),
             "thermal": _camera(spec, plan.intrinsics["thermal"], spec.rig.thermal.supersample, spec.rig.thermal,

@@ -3,7 +3,9 @@
 
 All work happens in a staging folder beside the output (`.NAME.partial`). A rerun of
 the same spec and seed resumes there: the bake and every finished image are kept. The
-dataset appears at its final path only once complete and valid.
+dataset appears at its final path only once complete and valid. With a bake store the bake
+lives there instead, under its key (`generator.bakes`), and outlives the dataset, so another
+dataset of the same simulation (another density scale, image size or seed) only renders.
 """
 from __future__ import annotations
 
@@ -22,6 +24,7 @@ from tqdm import tqdm
 
 from generator import postprocess
 from generator.assets import Manifest, load_manifest
+from generator.bakes import bake_folder, bake_in, bake_key, is_baked
 from contracts.atomic import write_json
 from contracts.source import code_digest
 from contracts.dataset_format import FORMAT, FORMAT_VERSION, PASS_FILES, file_path, transforms_name, validate_dataset
@@ -124,10 +127,20 @@ def _postprocess(spec: SceneSpec, plan: Plan, work: Path, sensor: ThermalSensor 
     return time.perf_counter() - t0
 
 
+def rendered_coefficients(spec: SceneSpec, plan: Plan) -> dict[str, Any] | None:
+    """The smoke coefficients per unit grid density as rendered: the density scale k times the
+    spec's (the worker applies k as a weight on every coefficient)."""
+    if not spec.has_smoke:
+        return None
+    coeffs = smoke_coefficients(spec, plan.optics)
+    k = spec.smoke.density_scale
+    return {**coeffs, **{name: k * coeffs[name] for name in ("scatter_density", "absorb_density", "lwir_absorption")}}
+
+
 def _metadata(spec: SceneSpec, plan: Plan, sensor: ThermalSensor | None, summary: dict[str, Any],
-              stats: dict[str, Any], timings: dict[str, Any], code: str) -> dict[str, Any]:
+              stats: dict[str, Any], timings: dict[str, Any], code: str, bake: dict[str, Any] | None) -> dict[str, Any]:
     optics = plan.optics
-    coeffs = smoke_coefficients(spec, optics) if spec.has_smoke else None
+    coeffs = rendered_coefficients(spec, plan)
     meta: dict[str, Any] = {
         "format": FORMAT, "format_version": FORMAT_VERSION, "scene": spec.name, "seed": spec.seed,
         "spec_sha256": spec.sha256(), "code_sha256": code,
@@ -135,15 +148,17 @@ def _metadata(spec: SceneSpec, plan: Plan, sensor: ThermalSensor | None, summary
         "passes": {m: list(p) for m, p in spec.passes.items()},
         "smoke": {"present": spec.has_smoke, "fire": spec.has_fire, "static": spec.sim.static,
                   "mask_threshold": spec.smoke.mask_threshold, "density": spec.smoke.density,
+                  "density_scale": spec.smoke.density_scale,
                   "particles": spec.smoke.particles, "sources": len(spec.sources),
                   "grids": summary.get("grids", [])},
         "optics": {**optics.describe(),
                    "ambient_temperature_k": spec.lights.ambient_temperature_k,
                    "sky_temperature_k": spec.lights.sky_temperature_k,
                    "coefficients_per_unit_density": coeffs},
+        "bake": bake,
         "render_restarts": summary.get("render_restarts", 0),
-        "render": {m: {"samples": cam.samples, "denoise": effective_denoise(spec, cam),
-                       "volume_step_rate": cam.volume_step_rate}
+        "render": {m: {"samples": cam.samples, "clean_samples": cam.clean_samples,
+                       "denoise": effective_denoise(spec, cam), "volume_step_rate": cam.volume_step_rate}
                    for m, cam in (("rgb", spec.rig.rgb), ("thermal", spec.rig.thermal)) if spec.passes.get(m)},
         "stats": stats,
         "versions": {**versions(), "blender": summary.get("bpy", "")},
@@ -155,8 +170,10 @@ def _metadata(spec: SceneSpec, plan: Plan, sensor: ThermalSensor | None, summary
 
 
 def generate(spec: SceneSpec, out: Path, manifest: Manifest | None = None, source: str = "spec",
-             threads: int | None = None, force: bool = False, show_progress: bool = True) -> Path:
-    """Generate the dataset for `spec` at `out`; resumes an interrupted run of the same spec."""
+             threads: int | None = None, force: bool = False, show_progress: bool = True,
+             bake_store: Path | None = None) -> Path:
+    """Generate the dataset for `spec` at `out`; resumes an interrupted run of the same spec.
+    With `bake_store`, the bake is kept there and a finished bake of the same key is reused."""
     out = Path(out).resolve()
     if out.exists() and not force:
         raise GeneratorError(f"{out}: already exists (use --force to replace it)")
@@ -170,6 +187,14 @@ def generate(spec: SceneSpec, out: Path, manifest: Manifest | None = None, sourc
     work = _staging(out, spec, code)
     threads = threads or max(1, os.cpu_count() or 1)
     job = make_job(spec, plan, manifest, source, work, threads, meshes)
+    bake: dict[str, Any] | None = None  # a smoke-free scene has no bake
+    if spec.has_smoke:
+        key = bake_key(job, code)
+        if bake_store is not None:
+            job = bake_in(job, bake_folder(Path(bake_store).resolve(), spec.name, key))
+        bake = {"sha256": key, "reused": is_baked(job)}
+        if bake["reused"]:
+            log.info("reusing the finished bake in %s", Path(job.blend_path).parent)
     log.info("scene %s: %d RGB + %d thermal frames, passes %s, sim %d^3 over %d frames",
              spec.name, len(plan.frames["rgb"]), len(plan.frames["thermal"]),
              ",".join(f"{m}.{p}" for m, ps in spec.passes.items() for p in ps), spec.sim.resolution,
@@ -192,7 +217,7 @@ def generate(spec: SceneSpec, out: Path, manifest: Manifest | None = None, sourc
                "worker": summary.get("wall_s"), "postprocess": post_s,
                "render": {k: v["seconds_per_frame"] for k, v in summary["passes"].items()},
                "total": time.perf_counter() - started}
-    write_json(dataset / "dataset.json", _metadata(spec, plan, sensor, summary, stats, timings, code))
+    write_json(dataset / "dataset.json", _metadata(spec, plan, sensor, summary, stats, timings, code, bake))
     validate_dataset(dataset)
     if out.exists():
         shutil.rmtree(out)

@@ -24,6 +24,12 @@ MODALITIES = ("rgb", "thermal")
 DENOISERS = ("none", "color", "albedo", "albedo_normal")
 PASSES = ("smoky", "clean", "depth", "smoke_alpha")
 
+CLEAN_SAMPLES_RGB = 256
+CLEAN_SAMPLES_THERMAL = 64
+"""Default samples of the smoke-free passes: the fewest that keep the clean frames 45 dB or more
+from a render with 4x the samples on the demo and a standard scene (docs/generator.md,
+`benchmarks/clean_convergence.py`)."""
+
 BYTES_PER_RENDER_PIXEL = 64
 """What one pixel of one render holds at once: Cycles' float RGBA film and the denoiser's albedo
 and normal guides (16 bytes each), and the float image written and read back (16)."""
@@ -105,9 +111,12 @@ class SimSpec:
 @dataclass(frozen=True)
 class SmokeSpec:
     """`density` is the paper's per-scene smoke density (0.2-1.0); `extinction_per_m` maps it
-    to a visible extinction coefficient per unit Mantaflow grid density."""
+    to a visible extinction coefficient per unit Mantaflow grid density. `density_scale` k
+    multiplies every smoke coefficient at render time, the same bake rendered k times denser:
+    opacity becomes 1 - (1 - alpha)^k, and k = 0 is the smoke-free scene (the density axis)."""
 
     density: float = spec_field(0.7, minimum=0.0, maximum=100.0)
+    density_scale: float = spec_field(1.0, minimum=0.0, maximum=1000.0)
     extinction_per_m: float = spec_field(8.0, minimum=0.0, maximum=1e4)
     particles: str = spec_field("organic_smoke", choices=PARTICLE_KINDS)
     mask_threshold: float = spec_field(0.02, minimum=0.0, maximum=1.0, exclusive_minimum=True)
@@ -141,14 +150,17 @@ class TrajectorySpec:
 @dataclass(frozen=True)
 class CameraSpec:
     """`denoise` runs OpenImageDenoise on the smoky image only (the image a real camera gives);
-    ground-truth passes are never denoised. `volume_step_rate` scales Cycles' volume ray-march
-    step (larger is faster and coarser). Defaults differ per camera: RGB_CAMERA, THERMAL_CAMERA."""
+    ground-truth passes are never denoised. `clean_samples` are the samples of the smoke-free
+    passes: ground truth, converged rather than denoised (docs/generator.md). `volume_step_rate`
+    scales Cycles' volume ray-march step (larger is faster and coarser). Defaults differ per
+    camera: RGB_CAMERA, THERMAL_CAMERA."""
 
     width: int = spec_field(REQUIRED, minimum=1, maximum=16384)
     height: int = spec_field(REQUIRED, minimum=1, maximum=16384)
     fov_deg: float = spec_field(REQUIRED, minimum=1.0, maximum=170.0)
     fps: float = spec_field(REQUIRED, minimum=0.0, maximum=1000.0, exclusive_minimum=True)
     samples: int = spec_field(REQUIRED, minimum=1, maximum=65536)
+    clean_samples: int = spec_field(REQUIRED, minimum=1, maximum=65536)
     time_offset_s: float = spec_field(0.0, minimum=0.0, maximum=10.0)
     denoise: str = spec_field("albedo_normal", choices=DENOISERS)
     volume_step_rate: float = spec_field(1.0, minimum=0.01, maximum=100.0)
@@ -161,8 +173,9 @@ class ThermalCameraSpec(CameraSpec):
     sensor: dict[str, Any] = spec_field({})
 
 
-RGB_CAMERA = CameraSpec(width=64, height=48, fov_deg=55.0, fps=12.0, samples=16)
-THERMAL_CAMERA = ThermalCameraSpec(width=32, height=24, fov_deg=45.0, fps=9.0, samples=8, time_offset_s=0.03)
+RGB_CAMERA = CameraSpec(width=64, height=48, fov_deg=55.0, fps=12.0, samples=16, clean_samples=CLEAN_SAMPLES_RGB)
+THERMAL_CAMERA = ThermalCameraSpec(width=32, height=24, fov_deg=45.0, fps=9.0, samples=8,
+                                   clean_samples=CLEAN_SAMPLES_THERMAL, time_offset_s=0.03)
 
 
 @dataclass(frozen=True)
@@ -310,6 +323,7 @@ def check_render_budget(spec: SceneSpec, source: str, fields: dict[str, str]) ->
     thermal_frames = 1 + max(0, math.floor((duration - thermal.time_offset_s) * thermal.fps + 1e-9))
     cameras = {"rgb": (rgb.width, rgb.height, rgb.samples, spec.frames, 1),
                "thermal": (thermal.width, thermal.height, thermal.samples, thermal_frames, thermal.supersample)}
+    clean_samples = {"rgb": rgb.clean_samples, "thermal": thermal.clean_samples}
     work: dict[str, float] = {}
     for modality, (width, height, samples, frames, supersample) in cameras.items():
         pixels = width * height * supersample ** 2
@@ -319,7 +333,8 @@ def check_render_budget(spec: SceneSpec, source: str, fields: dict[str, str]) ->
             raise SpecError(source, fields[modality],
                             f"{size} needs about {need / 2**30:,.0f} GiB to render one frame ({BYTES_PER_RENDER_PIXEL} "
                             f"bytes per pixel); the limit is {MAX_RENDER_BYTES // 2**30} GiB")
-        work[modality] = float(pixels) * samples * frames * len(spec.passes.get(modality, ()))
+        per_frame = sum(clean_samples[modality] if p == "clean" else samples for p in spec.passes.get(modality, ()))
+        work[modality] = float(pixels) * per_frame * frames
     total = sum(work.values())
     if total > MAX_PIXEL_SAMPLES:
         largest = max(work, key=lambda m: work[m])
@@ -327,7 +342,8 @@ def check_render_budget(spec: SceneSpec, source: str, fields: dict[str, str]) ->
         days = total / PIXEL_SAMPLES_PER_S / 86400
         raise SpecError(source, fields[largest],
                         f"{total:.2g} pixel-samples in all ({frames} {largest} frames of {width}x{height} at {samples} "
-                        f"samples, {len(spec.passes[largest])} passes), about {days:,.0f} days at "
+                        f"samples, {clean_samples[largest]} for the clean pass, {len(spec.passes[largest])} passes), "
+                        f"about {days:,.0f} days at "
                         f"{PIXEL_SAMPLES_PER_S:.0e} pixel-samples/s on 2 CPU cores; the limit is {MAX_PIXEL_SAMPLES:.0e}")
 
 
@@ -346,6 +362,10 @@ def load_spec_file(path: Path) -> SceneSpec:
     return parse_spec(data, path)
 
 
+def _field_maximum(cls: type, name: str) -> float:
+    return cls.__dataclass_fields__[name].metadata["maximum"]
+
+
 @dataclass(frozen=True)
 class Overrides:
     """Command-line knobs that replace spec values (None = keep the spec's)."""
@@ -357,6 +377,7 @@ class Overrides:
     sim_resolution: int | None = None
     seed: int | None = None
     passes: str | None = None
+    density_scale: float | None = None
 
 
 def apply_overrides(spec: SceneSpec, o: Overrides, source: str = "command line") -> SceneSpec:
@@ -387,6 +408,12 @@ def apply_overrides(spec: SceneSpec, o: Overrides, source: str = "command line")
         out = replace(out, seed=o.seed)
     if o.passes is not None:
         out = replace(out, passes=parse_passes(o.passes, source, "--passes"))
+    if o.density_scale is not None:
+        limit = _field_maximum(SmokeSpec, "density_scale")
+        if not (math.isfinite(o.density_scale) and 0.0 <= o.density_scale <= limit):
+            raise SpecError(source, "--density-scale", f"must be a finite number in [0, {limit:g}], "
+                            f"got {o.density_scale!r}")
+        out = replace(out, smoke=replace(out.smoke, density_scale=o.density_scale))
     check_render_budget(out, source, {"rgb": "--resolution" if o.resolution else "rig.rgb",
                                       "thermal": "--thermal-resolution" if o.thermal_resolution else "rig.thermal"})
     return out

@@ -41,6 +41,10 @@ def test_written_spec_loads_back_to_an_equal_spec(name: str) -> None:
     (lambda d: d["rig"]["trajectory"].update(center=[0, 0]), "rig.trajectory.center"),
     (lambda d: d["rig"]["trajectory"].update(radius=float("nan")), "rig.trajectory.radius"),
     (lambda d: d.update(passes=["rgb.colour"]), "passes"),
+    (lambda d: d["smoke"].update(density_scale=-0.5), "smoke.density_scale"),
+    (lambda d: d["smoke"].update(density_scale=float("inf")), "smoke.density_scale"),
+    (lambda d: d["smoke"].update(density_scale="thick"), "smoke.density_scale"),
+    (lambda d: d["rig"]["rgb"].update(clean_samples=0), "rig.rgb.clean_samples"),
 ])
 def test_bad_fields_name_file_and_field(mutate, field: str) -> None:
     data = demo_dict()
@@ -66,6 +70,18 @@ def test_overrides_apply_and_reject_bad_values() -> None:
     for bad in (Overrides(frames=0), Overrides(resolution=(-1, 5)), Overrides(sim_resolution=2)):
         with pytest.raises(SpecError, match="command line"):
             apply_overrides(load_preset("demo"), bad)
+
+
+def test_density_scale_is_a_spec_field_and_an_override() -> None:
+    demo = load_preset("demo")
+    assert demo.smoke.density_scale == 1.0
+    scaled = apply_overrides(demo, Overrides(density_scale=2.5))
+    assert scaled.smoke.density_scale == 2.5 and scaled.sha256() != demo.sha256()
+    assert apply_overrides(demo, Overrides(density_scale=0.0)).smoke.density_scale == 0.0
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(SpecError) as err:
+            apply_overrides(demo, Overrides(density_scale=bad))
+        assert str(err.value).startswith("command line: --density-scale: must be a finite number in [0, ")
 
 
 def test_parse_passes_orders_and_dedupes() -> None:
@@ -109,6 +125,11 @@ def test_render_budget_names_the_camera_field() -> None:
         parse_spec({"name": "x", "rig": {"thermal": {"width": 16384, "height": 16384}}}, "bad.yaml")
     big = parse_spec({"name": "x", "frames": 2, "rig": {"rgb": {"width": 16384, "height": 16384}}}, "ok.yaml")
     assert big.rig.rgb.width == 16384
-    with pytest.raises(SpecError, match=r"many.yaml: rig.rgb: 1.1e\+12 pixel-samples in all"):
-        parse_spec({"name": "x", "frames": 16, "rig": {"rgb": {"width": 16384, "height": 16384, "samples": 64}}},
-                   "many.yaml")
+    with pytest.raises(SpecError, match=r"many.yaml: rig.rgb: 1.1e\+12 pixel-samples in all \(16 rgb frames of "
+                                         r"16384x16384 at 64 samples, 64 for the clean pass, 4 passes\)"):
+        parse_spec({"name": "x", "frames": 16, "rig": {"rgb": {"width": 16384, "height": 16384, "samples": 64,
+                                                             "clean_samples": 64}}}, "many.yaml")
+    # The clean pass counts at its own samples.
+    with pytest.raises(SpecError, match=r"clean.yaml: rig.rgb: 1.9e\+12 pixel-samples in all"):
+        parse_spec({"name": "x", "frames": 16, "rig": {"rgb": {"width": 16384, "height": 16384, "samples": 64,
+                                                             "clean_samples": 256}}}, "clean.yaml")

@@ -62,10 +62,13 @@ def test_bad_jobs_name_the_file_and_field(demo_job: WorkerJob, tmp_path: Path, e
 
 def test_the_writer_refuses_an_invalid_job(demo_job: WorkerJob, tmp_path: Path) -> None:
     cam = demo_job.cameras["rgb"]
-    bad = replace(demo_job, cameras={**demo_job.cameras, "rgb": replace(cam, samples=0)})
-    with pytest.raises(JobError, match="cameras.rgb: samples and volume_step_rate must be positive"):
-        bad.write(tmp_path / "job.json")
-    assert not (tmp_path / "job.json").exists()
+    for bad_cam in (replace(cam, samples=0), replace(cam, clean_samples=0)):
+        bad = replace(demo_job, cameras={**demo_job.cameras, "rgb": bad_cam})
+        with pytest.raises(JobError, match="cameras.rgb: samples, clean_samples and volume_step_rate must be positive"):
+            bad.write(tmp_path / "job.json")
+        assert not (tmp_path / "job.json").exists()
+    with pytest.raises(JobError, match="density_scale: must not be negative"):
+        replace(demo_job, density_scale=-0.5).write(tmp_path / "job.json")
 
 
 @pytest.mark.blender

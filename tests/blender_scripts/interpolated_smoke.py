@@ -1,6 +1,7 @@
-"""Renders the demo's smoke opacity at two consecutive baked frames, halfway between them, and
-with only the interpolation twin shown, using the generator's own job, scene builder, twin and
-render passes; writes the four alpha images as JSON. The first frame looks from START_DEG on the
+"""Renders the demo's smoke opacity at two consecutive baked frames, halfway between them, with
+only the interpolation twin shown, and with the domain at full weight beside its twin shown at
+weight 0 (the twin's box must not hide the domain's smoke), using the generator's own job, scene builder, twin and
+render passes; writes the five alpha images as JSON. The first frame looks from START_DEG on the
 demo's orbit.
 Run in a subprocess: python interpolated_smoke.py OUT.json WORK_DIR START_DEG
 """
@@ -10,7 +11,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-import bpy  # noqa: F401
+import bpy
 
 from blender import render
 from blender import scene as scene_mod
@@ -20,8 +21,9 @@ from generator.assets import load_manifest
 from generator.job import make_job, make_plan, resolve_asset_materials
 from generator.postprocess import read_alpha
 
-#: (label, baked frame, weight of the next baked frame)
-STATES = (("start", 0, 0.0), ("end", 1, 0.0), ("halfway", 0, 0.5), ("twin_only", 0, 1.0))
+#: (label, baked frame, weight of the next baked frame, twin shown even at weight 0)
+STATES = (("start", 0, 0.0, False), ("end", 1, 0.0, False), ("halfway", 0, 0.5, False), ("twin_only", 0, 1.0, False),
+          ("start_twin_shown", 0, 0.0, True))
 
 
 def main() -> None:
@@ -43,9 +45,11 @@ def main() -> None:
     setup = render.pass_setup("rgb", "smoke_alpha", camera)
     render.apply_pass(setup, built, camera.render)
     images = {}
-    for label, offset, weight in STATES:
+    for label, offset, weight, twin_shown in STATES:
         path = str(work / f"{label}.exr")
-        render.show_smoke_state(built, True, weight)
+        render.show_smoke_state(built, True, weight, 1.0)
+        if twin_shown:
+            bpy.data.objects[built.domain_next].hide_render = False
         render.render_to(path, frame.c2w, frame.blender_frame + offset)
         images[label] = read_alpha(Path(path)).tolist()
     with open(out, "w") as fh:

@@ -37,7 +37,8 @@ def main() -> None:
     render.configure_engine(seed=0, threads=1)
     bpy.context.scene.world = bpy.data.worlds["world.rgb"]
     camera = ImageSize(48, 48, 0.6 * 48 * 4 / 2)  # the 2 m face fills the middle 60%
-    settings = CameraJob(render=camera, depth=camera, samples=16, denoise="none", volume_step_rate=1.0, frames=())
+    settings = CameraJob(render=camera, depth=camera, samples=16, clean_samples=16, denoise="none",
+                         volume_step_rate=1.0, frames=())
     images = {}
     for view, c2w in VIEWS.items():
         render.apply_pass(render.pass_setup("rgb", "clean", settings), built, camera)

@@ -54,11 +54,12 @@ def main() -> None:
         camera = ImageSize(16, 16, 160.0)  # ~6° FOV: every ray crosses the slab nearly normally
         c2w = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 5.0], [0, 0, 0, 1]]
         paths = {}
-        settings = CameraJob(render=camera, depth=camera, samples=4, denoise="none", volume_step_rate=1.0, frames=())
+        settings = CameraJob(render=camera, depth=camera, samples=4, clean_samples=4, denoise="none",
+                             volume_step_rate=1.0, frames=())
         for name in ("smoky", "smoke_alpha"):
             setup = render.pass_setup("thermal", name, settings)
             render.apply_pass(setup, built, camera)
-            render.show_smoke_state(built, setup.smoke_visible, 0.0)
+            render.show_smoke_state(built, setup.smoke_visible, 0.0, 1.0)
             paths[name] = os.path.join(os.path.dirname(out), f"slab{i}_{name}.exr")
             render.render_to(paths[name], c2w, 1)
         centre = (slice(4, 12), slice(4, 12))
