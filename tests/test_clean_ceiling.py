@@ -15,8 +15,8 @@ from tests.results_builder import write_metrics
 
 
 def test_derived_dataset_trains_on_the_clean_frames(demo_dataset: Path, tmp_path: Path) -> None:
-    original = load_scene(demo_dataset)
-    derived = load_scene(derive_clean_dataset(demo_dataset, tmp_path / "ceiling"))
+    original = load_scene(demo_dataset, all_ground_truth=True)
+    derived = load_scene(derive_clean_dataset(demo_dataset, tmp_path / "ceiling"), all_ground_truth=True)
     assert original.rgb.masks is not None and (original.rgb.masks > 0).any()
     assert not np.array_equal(original.rgb.images, original.rgb.clean)  # the demo has smoke to remove
     np.testing.assert_array_equal(derived.rgb.images, original.rgb.clean)
