@@ -36,7 +36,9 @@ import numpy as np  # noqa: E402
 from contracts.atomic import write_rows_csv  # noqa: E402
 from contracts.imageio import read_exr_channel, read_png  # noqa: E402
 from generator.api import resolve_spec  # noqa: E402
+from generator.assets import load_manifest  # noqa: E402
 from generator.optics.planck import band_radiance  # noqa: E402
+from generator.job import resolve_asset_materials  # noqa: E402
 from generator.pipeline import generate, sensor_for  # noqa: E402
 from generator.profiles import get_profile  # noqa: E402
 from generator.spec import Overrides, SceneSpec, parse_passes  # noqa: E402
@@ -51,7 +53,8 @@ def preset_spec(scene: str, frames: int) -> SceneSpec:
     """The demo at its preset size, any other preset at the standard profile's size."""
     overrides = Overrides(frames=frames) if scene == "demo" else replace(get_profile("standard").overrides,
                                                                            frames=frames)
-    return resolve_spec(scene, overrides)[0]
+    spec, source = resolve_spec(scene, overrides)
+    return resolve_asset_materials(spec, load_manifest(), source)  # as the dataset records it, so reuse finds it
 
 
 def clean_only(spec: SceneSpec, samples: int) -> SceneSpec:
