@@ -4,6 +4,9 @@ samples, and what they cost, for a ladder of `clean_samples` (issue 49, item 5).
     python benchmarks/clean_convergence.py [--scenes demo,room] [--samples 4,8,...,1024] [--frames 2]
                                            [--keep DIR]
 
+Rows already in the CSV for other (scene, RGB frames) pairs are kept, so the ladders of different
+scenes can be measured in separate runs (docs/generator.md gives the commands).
+
 Each scene renders only its clean passes (RGB clean, thermal clean radiance) at every rung of the
 ladder, with the same seed. The demo is rendered at its preset size, any other scene at the
 `standard` profile's size. The clean passes never show smoke, so the scenes are rendered without
@@ -33,7 +36,9 @@ import numpy as np  # noqa: E402
 from contracts.atomic import write_rows_csv  # noqa: E402
 from contracts.imageio import read_exr_channel, read_png  # noqa: E402
 from generator.api import resolve_spec  # noqa: E402
+from generator.assets import load_manifest  # noqa: E402
 from generator.optics.planck import band_radiance  # noqa: E402
+from generator.job import resolve_asset_materials  # noqa: E402
 from generator.pipeline import generate, sensor_for  # noqa: E402
 from generator.profiles import get_profile  # noqa: E402
 from generator.spec import Overrides, SceneSpec, parse_passes  # noqa: E402
@@ -48,7 +53,8 @@ def preset_spec(scene: str, frames: int) -> SceneSpec:
     """The demo at its preset size, any other preset at the standard profile's size."""
     overrides = Overrides(frames=frames) if scene == "demo" else replace(get_profile("standard").overrides,
                                                                            frames=frames)
-    return resolve_spec(scene, overrides)[0]
+    spec, source = resolve_spec(scene, overrides)
+    return resolve_asset_materials(spec, load_manifest(), source)  # as the dataset records it, so reuse finds it
 
 
 def clean_only(spec: SceneSpec, samples: int) -> SceneSpec:
@@ -59,13 +65,14 @@ def clean_only(spec: SceneSpec, samples: int) -> SceneSpec:
                                thermal=replace(rig.thermal, clean_samples=samples)))
 
 
-def render(spec: SceneSpec, out: Path, reuse: bool) -> dict:
-    """dataset.json of `spec` generated at `out`; with `reuse`, a finished one of the same spec is kept."""
+def render(spec: SceneSpec, out: Path, reuse: bool) -> tuple[dict, bool]:
+    """dataset.json of `spec` generated at `out`, and whether it was rendered now; with `reuse`,
+    a finished one of the same spec is kept."""
     meta_path = out / "dataset.json"
     if reuse and meta_path.exists() and json.loads(meta_path.read_text())["spec_sha256"] == spec.sha256():
-        return json.loads(meta_path.read_text())
+        return json.loads(meta_path.read_text()), False
     generate(spec, out, show_progress=False, force=True)
-    return json.loads(meta_path.read_text())
+    return json.loads(meta_path.read_text()), True
 
 
 def images(root: Path) -> dict[str, list[np.ndarray]]:
@@ -91,8 +98,8 @@ def measure(scene: str, ladder: list[int], frames: int, work: Path, reuse: bool)
     loads: dict[int, float] = {}
     for n in ladder:
         t0 = time.perf_counter()
-        metas[n] = render(clean_only(spec, n), work / scene / f"s{n}", reuse)
-        loads[n] = os.getloadavg()[0]
+        metas[n], rendered = render(clean_only(spec, n), work / scene / f"s{n}", reuse)
+        loads[n] = os.getloadavg()[0] if rendered else float("nan")  # a reused render's load is not known
         renders[n] = images(work / scene / f"s{n}")
         print(f"{scene} {n} samples: {time.perf_counter() - t0:.0f} s (load {loads[n]:.1f})", flush=True)
     top = ladder[-1]
@@ -109,11 +116,11 @@ def measure(scene: str, ladder: list[int], frames: int, work: Path, reuse: bool)
 
             rows.append({
                 "scene": scene, "modality": modality, "width": cam.width, "height": cam.height,
-                "frames": len(renders[n][modality]), "clean_samples": n,
+                "rgb_frames": frames, "frames": len(renders[n][modality]), "clean_samples": n,
                 f"psnr_vs_{RATIO}x_db": db(RATIO * n), "psnr_vs_top_db": db(top),
                 "top_samples": top,
                 "seconds_per_frame": round(metas[n]["timings_s"]["render"][f"{modality}.clean"], 3),
-                "load_1min": round(loads[n], 2),
+                "load_1min": round(loads[n], 2) if loads[n] == loads[n] else "",
             })
     return rows
 
@@ -139,20 +146,32 @@ def main() -> None:
     for row in rows:
         print("  " + ", ".join(f"{k} {v}" for k, v in row.items()))
     RESULTS.mkdir(parents=True, exist_ok=True)
+    rows = kept_rows({(r["scene"], str(r["rgb_frames"])) for r in rows}) + rows
     write_rows_csv(RESULTS / f"{NAME}.csv", rows)
     plot(rows)
+
+
+def kept_rows(measured: set[tuple[str, str]]) -> list[dict]:
+    """Rows of the existing CSV for (scene, RGB frames) pairs this run did not measure: a long
+    reference is rendered once, in its own run."""
+    path = RESULTS / f"{NAME}.csv"
+    if not path.exists():
+        return []
+    with path.open() as fh:
+        return [r for r in csv.DictReader(fh) if (r["scene"], r.get("rgb_frames")) not in measured]
 
 
 def plot(rows: list[dict]) -> None:
     """PSNR against the 4x render, over samples (left) and over render seconds per frame (right)."""
     key = f"psnr_vs_{RATIO}x_db"
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
-    for scene in dict.fromkeys(r["scene"] for r in rows):
+    for scene, frames in dict.fromkeys((r["scene"], str(r["rgb_frames"])) for r in rows):
         for modality, style in (("rgb", "-o"), ("thermal", "--s")):
-            pts = [r for r in rows if r["scene"] == scene and r["modality"] == modality and r[key] != ""]
+            pts = [r for r in rows if (r["scene"], str(r["rgb_frames"]), r["modality"]) == (scene, frames, modality)
+                   and r[key] != ""]
             if not pts:
                 continue
-            label = f"{scene} {modality} {pts[0]['width']}x{pts[0]['height']}"
+            label = f"{scene} {modality} {pts[0]['width']}x{pts[0]['height']}, {frames} RGB frames"
             samples = [int(r["clean_samples"]) for r in pts]
             seconds = [float(r["seconds_per_frame"]) for r in pts]
             values = [float(r[key]) for r in pts]

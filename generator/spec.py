@@ -25,7 +25,7 @@ DENOISERS = ("none", "color", "albedo", "albedo_normal")
 PASSES = ("smoky", "clean", "depth", "smoke_alpha")
 
 CLEAN_SAMPLES_RGB = 256
-CLEAN_SAMPLES_THERMAL = 64
+CLEAN_SAMPLES_THERMAL = 32
 """Default samples of the smoke-free passes: the fewest that keep the clean frames 45 dB or more
 from a render with 4x the samples on the demo and a standard scene (docs/generator.md,
 `benchmarks/clean_convergence.py`)."""
