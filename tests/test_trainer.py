@@ -411,10 +411,10 @@ def _copy(src: Path, dst: Path) -> Path:
 
 def test_truncated_exr_is_refused_before_training(splat: Path, tmp_path: Path,
                                                   capsys: pytest.CaptureFixture) -> None:
-    """The validator of `generate-scene --validate` runs first: a damaged file is one line, exit 2,
-    and nothing in --out (before, training finished with status ok)."""
+    """The validator of `generate-scene --validate` runs first: a damaged input file (a thermal
+    radiance EXR, read for its check alone) is one line, exit 2, and nothing in --out."""
     ds = _copy(splat, tmp_path / "ds")
-    victim = sorted((ds / "rgb" / "smoke_alpha").glob("*.exr"))[1]
+    victim = sorted((ds / "thermal" / "smoky_radiance").glob("*.exr"))[1]
     victim.write_bytes(victim.read_bytes()[:300])
     run = tmp_path / "run"
     assert main([str(ds), "--out", str(run)] + TINY) == 2
