@@ -37,7 +37,8 @@ from contracts.train_log import read_train_log
 from eval.dehaze import dehaze_dataset, get_dehazer
 from eval.runs import VARIANTS, RunResult, RunSpec, config_hash
 from eval.settings import DatasetOutcome, HarnessConfig
-from eval.shared_stage2 import leaders_first, stage2_done, stage2_donors, stage2_leaders, stage2_sha, take_finished_stage2
+from eval.shared_stage2 import (leaders_first, stage2_done, stage2_donors, stage2_groups, stage2_leaders, stage2_sha,
+                                take_finished_stage2)
 from eval.sources import sources_sha256
 from eval.twins import full_twins
 
@@ -486,10 +487,10 @@ def execute_runs(cfg: HarnessConfig, ex: _Executor, plan: Plan, train_fn: TrainF
     pending = []
     threads = max(1, (os.cpu_count() or 1) // cfg.workers)
     specs = plan.runs
-    donors = stage2_donors(specs, Path(cfg.out))
-    leaders = stage2_leaders(specs, Path(cfg.out))
+    groups = stage2_groups(specs, Path(cfg.out))
+    donors, leaders = stage2_donors(groups), stage2_leaders(groups)
     bar = tqdm(total=len(specs), desc="runs", unit="run", file=sys.stderr)
-    for spec in leaders_first(specs, Path(cfg.out)):
+    for spec in leaders_first(specs, Path(cfg.out), groups):
         run_dir = spec.run_dir(Path(cfg.out)).resolve()
         ds = dehazed[spec.scene] if VARIANTS[spec.variant].dehazer else datasets[spec.scene]
         prep = ds.wall_time_s if VARIANTS[spec.variant].dehazer else 0.0

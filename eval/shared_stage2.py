@@ -36,34 +36,33 @@ def stage2_key(spec: RunSpec) -> tuple[str, ...]:
     return (spec.scene, str(spec.seed), spec.dataset_hash, spec.code, stage2_sha(spec))
 
 
-def stage2_donors(specs: list[RunSpec], out: Path) -> dict[str, list[str]]:
-    """For each run folder, the folders of the plan's other runs with the same Stage 2, in plan order."""
+def stage2_groups(specs: list[RunSpec], out: Path) -> dict[str, list[str]]:
+    """For each run folder, the folders of the plan's runs with the same Stage 2 (itself
+    included), in plan order: the first trains it, the others may take it."""
     groups: dict[tuple[str, ...], list[str]] = {}
-    keys = {}
+    of: dict[str, list[str]] = {}
     for spec in specs:
         run_dir = str(spec.run_dir(out).resolve())
-        keys[run_dir] = stage2_key(spec)
-        groups.setdefault(keys[run_dir], []).append(run_dir)
-    return {d: [o for o in groups[k] if o != d] for d, k in keys.items()}
+        of[run_dir] = groups.setdefault(stage2_key(spec), [])
+        of[run_dir].append(run_dir)
+    return of
 
 
-def stage2_leaders(specs: list[RunSpec], out: Path) -> dict[str, str]:
+def stage2_donors(groups: dict[str, list[str]]) -> dict[str, list[str]]:
+    """For each run folder, the other folders of its Stage-2 group, in plan order."""
+    return {d: [o for o in group if o != d] for d, group in groups.items()}
+
+
+def stage2_leaders(groups: dict[str, list[str]]) -> dict[str, str]:
     """For each run folder after the first of its Stage-2 group (plan order), that first folder."""
-    first: dict[tuple[str, ...], str] = {}
-    leaders = {}
-    for spec in specs:
-        run_dir = str(spec.run_dir(out).resolve())
-        leader = first.setdefault(stage2_key(spec), run_dir)
-        if leader != run_dir:
-            leaders[run_dir] = leader
-    return leaders
+    return {d: group[0] for d, group in groups.items() if group[0] != d}
 
 
-def leaders_first(specs: list[RunSpec], out: Path) -> list[RunSpec]:
+def leaders_first(specs: list[RunSpec], out: Path, groups: dict[str, list[str]]) -> list[RunSpec]:
     """Plan order with every run that can take a Stage 2 moved behind all the runs that train
     one, so that with several workers a taker starts after its donor has (and, but for the last
     few, has finished Stage 2): started side by side, both would train it."""
-    leaders = stage2_leaders(specs, out)
+    leaders = stage2_leaders(groups)
     return sorted(specs, key=lambda s: str(s.run_dir(out).resolve()) in leaders)
 
 

@@ -515,15 +515,16 @@ def test_stage1_from_images_trains_the_same_stage2(tmp_path: Path) -> None:
 def test_leaders_first_puts_every_stage2_taker_behind_every_group_leader(tmp_path: Path) -> None:
     """Plan order interleaves scenes' Full runs and ablations; the start order has each group's
     first run ahead of every run that can take a Stage 2, and keeps plan order within each part."""
-    from eval.shared_stage2 import leaders_first, stage2_leaders
+    from eval.shared_stage2 import leaders_first, stage2_groups, stage2_leaders
 
     specs = [RunSpec(scene, variant, VARIANTS[variant].mode, 0, "quick", dict(VARIANTS[variant].overrides),
                      f"/data/{scene}", "d" * 8, "c" * 8)
              for scene in ("a", "b") for variant in ("full", "no-mask", "rgb-only", "no-mono")]
-    order = [(s.scene, s.variant) for s in leaders_first(specs, tmp_path)]
+    groups = stage2_groups(specs, tmp_path)
+    order = [(s.scene, s.variant) for s in leaders_first(specs, tmp_path, groups)]
     assert order == [("a", "full"), ("a", "rgb-only"), ("b", "full"), ("b", "rgb-only"),
                      ("a", "no-mask"), ("a", "no-mono"), ("b", "no-mask"), ("b", "no-mono")]
-    leaders = stage2_leaders(specs, tmp_path)
+    leaders = stage2_leaders(groups)
     assert sorted(Path(d).parts[-3] + "/" + Path(d).parts[-2] for d in leaders) == \
         ["a/no-mask", "a/no-mono", "b/no-mask", "b/no-mono"]
 
