@@ -21,10 +21,13 @@ from packaging.tags import sys_tags
 from packaging.utils import canonicalize_name
 
 from benchmarks.gpu_check.make_wheels import interpreter_tags
+from benchmarks.gpu_check.prebuilt import RECORD as PREBUILT_RECORD
+from benchmarks.gpu_check.prebuilt import PrebuiltRecord, mismatches, read_record
 from benchmarks.gpu_check.reference import cpu_reference, last_iterations, psnr_verdict, stage_rates
 from benchmarks.gpu_check.report import markdown, write_report
 from benchmarks.gpu_check.run import parity_detail
-from benchmarks.gpu_check.steps import FAILED, OK, SKIPPED, TIMEOUT, Budget, StepResult, blocked, run_command
+from benchmarks.gpu_check.steps import (FAILED, OK, SKIPPED, TIMEOUT, Budget, Running, StepResult, blocked, run_command,
+                                        start_command)
 from benchmarks.gpu_check.target import arch_list, cpu_jobs, nvcc_version
 from benchmarks.gpu_check.wheels import (FOLDER_LIMIT_BYTES, IMAGE_PACKAGES, IMAGE_PROVIDES, check_folder, excluded,
                                          folder_requirements, project_requirements)
@@ -67,7 +70,7 @@ def complete_folder(folder: Path) -> Path:
 def test_the_folder_requirements_are_pyprojects_less_the_image_and_blender() -> None:
     names = {canonicalize_name(r.name) for r in folder_requirements(PYPROJECT)}
     declared = {canonicalize_name(r.name) for r in project_requirements(PYPROJECT)}
-    assert {"bpy", "torch", "numpy", "scipy", "matplotlib", "miepython"} <= declared
+    assert {"bpy", "torch", "numpy", "scipy", "matplotlib", "miepython", "pycolmap"} <= declared
     assert not names & excluded()
     assert declared - excluded() <= names
     assert {"jaxtyping", "rich", "setuptools", "pytest", "scikit-image", "openexr"} <= names
@@ -167,7 +170,7 @@ def test_a_step_that_overruns_is_stopped_with_its_children(tmp_path: Path) -> No
     res = run_command("sleeper", ["sh", "-c", f"sleep 60 & echo $! > {pid_file}; wait"], tmp_path / "s.log", 1.0,
                       min_s=0.5)
     assert res.status == TIMEOUT and time.monotonic() - start < 8, res
-    assert "1 s timeout" in res.reason
+    assert "its 1 s timeout" in res.reason
     child = int(pid_file.read_text())
     deadline = time.monotonic() + 5
     while time.monotonic() < deadline:
@@ -284,3 +287,60 @@ def test_the_probe_sees_the_gpu() -> None:
                          text=True, check=True)
     node = json.loads(res.stdout)
     assert node["cuda_available"] and node["gpus"] and node["arch_list"]
+
+
+def _prebuilt(folder: Path, **fields: object) -> PrebuiltRecord:
+    record = PrebuiltRecord(**{"wheel": "gsplat-1.5.3-cp312-cp312-linux_x86_64.whl", "python": "3.12",
+                               "torch": "2.11.0+cu130", "torch_cuda": "13.0", "arch_list": "9.0", "nvcc": "13.0",
+                               "seconds": 900.0, "jobs": 2, "cpus": 2, **fields})
+    (folder / record.wheel).write_bytes(b"")
+    (folder / PREBUILT_RECORD).write_text(json.dumps(record.to_dict()))
+    return record
+
+
+def test_a_prebuilt_gsplat_is_used_only_on_the_node_it_was_built_for(tmp_path: Path) -> None:
+    folder = complete_folder(tmp_path / "w")
+    assert read_record(folder) is None
+    record = _prebuilt(folder)
+    assert check_folder(folder, PYPROJECT, "3.12").problems == [], "the wheel and its record belong in the folder"
+    assert read_record(folder) == record
+    node = {"python": "3.12.3", "torch": "2.11.0+cu130", "torch_cuda": "13.0", "arch_list": "9.0"}
+    assert mismatches(record, node) == []
+    assert mismatches(record, {**node, "arch_list": "8.0;9.0", "torch": "2.11.0+cu128"}) == [
+        "torch: built for 2.11.0+cu130, the node has 2.11.0+cu128",
+        "arch_list: built for 9.0, the node has 8.0;9.0"]
+    assert mismatches(record, {**node, "python": "3.11.9"}) == ["python: built for 3.12, the node has 3.11"]
+    (folder / record.wheel).unlink()
+    with pytest.raises(ValueError, match=r"gsplat-prebuilt.json: wheel: gsplat-1.5.3-cp312.*is not in"):
+        read_record(folder)
+    (folder / PREBUILT_RECORD).write_text(json.dumps({"wheel": record.wheel}))
+    with pytest.raises(ValueError, match=r"gsplat-prebuilt.json: field 'python' is missing"):
+        read_record(folder)
+
+
+def test_a_background_step_runs_beside_others_and_stops_with_the_budget(tmp_path: Path) -> None:
+    quick = start_command("quick", [sys.executable, "-c", "print('done')"], tmp_path / "q.log", 30)
+    slow = start_command("slow", ["sleep", "30"], tmp_path / "s.log", 30, nice=19)
+    assert isinstance(quick, Running) and isinstance(slow, Running)
+    assert quick.wait().status == OK
+    start = time.monotonic()
+    res = slow.wait(stop_at_s=0.5)
+    assert res.status == TIMEOUT and "end of the check's time budget" in res.reason, res
+    assert time.monotonic() - start < 8
+    assert start_command("late", ["true"], tmp_path / "l.log", 1.0).status == SKIPPED
+
+
+def test_prebuild_refuses_in_one_line_without_an_archive_or_cuda(tmp_path: Path) -> None:
+    def prebuild(folder: Path) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "benchmarks.gpu_check.prebuild_gsplat", "--wheels", str(folder),
+                               "--arch", "9.0"], capture_output=True, text=True, cwd=ROOT)
+
+    res = prebuild(tmp_path / "none")
+    assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
+    assert "holds no source archive of gsplat==1.5.3" in res.stderr
+    folder = complete_folder(tmp_path / "w")
+    res = prebuild(folder)
+    assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
+    if torch.version.cuda is None:
+        assert f"torch {torch.__version__} is a CPU build" in res.stderr
+    assert not (folder / PREBUILT_RECORD).exists()

@@ -24,20 +24,25 @@ from packaging.tags import sys_tags
 
 from benchmarks.gpu_check.reference import cpu_reference, last_iterations, psnr_verdict, stage_rates
 from benchmarks.gpu_check.report import write_report
-from benchmarks.gpu_check.steps import FAILED, OK, SKIPPED, Budget, StepResult, blocked, run_command
+from benchmarks.gpu_check.prebuilt import mismatches, read_record
+from benchmarks.gpu_check.steps import (FAILED, OK, SKIPPED, Budget, Running, StepResult, blocked, run_command,
+                                        start_command)
 from benchmarks.gpu_check.wheels import check_folder
 
 ROOT = Path(__file__).resolve().parents[2]
 PY = sys.executable
-CAPS = {"probe": 60, "install": 150, "build": 360, "parity": 150, "stage3-torch": 90, "paper-gsplat": 90}
+CAPS = {"probe": 60, "install": 150, "build": 360, "parity": 150, "stage3-torch": 75, "paper-gsplat": 75}
 """Longest each step may take, in seconds; the standard run gets what the budget leaves after
 reserving the two short runs that follow it."""
 REPORT_RESERVE_S = 10.0
 
 
 def _env(*paths: Path, **extra: str) -> dict[str, str]:
-    """This environment with PYTHONPATH set to ``paths`` (the installed folders)."""
-    return {**os.environ, "PYTHONPATH": os.pathsep.join(str(p) for p in paths), **extra}
+    """This environment with PYTHONPATH set to ``paths`` (the installed folders) and their ``bin``
+    folders (ninja's, for one) first on PATH."""
+    bins = [str(p / "bin") for p in paths if (p / "bin").is_dir()]
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(str(p) for p in paths),
+            "PATH": os.pathsep.join([*bins, os.environ.get("PATH", "")]), **extra}
 
 
 def _commit() -> str | None:
@@ -92,6 +97,7 @@ class Check:
         self.site, self.gsplat_site = self.work / "site", self.work / "gsplat"
         self.logs, self.runs = self.out / "logs", self.out / "runs"
         self.done: dict[str, StepResult] = {}
+        self.background: dict[str, Running | StepResult] = {}
         self.node: dict[str, Any] = {}
 
     def record(self, result: StepResult) -> StepResult:
@@ -102,7 +108,7 @@ class Check:
     def command(self, name: str, argv: list[str], cap_s: float, needs: list[str], reserve_s: float = 0.0,
                 **kw: Any) -> StepResult:
         return self.record(blocked(name, needs, self.done)
-                           or run_command(name, argv, self.logs / f"{name}.log",
+                           or run_command(name, argv, self.log(name),
                                           self.budget.timeout_for(cap_s, reserve_s + REPORT_RESERVE_S), **kw))
 
     def probe(self) -> None:
@@ -112,10 +118,12 @@ class Check:
         n = self.node
         print(f"Python {n.get('python')}, torch {n.get('torch')} (CUDA {n.get('torch_cuda')}), nvcc {n.get('nvcc')}, "
               f"GPU {', '.join(n.get('gpus') or []) or 'none'} (arch {n.get('arch_list')})", flush=True)
-        missing = [what for what, ok in (("torch sees no CUDA device", n.get("cuda_available")),
-                                         ("no nvcc on PATH", n.get("nvcc")), ("no ninja on PATH", n.get("ninja")))
-                   if not ok]
-        self.record(StepResult("gpu", SKIPPED if missing else OK, reason="; ".join(missing)))
+        missing = [] if n.get("cuda_available") else ["torch sees no CUDA device"]
+        # A source build needs nvcc, CUDA's headers and ninja; a matching prebuilt wheel does not.
+        compile_gaps = [what for what, ok in (("no nvcc on PATH", n.get("nvcc")), ("no ninja on PATH", n.get("ninja")),
+                                              (f"CUDA_HOME {n.get('cuda_home')} has no include/cuda_runtime.h",
+                                               n.get("cuda_headers"))) if not ok]
+        self.record(StepResult("gpu", SKIPPED if missing else OK, reason="; ".join(missing + compile_gaps)))
 
     def wheel_folder(self) -> None:
         python = ".".join((self.node.get("python") or "").split(".")[:2])
@@ -127,9 +135,8 @@ class Check:
                                detail={"size_bytes": check.size_bytes, "files": check.files}))
 
     def install(self) -> None:
-        wheels = sorted(self.wheels.glob("*.whl"))
-        pip = [PY, "-m", "pip", "install", "--quiet", "--no-compile", "--no-index", "--no-deps", "--upgrade",
-               "--target", str(self.site)]
+        wheels = [p for p in sorted(self.wheels.glob("*.whl")) if not p.name.startswith("gsplat-")]
+        pip = self._pip_install(self.site)
         marker = self.work / "site-wheels.json"
         listing = {p.name: p.stat().st_size for p in wheels}
         if marker.is_file() and json.loads(marker.read_text()) == listing and not blocked("install", ["wheels"], self.done):
@@ -142,60 +149,103 @@ class Check:
                      CAPS["install"], ["install"], env=_env(self.site), cwd=self.work)
         # The installed copy, not the checkout, and without Blender: what training needs.
         self.command("imports", [PY, "-c", "import sys, smokeseer.api, smokeseer.cli, smokeseer.raster, "
-                                           "eval.shared_stage2; assert 'bpy' not in sys.modules, 'bpy imported'"],
+                                           "eval.shared_stage2; assert not {'bpy', 'pycolmap'} & set(sys.modules), 'bpy or pycolmap imported'"],
                      30, ["install-project"], env=_env(self.site), cwd=self.work)
 
     def build(self) -> None:
-        record = self.work / "gsplat-build.json"
-        if any(self.gsplat_site.glob("gsplat/csrc*.so")) and record.is_file():
-            earlier = json.loads(record.read_text())
-            self.record(StepResult("build", OK, reason=f"built by an earlier check in {earlier['seconds']:.0f} s "
-                                                       f"(kept in {self.gsplat_site})", detail=earlier))
-        else:
-            n = self.node
-            env = _env(self.site, MAX_JOBS=str(n.get("compile_jobs", 4)), TORCH_CUDA_ARCH_LIST=str(n.get("arch_list")))
-            kernel_log = self.logs / "cpu-kernel.log"
-            kernel = None
-            if not blocked("build", ["gpu", "install-project"], self.done):
-                self.logs.mkdir(parents=True, exist_ok=True)
-                with open(kernel_log, "w") as log:  # the CPU kernel compiles beside gsplat, on its own cores
-                    kernel = subprocess.Popen([PY, "-m", "benchmarks.gpu_check.warm_cpu_kernel"], stdout=log,
-                                              stderr=subprocess.STDOUT, env=_env(ROOT, self.site), cwd=ROOT)
-            archive = next(iter(sorted(self.wheels.glob("gsplat-*.tar.gz"))), None)
-            res = self.command("build", [PY, "-m", "pip", "install", "--no-index", "--no-deps", "--no-build-isolation",
-                                         "--upgrade", "--target", str(self.gsplat_site), str(archive)],
-                               CAPS["build"], ["gpu", "install-project"], reserve_s=300, env=env)
-            res.detail.update({"seconds": res.seconds, "max_jobs": env["MAX_JOBS"],
-                               "arch_list": env["TORCH_CUDA_ARCH_LIST"]})
+        """gsplat's CUDA extension: the folder's prebuilt wheel where it was built for this node
+        (benchmarks.gpu_check.prebuilt), else compiled here from the source archive. With a
+        prebuilt wheel the archive is compiled as well, beside the steps that follow at the lowest
+        CPU priority, so the report still has this node's compile time."""
+        n = self.node
+        jobs = int(n.get("compile_jobs", 4))
+        archive = next(iter(sorted(self.wheels.glob("gsplat-*.tar.gz"))), None)
+        try:
+            record = read_record(self.wheels)
+            why = "the folder has no prebuilt wheel" if record is None else "; ".join(mismatches(record, n))
+        except ValueError as exc:
+            record, why = None, str(exc)
+        needs = ["gpu", "install-project"]
+        marker = self.work / "gsplat-build.json"
+        if any(self.gsplat_site.glob("gsplat/csrc*.so")) and marker.is_file():
+            earlier = json.loads(marker.read_text())
+            self.record(StepResult("build", OK, reason=f"installed by an earlier check ({earlier['how']}), kept in "
+                                                       f"{self.gsplat_site}", detail=earlier))
+        elif record is not None and not why:
+            res = blocked("build", needs, self.done) or run_command(
+                "build", [*self._pip_install(self.gsplat_site), str(self.wheels / record.wheel)], self.log("build"),
+                self.budget.timeout_for(60, REPORT_RESERVE_S), env=_env(self.site))
+            res.detail.update({"how": "prebuilt wheel", "prebuilt": record.to_dict()})
             if res.status == OK:
-                record.write_text(json.dumps(res.detail) + "\n")
-            if kernel is not None:
-                try:
-                    kernel.wait(timeout=max(self.budget.left() - 300, 10))
-                except subprocess.TimeoutExpired:
-                    kernel.kill()
-                res.detail["cpu_kernel"] = kernel_log.read_text().strip().splitlines()[-1:]
+                res.reason = (f"prebuilt {record.wheel}: compiled in {record.seconds:.0f} s with {record.jobs} jobs on "
+                              f"{record.cpus} CPUs for arch {record.arch_list}, nvcc {record.nvcc}")
+                marker.write_text(json.dumps(res.detail) + "\n")
+            self.record(res)
+            if res.status == OK and archive is not None:
+                shutil.rmtree(self.work / "gsplat-from-source", ignore_errors=True)
+                self.background["build-from-source"] = start_command(
+                    "build-from-source", self._source_build(archive, self.work / "gsplat-from-source"),
+                    self.log("build-from-source"), self.budget.left() - REPORT_RESERVE_S,
+                    env=self._build_env(max(jobs - 2, 1)), nice=19)
+        else:
+            res = blocked("build", needs, self.done) or run_command(
+                "build", self._source_build(archive, self.gsplat_site), self.log("build"),
+                self.budget.timeout_for(CAPS["build"], 300 + REPORT_RESERVE_S), env=self._build_env(jobs))
+            res.detail.update({"how": f"compiled from {archive.name if archive else 'no archive'}",
+                               "prebuilt_not_used": why, "max_jobs": jobs})
+            if res.status == OK:
+                res.reason = f"compiled here with {jobs} jobs ({why})"
+                marker.write_text(json.dumps(res.detail) + "\n")
+            self.record(res)
         self.command("gsplat-import", [PY, "-c", "from gsplat.cuda._backend import _C; assert _C is not None, "
                                                  "'gsplat has no CUDA extension'"],
                      60, ["build"], env=_env(self.gsplat_site, self.site), cwd=self.work)
 
-    def parity(self) -> None:
-        junit = self.out / "parity.xml"
+    def log(self, name: str) -> Path:
+        return self.logs / f"{name}.log"
+
+    def _pip_install(self, target: Path) -> list[str]:
+        return [PY, "-m", "pip", "install", "--quiet", "--no-compile", "--no-index", "--no-deps", "--upgrade",
+                "--target", str(target)]
+
+    def _source_build(self, archive: Path | None, target: Path) -> list[str]:
+        # Built with the setuptools just installed (a build-isolated one would need the image's
+        # packages too), for the node's architecture alone.
+        return [*self._pip_install(target), "--no-build-isolation", str(archive)]
+
+    def _build_env(self, jobs: int) -> dict[str, str]:
+        return _env(self.site, MAX_JOBS=str(jobs), TORCH_CUDA_ARCH_LIST=str(self.node.get("arch_list")))
+
+    def start_parity(self) -> None:
+        """The parity tests, started beside the standard run (their CPU reference compiles the
+        CPU rasterizer first, on its own core)."""
         argv = [PY, "-m", "pytest", "-q", "-rA", "-p", "no:cacheprovider", "tests/test_raster_gsplat.py",
-                f"--junitxml={junit}", "-o", "junit_logging=system-out"]
-        res = blocked("parity", ["gsplat-import"], self.done) or run_command(
-            "parity", argv, self.logs / "parity.log", self.budget.timeout_for(CAPS["parity"], 240 + REPORT_RESERVE_S),
+                f"--junitxml={self.out / 'parity.xml'}", "-o", "junit_logging=system-out"]
+        self.background["parity"] = blocked("parity", ["gsplat-import"], self.done) or start_command(
+            "parity", argv, self.log("parity"), self.budget.timeout_for(CAPS["parity"], REPORT_RESERVE_S),
             env=_env(ROOT, self.gsplat_site, self.site), cwd=ROOT)
-        if junit.is_file():
-            res.detail["tests"] = parity_detail(junit)
-            skipped = [k for k, v in res.detail["tests"].items() if v["outcome"].startswith("skipped")]
-            if res.status == OK and skipped:
-                res.status, res.reason = FAILED, f"skipped on this node: {', '.join(skipped)}"
-        self.record(res)
+
+    def finish(self, name: str, stop_at_s: float | None = None) -> StepResult | None:
+        """Wait for a background step and record it (None when it was never started)."""
+        started = self.background.pop(name, None)
+        if started is None:
+            return None
+        res = started if isinstance(started, StepResult) else started.wait(stop_at_s)
+        if name == "parity":
+            junit = self.out / "parity.xml"
+            if junit.is_file():
+                res.detail["tests"] = parity_detail(junit)
+                skipped = [k for k, v in res.detail["tests"].items() if v["outcome"].startswith("skipped")]
+                if res.status == OK and skipped:
+                    res.status, res.reason = FAILED, f"skipped on this node: {', '.join(skipped)}"
+            if isinstance(started, Running):
+                res.reason = (res.reason + "; " if res.reason else "") + "ran beside the start of standard-gsplat"
+        return self.record(res)
 
     def train(self, name: str, args: list[str], cap_s: float, needs: list[str], with_gsplat: bool,
               reserve_s: float = 0.0) -> StepResult:
         run = self.runs / name
+        self.runs.mkdir(parents=True, exist_ok=True)
         # The installed trainer first; the checkout after it only for benchmarks/, which is not installed.
         paths = (self.gsplat_site, self.site, ROOT) if with_gsplat else (self.site, ROOT)
         argv = [PY, "-m", "benchmarks.gpu_check.train_run", str(self.runs / f"{name}.memory.json"), "--",
@@ -204,8 +254,10 @@ class Check:
 
     def trainings(self) -> None:
         short = CAPS["stage3-torch"] + CAPS["paper-gsplat"]
+        self.start_parity()
         self.train("standard-gsplat", ["--profile", "standard"], self.budget.left(), ["gsplat-import"], True,
                    reserve_s=short)
+        self.finish("parity")
         donor = self.runs / "standard-gsplat"
         torch_run = self.runs / "stage3-torch"
         if (donor / "checkpoints" / "stage2.pt").is_file():
@@ -232,6 +284,11 @@ class Check:
                                "elapsed_s": self.budget.total_s - self.budget.left(), "node": self.node,
                                "wheels": str(self.wheels), "dataset": str(self.dataset),
                                "steps": [s.to_dict() for s in self.done.values()], "runs": runs, "notes": []}
+        beside = [f"{name} ({self.done[name].seconds:.0f} s{', lowest CPU priority' if name == 'build-from-source' else ''})"
+                  for name in ("parity", "build-from-source") if name in self.done and self.done[name].seconds > 0]
+        if beside:
+            out["notes"].append("standard-gsplat started together with " + " and ".join(beside)
+                                + ", so its first iterations shared the node's CPUs with them.")
         scene = self.dataset.name
         try:
             ref = cpu_reference(ROOT / "data" / "tables_standard" / "runs" / scene / "full", "standard")
@@ -281,8 +338,8 @@ def main(argv: list[str] | None = None) -> int:
     check.wheel_folder()
     check.install()
     check.build()
-    check.parity()
     check.trainings()
+    check.finish("build-from-source", stop_at_s=check.budget.left() - REPORT_RESERVE_S)
     json_path, md_path = write_report(check.out, check.results())
     print(f"report: {json_path} and {md_path}")
     return 0 if all(s.status == OK for s in check.done.values()) else 1

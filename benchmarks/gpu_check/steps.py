@@ -53,30 +53,56 @@ def blocked(name: str, needs: list[str], done: dict[str, StepResult]) -> StepRes
     return None
 
 
+class Running:
+    """A step started in the background: it runs beside the steps that follow until ``wait``."""
+
+    def __init__(self, name: str, argv: list[str], log: Path, timeout_s: float, *, env: dict[str, str] | None,
+                 cwd: Path | None, nice: int = 0) -> None:
+        self.name, self.log, self.timeout_s = name, log, timeout_s
+        log.parent.mkdir(parents=True, exist_ok=True)
+        self.start = time.monotonic()
+        with open(log, "w") as out:
+            out.write("$ " + " ".join(argv) + "\n")
+            out.flush()
+            self.proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, env=env, cwd=cwd,
+                                         preexec_fn=lambda: (os.setpgrp(), os.nice(nice)))
+
+    def wait(self, stop_at_s: float | None = None) -> StepResult:
+        """The outcome; the step is stopped (with its children) at its own timeout, or after
+        ``stop_at_s`` more seconds when that comes first."""
+        left = self.timeout_s - (time.monotonic() - self.start)
+        limit = left if stop_at_s is None else min(left, stop_at_s)
+        try:
+            rc = self.proc.wait(timeout=max(limit, 0.0))
+        except subprocess.TimeoutExpired:
+            _end_group(self.proc)
+            why = (f"its {self.timeout_s:.0f} s timeout" if limit == left
+                   else "the end of the check's time budget")
+            return StepResult(self.name, TIMEOUT, time.monotonic() - self.start, reason=f"stopped at {why}",
+                              log=str(self.log))
+        seconds = time.monotonic() - self.start
+        if rc != 0:
+            return StepResult(self.name, FAILED, seconds, reason=f"exit status {rc}: {last_line(self.log)}",
+                              log=str(self.log))
+        return StepResult(self.name, OK, seconds, log=str(self.log))
+
+
+def start_command(name: str, argv: list[str], log: Path, timeout_s: float, *, env: dict[str, str] | None = None,
+                  cwd: Path | None = None, min_s: float = 5.0, nice: int = 0) -> Running | StepResult:
+    """Start ``argv`` with its stdout and stderr in ``log`` (a skipped result when less than
+    ``min_s`` is left for it)."""
+    if timeout_s < min_s:
+        return StepResult(name, SKIPPED, reason=f"time budget: {max(timeout_s, 0):.0f} s left for it, "
+                                                f"needs at least {min_s:.0f} s")
+    return Running(name, argv, log, timeout_s, env=env, cwd=cwd, nice=nice)
+
+
 def run_command(name: str, argv: list[str], log: Path, timeout_s: float, *, env: dict[str, str] | None = None,
                 cwd: Path | None = None, min_s: float = 5.0) -> StepResult:
     """Run ``argv`` with its stdout and stderr in ``log``; on timeout its whole process group is
     ended (SIGTERM, then SIGKILL after 5 s), so compilers and trainers it started go too."""
-    if timeout_s < min_s:
-        return StepResult(name, SKIPPED, reason=f"time budget: {max(timeout_s, 0):.0f} s left for it, "
-                                                f"needs at least {min_s:.0f} s")
-    log.parent.mkdir(parents=True, exist_ok=True)
-    start = time.monotonic()
-    with open(log, "w") as out:
-        out.write("$ " + " ".join(argv) + "\n")
-        out.flush()
-        proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, env=env, cwd=cwd,
-                                preexec_fn=os.setpgrp)
-        try:
-            rc = proc.wait(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            _end_group(proc)
-            return StepResult(name, TIMEOUT, time.monotonic() - start,
-                              reason=f"stopped after its {timeout_s:.0f} s timeout", log=str(log))
-    seconds = time.monotonic() - start
-    if rc != 0:
-        return StepResult(name, FAILED, seconds, reason=f"exit status {rc}: {last_line(log)}", log=str(log))
-    return StepResult(name, OK, seconds, log=str(log))
+    started = start_command(name, argv, log, timeout_s, env=env, cwd=cwd, min_s=min_s)
+    return started if isinstance(started, StepResult) else started.wait()
 
 
 def _end_group(proc: subprocess.Popen) -> None:

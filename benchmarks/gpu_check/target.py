@@ -76,6 +76,10 @@ def probe() -> dict[str, Any]:
     info["capabilities"] = [f"{a}.{b}" for a, b in caps]
     info["arch_list"] = arch_list(caps) if caps else None
     info["gpu_memory_gib"] = [torch.cuda.get_device_properties(i).total_memory / 2**30 for i in devices]
+    from torch.utils.cpp_extension import CUDA_HOME  # where torch's extension builds look for CUDA
+
+    info["cuda_home"] = CUDA_HOME
+    info["cuda_headers"] = bool(CUDA_HOME) and os.path.isfile(os.path.join(CUDA_HOME, "include", "cuda_runtime.h"))
     nvcc = _tool(["nvcc", "--version"])
     info["nvcc"] = nvcc_version(nvcc) if nvcc else None
     info["ninja"] = _tool(["ninja", "--version"])

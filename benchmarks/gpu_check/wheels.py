@@ -2,9 +2,9 @@
 
 A GPU node without internet gets the project's runtime dependencies as files. Its image already
 has torch, numpy, scipy and matplotlib, and therefore everything those require (their declared
-dependencies), so those are left out; bpy is left out because training never imports it (it makes
-datasets), and so is miepython (the generator's optics). gsplat travels as its source archive, because its CUDA code is compiled for the GPU
-and CUDA found there.
+dependencies), so those are left out; bpy and miepython are left out because training never
+imports them (they make datasets), and so is pycolmap (poses for captures that have none). gsplat
+travels as its source archive, because its CUDA code is compiled for the GPU and CUDA found there.
 """
 from __future__ import annotations
 
@@ -20,6 +20,8 @@ from packaging.tags import Tag, parse_tag
 from packaging.utils import (InvalidSdistFilename, InvalidWheelFilename, NormalizedName, canonicalize_name,
                              parse_sdist_filename, parse_wheel_filename)
 
+from benchmarks.gpu_check.prebuilt import RECORD as PREBUILT_RECORD
+
 GSPLAT = Requirement("gsplat==1.5.3")
 """The gsplat release the adapter (smokeseer/raster/gsplat_backend.py) is checked against."""
 GSPLAT_RUNTIME = ("jaxtyping", "rich>=12")
@@ -32,9 +34,10 @@ IMAGE_PROVIDES = ("contourpy", "cycler", "filelock", "fonttools", "fsspec", "jin
                   "mpmath", "networkx", "packaging", "pillow", "pyparsing", "python-dateutil", "sympy",
                   "typing-extensions")
 """Requirements of IMAGE_PACKAGES (torch 2.x and matplotlib 3.x declare them), so present with them."""
-NOT_FOR_TRAINING = ("bpy", "miepython")
-"""Declared by the project for dataset generation only: Blender (about 1 GB) and the Mie optics
-(miepython pulls numba and llvmlite, about 64 MB)."""
+NOT_FOR_TRAINING = ("bpy", "miepython", "pycolmap")
+"""Not imported when a posed dataset trains: Blender (about 1 GB) and the Mie optics (miepython
+pulls numba and llvmlite, about 64 MB) make datasets; structure from motion (pycolmap, 38 MB) runs
+only for captures without poses."""
 FOLDER_LIMIT_BYTES = 60 * 10**6
 
 
@@ -87,7 +90,7 @@ def read_folder(folder: Path) -> tuple[list[Artifact], list[str]]:
             elif path.name.endswith(".tar.gz"):
                 name, version = parse_sdist_filename(path.name)
                 found.append(Artifact(path, name, str(version)))
-            elif path.name != "manifest.json":
+            elif path.name not in ("manifest.json", PREBUILT_RECORD):
                 strays.append(path.name)
         except (InvalidWheelFilename, InvalidSdistFilename):
             strays.append(path.name)
