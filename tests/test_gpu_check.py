@@ -227,6 +227,9 @@ def test_the_report_is_written_as_json_and_markdown(tmp_path: Path) -> None:
     assert "| standard-gsplat | gsplat | 41.23 | 17.50 | 3000 + 3000 | 3.00 | 29.41 |" in page
     assert "trainer 6663d970): seed 0 29.53 dB, seeds [0, 1, 2] span 0.54 dB." in page
     assert sorted(p.name for p in (tmp_path / "report").iterdir()) == ["gpu_check.json", "gpu_check.md"]
+    results = {**_results(), "dataset": "/node/checkout/data/standard/house", "wheels": "/elsewhere/wheels"}
+    written = json.loads(write_report(tmp_path / "rel", results, Path("/node/checkout"))[0].read_text())
+    assert (written["dataset"], written["wheels"]) == ("data/standard/house", "/elsewhere/wheels")
 
 
 def test_stage_rates_from_a_train_log(tmp_path: Path) -> None:
@@ -322,7 +325,9 @@ def test_a_background_step_runs_beside_others_and_stops_with_the_budget(tmp_path
     quick = start_command("quick", [sys.executable, "-c", "print('done')"], tmp_path / "q.log", 30)
     slow = start_command("slow", ["sleep", "30"], tmp_path / "s.log", 30, nice=19)
     assert isinstance(quick, Running) and isinstance(slow, Running)
-    assert quick.wait().status == OK
+    time.sleep(1.0)
+    done = quick.wait()
+    assert done.status == OK and done.seconds < 0.9, "the time it ran, not the time until it was waited for"
     start = time.monotonic()
     res = slow.wait(stop_at_s=0.5)
     assert res.status == TIMEOUT and "end of the check's time budget" in res.reason, res
@@ -344,3 +349,16 @@ def test_prebuild_refuses_in_one_line_without_an_archive_or_cuda(tmp_path: Path)
     if torch.version.cuda is None:
         assert f"torch {torch.__version__} is a CPU build" in res.stderr
     assert not (folder / PREBUILT_RECORD).exists()
+
+
+def test_a_folder_named_gsplat_is_not_gsplat(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The check once ran the torch-backend comparison from a folder holding ``gsplat/`` (the
+    install target): Python imported it as an empty namespace package and the trainer took it
+    for gsplat."""
+    from smokeseer.raster import gsplat_available
+
+    (tmp_path / "gsplat").mkdir()
+    monkeypatch.syspath_prepend(str(tmp_path))
+    for name in [m for m in sys.modules if m == "gsplat" or m.startswith("gsplat.")]:
+        monkeypatch.delitem(sys.modules, name)
+    assert not gsplat_available()

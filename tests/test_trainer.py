@@ -219,6 +219,9 @@ def test_smoke_free_centres_gate_on_the_centre_pixel() -> None:
     assert smoke_free_centres(centres, cover, 0.02).tolist() == [False, False, True, True, False, False, False]
     assert smoke_free_centres(centres, cover, 1.0).tolist() == [True] * 4 + [False] * 3
     assert smoke_free_centres(centres, None, 0.02).all()
+    # gsplat leaves the centres of the Gaussians it culls unwritten: any bits, NaN included
+    junk = torch.tensor([[float("nan"), 0.5], [0.5, float("nan")], [float("inf"), 1.0], [-1e30, 1.0]])
+    assert smoke_free_centres(junk, cover, 1.0).tolist() == [False] * 4
 
 
 def test_surface_refinement_grows_no_surface_where_stage1_sees_only_smoke(tmp_path: Path) -> None:

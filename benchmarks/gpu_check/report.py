@@ -47,8 +47,22 @@ def markdown(results: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_report(out: Path, results: dict[str, Any]) -> tuple[Path, Path]:
-    """Write both files into ``out``; returns their paths."""
+def relative_paths(value: Any, root: Path) -> Any:
+    """``value`` with every path under ``root`` written relative to it, so a report names the
+    checkout's files the same on every machine."""
+    if isinstance(value, dict):
+        return {k: relative_paths(v, root) for k, v in value.items()}
+    if isinstance(value, list):
+        return [relative_paths(v, root) for v in value]
+    if isinstance(value, str):
+        return value.replace(f"{root}/", "")
+    return value
+
+
+def write_report(out: Path, results: dict[str, Any], root: Path | None = None) -> tuple[Path, Path]:
+    """Write both files into ``out`` (paths under ``root`` made relative); returns their paths."""
+    if root is not None:
+        results = relative_paths(results, root)
     out.mkdir(parents=True, exist_ok=True)
     json_path, md_path = out / "gpu_check.json", out / "gpu_check.md"
     write_json(json_path, results)

@@ -46,7 +46,8 @@ def _env(*paths: Path, **extra: str) -> dict[str, str]:
 
 
 def _commit() -> str | None:
-    res = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
+    res = subprocess.run(["git", "describe", "--always", "--dirty", "--abbrev=7"], cwd=ROOT, capture_output=True,
+                         text=True)
     return res.stdout.strip() or None if res.returncode == 0 else None
 
 
@@ -94,7 +95,7 @@ class Check:
         self.paper_iterations, self.torch_iterations = paper_iterations, torch_iterations
         self.budget = Budget(budget_s)
         self.work = self.out / "install"
-        self.site, self.gsplat_site = self.work / "site", self.work / "gsplat"
+        self.site, self.gsplat_site = self.work / "site", self.work / "gsplat-site"
         self.logs, self.runs = self.out / "logs", self.out / "runs"
         self.done: dict[str, StepResult] = {}
         self.background: dict[str, Running | StepResult] = {}
@@ -340,7 +341,7 @@ def main(argv: list[str] | None = None) -> int:
     check.build()
     check.trainings()
     check.finish("build-from-source", stop_at_s=check.budget.left() - REPORT_RESERVE_S)
-    json_path, md_path = write_report(check.out, check.results())
+    json_path, md_path = write_report(check.out, check.results(), ROOT)
     print(f"report: {json_path} and {md_path}")
     return 0 if all(s.status == OK for s in check.done.values()) else 1
 

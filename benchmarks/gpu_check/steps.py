@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
+import threading
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -66,6 +67,13 @@ class Running:
             out.flush()
             self.proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, env=env, cwd=cwd,
                                          preexec_fn=lambda: (os.setpgrp(), os.nice(nice)))
+        self.ended: float | None = None  # when the process exited, not when it was waited for
+        self._reaper = threading.Thread(target=self._reap, daemon=True)
+        self._reaper.start()
+
+    def _reap(self) -> None:
+        self.proc.wait()
+        self.ended = time.monotonic()
 
     def wait(self, stop_at_s: float | None = None) -> StepResult:
         """The outcome; the step is stopped (with its children) at its own timeout, or after
@@ -80,7 +88,8 @@ class Running:
                    else "the end of the check's time budget")
             return StepResult(self.name, TIMEOUT, time.monotonic() - self.start, reason=f"stopped at {why}",
                               log=str(self.log))
-        seconds = time.monotonic() - self.start
+        self._reaper.join(timeout=5)
+        seconds = (self.ended or time.monotonic()) - self.start
         if rc != 0:
             return StepResult(self.name, FAILED, seconds, reason=f"exit status {rc}: {last_line(self.log)}",
                               log=str(self.log))

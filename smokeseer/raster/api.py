@@ -10,18 +10,19 @@ from torch import Tensor
 
 from smokeseer.raster.cpu_backend import composite_tiles, project_compiled
 from smokeseer.raster.finite import first_non_finite
-from smokeseer.raster.output import RasterOutput, normalised_depth
+from smokeseer.raster.output import RADIUS_INT_MAX, RasterOutput, normalised_depth
 from smokeseer.raster.projection import project_gaussians
 from smokeseer.raster.sh import eval_sh, num_sh_bases
 from smokeseer.raster.torch_backend import composite
 
 BACKENDS = ("auto", "cpu", "torch", "gsplat")
-RADIUS_INT_MAX = 2**30  # radii of enormous footprints saturate here instead of overflowing int32
 
 
 def gsplat_available() -> bool:
-    """True when the gsplat package can be imported (it needs CUDA to run)."""
-    return importlib.util.find_spec("gsplat") is not None
+    """True when the gsplat package can be imported (it needs CUDA to run). A folder named gsplat
+    on the path without the package in it (a namespace package, no origin) does not count."""
+    spec = importlib.util.find_spec("gsplat")
+    return spec is not None and spec.origin is not None
 
 
 def _validate(

@@ -12,7 +12,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from smokeseer.raster.output import RasterOutput, normalised_depth
+from smokeseer.raster.output import RADIUS_INT_MAX, RasterOutput, normalised_depth
+from smokeseer.raster.projection import project_gaussians
 
 
 def rasterize_gsplat(
@@ -48,10 +49,13 @@ def rasterize_gsplat(
     means2d = meta["means2d"]
     if means2d.requires_grad:
         means2d.retain_grad()
-    radii = meta["radii"]
-    if radii.dim() == 3:
-        radii = radii.amax(dim=-1)
+    # Radii and visibility as the other backends define them, for densification: gsplat's own
+    # drop every Gaussian below opacity 1/255 and size the rest by an opacity-aware extent of at
+    # most 3.33 sigma per axis, which changes which views count towards a Gaussian's mean
+    # gradient and which Gaussians count as too big on screen.
+    with torch.no_grad():
+        ours = project_gaussians(means, quats, scales, viewmats, Ks, width, height, near_plane, far_plane)
     return RasterOutput(
         colors=img, alphas=alphas, depths=depths, subset_alphas=subset, means2d=means2d,
-        radii=radii.to(torch.int32), visible=radii > 0,
+        radii=ours.radii.clamp_max(RADIUS_INT_MAX).to(torch.int32), visible=ours.visible,
     )

@@ -6,6 +6,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+RADIUS_INT_MAX = 2**30  # radii of enormous footprints saturate here instead of overflowing int32
+
 DEPTH_ALPHA_EPS = 1e-6  # below this accumulated alpha, normalised depth is reported as 0
 
 
@@ -17,7 +19,7 @@ class RasterOutput:
     alphas: Tensor  # [C, H, W, 1] accumulated alpha
     depths: Tensor | None  # [C, H, W, 1] expected view-space z (alpha-weighted; /alpha if normalised)
     subset_alphas: Tensor | None  # [C, H, W, 1] accumulated alpha of subset_mask Gaussians, same pass
-    means2d: Tensor  # [C, N, 2] pixel centres; retains its grad for densification
+    means2d: Tensor  # [C, N, 2] pixel centres; retains its grad for densification; any value where gsplat culled
     radii: Tensor  # [C, N] int32, 0 where culled
     visible: Tensor  # [C, N] bool
     n_pairs: int = -1  # blended (Gaussian, pixel) pairs (cpu and torch backends; -1 from gsplat)

@@ -275,8 +275,10 @@ def smoke_free_centres(means2d: torch.Tensor, smoke_cover: torch.Tensor | None, 
     h, w = smoke_cover.shape
     px = means2d[:, 0].detach().floor()
     py = means2d[:, 1].detach().floor()
-    inside = (px >= 0) & (px < w) & (py >= 0) & (py < h)
-    return inside & (smoke_cover[py.clamp(0, h - 1).long(), px.clamp(0, w - 1).long()] <= max_smoke)
+    inside = (px >= 0) & (px < w) & (py >= 0) & (py < h)  # False for NaN: gsplat leaves culled centres unwritten
+    zero = torch.zeros_like(px)
+    rows, cols = torch.where(inside, py, zero).long(), torch.where(inside, px, zero).long()
+    return inside & (smoke_cover[rows, cols] <= max_smoke)
 
 
 def train_stage3(ctx: RunContext, model: SceneModel, rgb: ModalityData, thermal: ModalityData | None,
