@@ -45,23 +45,32 @@ DEPTH_TOLERANCE = 0.03
 point's depth (the haze-line estimate's tolerance, for the same geometry)."""
 
 
+def _views_of_masked_points(values: np.ndarray, masks: np.ndarray, depths: np.ndarray, valid: np.ndarray,
+                            viewmats: np.ndarray, Ks: np.ndarray, tolerance: float):
+    """For each frame: its masked pixels the geometry covers (rows, columns), ``values`` (frames,
+    H, W, C, the mask last) as every frame sees their surface points, which frames see them, and
+    which other frames see them smoke-free (mask at most 0.5)."""
+    smoky = masks > 0.5
+    for ref in range(masks.shape[0]):
+        vs, us = np.nonzero(smoky[ref] & valid[ref])
+        if len(vs) == 0:
+            continue
+        points = backproject(depths[ref, vs, us].astype(np.float64), np.stack([us, vs], 1), viewmats[ref], Ks[ref])
+        seen_values, seen = observations(points, values, depths, valid, viewmats, Ks, tolerance)
+        clear = seen & (seen_values[..., -1] <= 0.5)
+        clear[ref] = False
+        yield ref, vs, us, seen_values, seen, clear
+
+
 def never_seen_clear(masks: np.ndarray, depths: np.ndarray, valid: np.ndarray, viewmats: np.ndarray,
                      Ks: np.ndarray, tolerance: float = DEPTH_TOLERANCE) -> np.ndarray:
     """(frames, H, W) bool: masked pixels whose surface point no other frame sees smoke-free.
 
     ``masks`` (frames, H, W) in [0, 1] (above 0.5 is smoke), ``depths`` planar depth rendered from
     the geometry at the same cameras, ``valid`` where the geometry covers the pixel."""
-    n_frames, height, width = masks.shape
-    smoky = masks > 0.5
-    floor = smoky & ~valid
-    for ref in range(n_frames):
-        vs, us = np.nonzero(smoky[ref] & valid[ref])
-        if len(vs) == 0:
-            continue
-        points = backproject(depths[ref, vs, us].astype(np.float64), np.stack([us, vs], 1), viewmats[ref], Ks[ref])
-        mask_seen, seen = observations(points, masks[..., None], depths, valid, viewmats, Ks, tolerance)
-        clear = seen & (mask_seen[..., 0] <= 0.5)
-        clear[ref] = False
+    floor = (masks > 0.5) & ~valid
+    for ref, vs, us, _, _, clear in _views_of_masked_points(masks[..., None], masks, depths, valid, viewmats, Ks,
+                                                            tolerance):
         floor[ref, vs, us] = ~clear.any(axis=0)
     return floor
 
@@ -81,19 +90,11 @@ def estimated_dense(masks: np.ndarray, images: np.ndarray, depths: np.ndarray, v
     """(frames, H, W) bool: masked pixels whose smoke, read off the images, may reach ``floor``
     (the module docstring gives the rule). ``images`` (frames, H, W, 3) are the smoky training
     frames in [0, 1]; the rest as for ``never_seen_clear``."""
-    n_frames = masks.shape[0]
-    smoky = masks > 0.5
-    out = smoky & ~valid
+    out = (masks > 0.5) & ~valid
     stacked = np.concatenate([images.astype(np.float64), masks[..., None].astype(np.float64)], axis=-1)
     a = None if smoke_colour is None else np.asarray(smoke_colour, dtype=np.float64)[None]
-    for ref in range(n_frames):
-        vs, us = np.nonzero(smoky[ref] & valid[ref])
-        if len(vs) == 0:
-            continue
-        points = backproject(depths[ref, vs, us].astype(np.float64), np.stack([us, vs], 1), viewmats[ref], Ks[ref])
-        seen_values, seen = observations(points, stacked, depths, valid, viewmats, Ks, tolerance)
-        clear = seen & (seen_values[..., 3] <= 0.5)
-        clear[ref] = False
+    for ref, vs, us, seen_values, seen, clear in _views_of_masked_points(stacked, masks, depths, valid, viewmats,
+                                                                         Ks, tolerance):
         n_clear = clear.sum(axis=0)
         own = images[ref, vs, us].astype(np.float64)
         surface = (seen_values[..., :3] * clear[..., None]).sum(axis=0) / np.maximum(n_clear, 1)[:, None]
