@@ -67,8 +67,8 @@ class Running:
             out.flush()
             self.proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, env=env, cwd=cwd,
                                          preexec_fn=lambda: (os.setpgrp(), os.nice(nice)))
-        self.ended: float | None = None  # when the process exited, not when it was waited for
-        self._reaper = threading.Thread(target=self._reap, daemon=True)
+        self.ended = self.start  # set when the process exits, not when it is waited for
+        self._reaper = threading.Thread(target=self._reap, daemon=True)  # the one waiter on the process
         self._reaper.start()
 
     def _reap(self) -> None:
@@ -80,16 +80,14 @@ class Running:
         ``stop_at_s`` more seconds when that comes first."""
         left = self.timeout_s - (time.monotonic() - self.start)
         limit = left if stop_at_s is None else min(left, stop_at_s)
-        try:
-            rc = self.proc.wait(timeout=max(limit, 0.0))
-        except subprocess.TimeoutExpired:
+        self._reaper.join(timeout=max(limit, 0.0))
+        if self._reaper.is_alive():
             _end_group(self.proc)
             why = (f"its {self.timeout_s:.0f} s timeout" if limit == left
                    else "the end of the check's time budget")
             return StepResult(self.name, TIMEOUT, time.monotonic() - self.start, reason=f"stopped at {why}",
                               log=str(self.log))
-        self._reaper.join(timeout=5)
-        seconds = (self.ended or time.monotonic()) - self.start
+        rc, seconds = self.proc.returncode, self.ended - self.start
         if rc != 0:
             return StepResult(self.name, FAILED, seconds, reason=f"exit status {rc}: {last_line(self.log)}",
                               log=str(self.log))

@@ -38,11 +38,11 @@ from __future__ import annotations
 import numpy as np
 
 from scenes.cameras import backproject
-from smokeseer.stage1.haze_lines import observations
+from smokeseer.stage1.haze_lines import HazeLineSettings, observations
 
-DEPTH_TOLERANCE = 0.03
+DEPTH_TOLERANCE = HazeLineSettings().depth_tolerance
 """Another frame sees the point when its rendered depth there is within this fraction of the
-point's depth (the haze-line estimate's tolerance, for the same geometry)."""
+point's depth: the haze-line estimate's tolerance, for the same geometry."""
 
 
 def _views_of_masked_points(values: np.ndarray, masks: np.ndarray, depths: np.ndarray, valid: np.ndarray,
