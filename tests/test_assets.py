@@ -243,8 +243,11 @@ def test_every_recipe_builds_deterministic_geometry(recipe_probe: dict) -> None:
         first, again = recipe_probe[name], recipe_probe[name + "#again"]
         assert first["verts"] >= 4, name
         assert first.keys() == again.keys(), name
-        for key in first:  # the volume sums floats in mesh order: equal to rounding, not bit for bit
-            assert np.allclose(first[key], again[key], rtol=1e-12, atol=0), f"{name} is not deterministic ({key})"
+        # Blender's threads may sum a vertex normal's face terms in any order, so displaced vertices
+        # agree to float32 rounding (seen: 5.6e-10 relative in the volume), not bit for bit. A changed
+        # seed moves the bun's volume by 0.4 %.
+        for key in first:
+            assert np.allclose(first[key], again[key], rtol=1e-6, atol=1e-7), f"{name} is not deterministic ({key})"
         extent = np.subtract(first["max"], first["min"])
         assert np.all(extent < 60.0) and extent.max() > 0.01, name
     assert recipe_probe["scene"]["leftovers"] == [] and recipe_probe["scene"]["textures"] == 0
