@@ -33,6 +33,7 @@ from smokeseer.train.mask_floor import estimated_dense, never_seen_clear
 from smokeseer.train.plan import Stage3Plan, plan_stage3
 from smokeseer.train.stage2 import train_stage2, views_of
 from smokeseer.train.stage3 import build_scene_model, train_stage3
+from smokeseer.train.surface_union import TwoSurfaces, join_surfaces
 from smokeseer.train.util import RunContext, RunLog
 
 
@@ -183,6 +184,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
     deformable = cfg.mode == "deformable-3dgs"
     estimate = None
     smoke_colour: SmokeColourEstimate | None = None
+    joined: TwoSurfaces | None = None
     if cfg.profile == "paper" and dev.type == "cpu":
         estimate = estimate_cpu_seconds(ctx, geo, init)
         ctx.log_line(f"profile paper on the CPU: {cfg.stage2.iterations} + {cfg.stage3.iterations} iterations, "
@@ -208,8 +210,17 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
         ctx.log_line("stage 3: skipped (deformable-3dgs baseline has one deformable set)")
     else:
         smoke_pts = _sample(scene.rgb, cfg.stage3.smoke_points, b, rng) if plan.use_smoke else None
+        two_surfaces = cfg.stage3.surface_init == "thermal+rgb" and plan.use_thermal
         rgb_depth = (rendered_depth_prior(s2.gaussians, views_of(scene.rgb, scene.rgb.indices("train"), dev), "rgb")
-                     if plan.smoke_colour == "haze-lines" or plan.mask_floor != "all" else None)
+                     if plan.smoke_colour == "haze-lines" or plan.mask_floor != "all" or two_surfaces else None)
+        if two_surfaces:
+            t_rgb = time.perf_counter()
+            rgb_init = scene.init_points if scene.init_points is not None and len(scene.init_points) >= 4 else \
+                _sample(scene.rgb, cfg.stage2.init_points, b, np.random.default_rng(cfg.seed))
+            joined = join_surfaces(ctx, scene.rgb, rgb_init, s2, rgb_depth)
+            wall["stage2_rgb"] = time.perf_counter() - t_rgb
+            plan.notes.append(joined.describe())
+            ctx.log_line(f"stage 3: {joined.describe()} (RGB Stage 2 in {wall['stage2_rgb']:.1f} s)")
         if plan.smoke_colour == "haze-lines":
             smoke_colour = haze_line_smoke_colour(cfg, rgb_depth, scene.rgb)
             ctx.log_line(f"stage 3: smoke colour from haze lines: {smoke_colour.describe()}")
@@ -227,14 +238,15 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
                     f"of the masked training pixels: {rest} (loss.mask_floor_where={plan.mask_floor})")
             plan.notes.append(note)
             ctx.log_line(f"stage 3: {note}")
-        model = build_scene_model(ctx, s2, plan, smoke_pts, scene.smoke_static)
+        model = build_scene_model(ctx, s2, plan, smoke_pts, scene.smoke_static,
+                                  rgb_s2=joined.rgb if joined else None, surface=joined.surface if joined else None)
         prior = depth_prior_maps(cfg, plan, s2.gaussians, scene, dev)
         if prior is not None:
             ctx.log_line(f"stage 3: depth term at the {prior.camera} camera ({cfg.depth_prior} prior, "
                          f"{prior.maps.shape[0]} training views)")
         model = train_stage3(ctx, model, scene.rgb, scene.thermal, plan, prior,
                              heldout_psnr=lambda m, it: heldout_psnr(m, scene, dev))
-        wall["stage3"] = time.perf_counter() - t
+        wall["stage3"] = time.perf_counter() - t - wall.get("stage2_rgb", 0.0)
         ctx.log_line(f"stage 3: {model.surface.n} surface + {model.smoke.n if model.smoke else 0} smoke "
                      f"Gaussians in {wall['stage3']:.1f} s")
     t = time.perf_counter()
@@ -260,6 +272,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
                      "surface_gaussians": model.surface.n, "deformation": plan.use_deform,
                      "registration": report.registration, "masks": report.masks, "poses": scene.poses,
                      "smoke_colour": smoke_colour_record(plan, smoke_colour),
+                     "surface_union": joined.record if joined else None,
                      "thermal_scale": thermal_record,
                      "stage3_plan": None if deformable else plan.record(),
                      "notes": list(report.notes) + list(plan.notes)}

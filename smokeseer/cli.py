@@ -2,7 +2,7 @@
 
 Bad input (options, dataset, a damaged checkpoint) prints one error line and exits 2, and
 leaves nothing new in RUN_DIR; a diverged run (NaN) exits 1 after writing the last good state
-to checkpoints/stageN_nan.pt and a failed metrics.json.
+to checkpoints/stageN_nan.pt (stage2_rgb_nan.pt for the RGB Stage 2 of a two-surface run) and a failed metrics.json.
 """
 from __future__ import annotations
 
@@ -79,8 +79,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"train-and-evaluate: error: {exc}", file=sys.stderr)
         return 2
     except NaNDetected as exc:
-        print(f"train-and-evaluate: diverged: {exc}; last good state in "
-              f"{args.out / 'checkpoints' / f'stage{exc.stage}_nan.pt'}", file=sys.stderr)
+        print(f"train-and-evaluate: diverged: {exc}; last good state in {exc.last_good}", file=sys.stderr)
         return 1
     m = doc["metrics"]
     print(json.dumps({"status": doc["status"], "psnr": m["psnr"], "psnr_input": m["psnr_input"],

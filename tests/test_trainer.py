@@ -139,6 +139,27 @@ def test_full_run_outputs_and_resume(splat: Path, tmp_path: Path) -> None:
     assert {r["stage"] for r in new_rows} == {"3"} and int(new_rows[0]["iteration"]) == 3
 
 
+def test_two_surface_run_joins_both_stage2s_and_resumes(splat: Path, tmp_path: Path) -> None:
+    """stage3.surface_init=thermal+rgb: a second Stage 2 on the RGB frames, with its own checkpoint
+    and no rows of its own in train_log.csv; Stage 3 starts from the thermal Gaussians plus the
+    kept RGB ones, as metrics.json records; a rerun trains nothing again."""
+    run = tmp_path / "run"
+    two = TINY + ["--set", "stage3.surface_init=thermal+rgb"]
+    assert main([str(splat), "--out", str(run)] + two) == 0
+    doc = _assert_complete(run)
+    union = doc["stages"]["surface_union"]
+    assert 0 < union["rgb_kept"] <= union["rgb"] and union["thermal"] > 0
+    assert doc["stages"]["surface_gaussians"] == union["thermal"] + union["rgb_kept"]  # no surface densification here
+    assert any(n.startswith("surface from both Stage 2s") for n in doc["stages"]["notes"])
+    assert torch.load(run / "checkpoints" / "stage2_rgb.pt", weights_only=False)["done"]
+    keys = [(r["stage"], r["iteration"]) for r in _log_rows(run)]
+    assert len(keys) == len(set(keys))
+    n_rows = len(keys)
+    assert main([str(splat), "--out", str(run)] + two) == 0
+    assert len(_log_rows(run)) == n_rows
+    assert json.loads((run / "metrics.json").read_text())["metrics"] == doc["metrics"]
+
+
 class _Interrupted(Exception):
     """Stands for a killed process: raised inside Stage 3, caught by the test."""
 

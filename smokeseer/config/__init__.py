@@ -27,6 +27,7 @@ MODES: tuple[str, ...] = (
 )
 PROFILES: tuple[str, ...] = ("quick", "standard", "paper")
 SMOKE_COLOR_SOURCES: tuple[str, ...] = ("learned", "haze-lines")
+SURFACE_INITS: tuple[str, ...] = ("thermal", "thermal+rgb")
 MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "estimated")
 LPIPS_NETS: tuple[str, ...] = ("alex", "vgg")
 
@@ -171,6 +172,13 @@ class Stage3Config:
     Stage 2's geometry) and held fixed; where the estimate is not trusted (thin smoke: the lines
     do not meet) the run learns it as the paper does and says so. Under dense smoke the images
     alone let a brighter, denser smoke stand in for a darker surface (docs/method.md)."""
+    surface_init: str = "thermal"
+    """Where Stage 3's surface starts. "thermal": the thermal Stage 2 (the paper). "thermal+rgb":
+    also a Stage 2 on the smoky RGB frames (RGB-only's), whose Gaussians join the thermal ones
+    unless they sit in front of the thermal surface (``smokeseer.train.surface_union``)."""
+    carve_tolerance: float = 0.05
+    """With surface_init=thermal+rgb: an RGB Gaussian nearer than (1 − this) × the thermal
+    surface's depth in most views that see it is smoke taken for surface, and is dropped."""
     test_every: int = 1000
 
 
@@ -248,6 +256,10 @@ class TrainConfig:
         if self.stage3.smoke_color not in SMOKE_COLOR_SOURCES:
             raise ValueError(f"stage3.smoke_color: {self.stage3.smoke_color!r} is not one of "
                              f"{', '.join(SMOKE_COLOR_SOURCES)}")
+        if self.stage3.surface_init not in SURFACE_INITS:
+            raise ValueError(f"stage3.surface_init: {self.stage3.surface_init!r} is not one of {', '.join(SURFACE_INITS)}")
+        if not 0.0 <= self.stage3.carve_tolerance < 1.0:
+            raise ValueError(f"stage3.carve_tolerance: must be in [0, 1), got {self.stage3.carve_tolerance}")
         if not 0.0 < self.stage3.surface_densify_max_smoke <= 1.0:
             raise ValueError("stage3.surface_densify_max_smoke: must be in (0, 1], "
                              f"got {self.stage3.surface_densify_max_smoke}")

@@ -34,6 +34,8 @@ class StageProblem(ABC):
 
     stage: int
     name: str
+    checkpoint: str
+    """The checkpoint's file stem under ``checkpoints/`` (``stage2``, ``stage3``, ...)."""
 
     @abstractmethod
     def forward(self, it: int) -> IterationOutput:
@@ -64,8 +66,8 @@ class StageProblem(ABC):
         """Restore what ``state`` returned."""
 
     @abstractmethod
-    def log_row(self, it: int, out: IterationOutput, heldout: dict[str, float | None] | None) -> dict[str, Any]:
-        """The train_log.csv row of iteration ``it``."""
+    def log_row(self, it: int, out: IterationOutput, heldout: dict[str, float | None] | None) -> dict[str, Any] | None:
+        """The train_log.csv row of iteration ``it``; None writes none."""
 
     def heldout_psnr(self, it: int) -> dict[str, float | None] | None:
         """Held-out PSNRs for the log (``val_psnr``, ``test_psnr``), or None where the stage has none."""
@@ -148,7 +150,7 @@ def resume(ctx: RunContext, problem: StageProblem, sched: StageSchedule) -> tupl
     """Load the stage's checkpoint if there is one for these settings: (start iteration, done). It
     also puts the run's RNG back where it stood, so a resumed run draws the views and splits an
     uninterrupted one would."""
-    path = ctx.checkpoint_path(problem.stage)
+    path = ctx.checkpoint_path(problem.checkpoint)
     payload = load_checkpoint(path, sched.checkpoint_sha, ctx.log_line)
     if payload is None:
         return 0, False
@@ -166,14 +168,14 @@ def resume(ctx: RunContext, problem: StageProblem, sched: StageSchedule) -> tupl
 def run_stage(ctx: RunContext, problem: StageProblem, sched: StageSchedule) -> None:
     """Train ``problem`` to ``sched.iterations``, resuming from its checkpoint. On a non-finite
     loss, gradient or parameter (after the optimiser step and densification) it writes
-    ``stageN_nan.pt`` holding the state that passed the previous iteration's check, and raises
+    ``<checkpoint>_nan.pt`` holding the state that passed the previous iteration's check, and raises
     NaNDetected. That state is a snapshot taken before the step, so a step or a densification
     that produces non-finite values never reaches the checkpoint. Loss terms are checked with
     the gradients after backward (a non-finite loss still names itself first)."""
     start, done = resume(ctx, problem, sched)
     if done:
         return
-    nan_path = ctx.out / "checkpoints" / f"stage{problem.stage}_nan.pt"
+    nan_path = ctx.checkpoint_path(f"{problem.checkpoint}_nan")
 
     def payload(it: int, finished: bool, state: dict[str, Any]) -> dict[str, Any]:
         return {"stage": problem.stage, "iteration": it, "done": finished, "config_sha256": sched.checkpoint_sha,
@@ -187,23 +189,27 @@ def run_stage(ctx: RunContext, problem: StageProblem, sched: StageSchedule) -> N
             try:
                 out.loss.backward()
                 guard(problem.stage, it, [(f"loss.{n}", v) for n, v in out.terms.items()] + problem.named_gradients())
-            except NaNDetected:
+            except NaNDetected as exc:
                 save_checkpoint(nan_path, payload(it - 1, False, problem.state()))
+                exc.last_good = nan_path
                 raise
             last_good = detached_copy(problem.state())
             problem.optimizer_step(it)
             problem.after_step(it, out)
             try:
                 guard(problem.stage, it, problem.named_parameters())
-            except NaNDetected:
+            except NaNDetected as exc:
                 save_checkpoint(nan_path, payload(it - 1, False, last_good))
+                exc.last_good = nan_path
                 raise
             del last_good
             if it % sched.log_every == 0 or it == total:
                 due = sched.test_every > 0 and (it % sched.test_every == 0 or it == total)
-                ctx.log.write(problem.log_row(it, out, problem.heldout_psnr(it) if due else None))
+                row = problem.log_row(it, out, problem.heldout_psnr(it) if due else None)
+                if row is not None:
+                    ctx.log.write(row)
                 bar.set_postfix(loss=f"{float(out.loss.detach()):.4f}")
             if sched.checkpoint_every and it % sched.checkpoint_every == 0 and it < total:
-                save_checkpoint(ctx.checkpoint_path(problem.stage), payload(it, False, problem.state()))
+                save_checkpoint(ctx.checkpoint_path(problem.checkpoint), payload(it, False, problem.state()))
             collect()
-    save_checkpoint(ctx.checkpoint_path(problem.stage), payload(total, True, problem.state()))
+    save_checkpoint(ctx.checkpoint_path(problem.checkpoint), payload(total, True, problem.state()))

@@ -74,9 +74,9 @@ class Stage2Problem(StageProblem):
     name = "stage 2"
 
     def __init__(self, ctx: RunContext, mod: ModalityData, init_points: np.ndarray, deformable: bool,
-                 heldout_psnr: Stage2HeldoutPsnr | None) -> None:
+                 heldout_psnr: Stage2HeldoutPsnr | None, checkpoint: str = "stage2") -> None:
         cfg, dev = ctx.cfg, ctx.device
-        self.ctx, self.cfg, self.heldout_fn = ctx, cfg, heldout_psnr
+        self.ctx, self.cfg, self.heldout_fn, self.checkpoint = ctx, cfg, heldout_psnr, checkpoint
         self.color = "thermal" if mod.name == "thermal" else "rgb"
         tensors = init_gaussians(init_points, cfg.stage2.init_opacity, cfg.stage2.init_scale_max * ctx.extent, dev)
         if self.color == "thermal":
@@ -148,7 +148,9 @@ class Stage2Problem(StageProblem):
                 module.load_state_dict(payload[key])
                 opt.load_state_dict(payload[f"{key}_optimizer"])
 
-    def log_row(self, it: int, out: IterationOutput, heldout: dict[str, float | None] | None) -> dict[str, Any]:
+    def log_row(self, it: int, out: IterationOutput, heldout: dict[str, float | None] | None) -> dict[str, Any] | None:
+        if self.checkpoint != "stage2":
+            return None  # a second Stage 2 (the RGB surface of a two-surface run) keeps train_log.csv one row per iteration
         row: dict[str, Any] = {"stage": 2, "iteration": it, "n_gaussians": self.g.n,
                                "loss": float(out.loss.detach()), **(heldout or {})}
         row.update({n: float(v.detach()) for n, v in out.terms.items()})
@@ -162,13 +164,15 @@ class Stage2Problem(StageProblem):
 
 
 def train_stage2(ctx: RunContext, mod: ModalityData, init_points: np.ndarray, deformable: bool,
-                 heldout_psnr: Stage2HeldoutPsnr | None = None) -> Stage2Result:
-    """Stage 2 through the shared loop; resumes from checkpoints/stage2.pt. Its checkpoint is keyed
-    by the Stage-2 settings only, so ablations that differ in Stage 3 share it."""
+                 heldout_psnr: Stage2HeldoutPsnr | None = None, checkpoint: str = "stage2",
+                 sha: str | None = None) -> Stage2Result:
+    """Stage 2 through the shared loop; resumes from checkpoints/<checkpoint>.pt. Its checkpoint is
+    keyed by the Stage-2 settings only (``sha``, by default the run's), so ablations that differ in
+    Stage 3 share it."""
     cfg = ctx.cfg
-    problem = Stage2Problem(ctx, mod, init_points, deformable, heldout_psnr)
+    problem = Stage2Problem(ctx, mod, init_points, deformable, heldout_psnr, checkpoint)
     run_stage(ctx, problem, StageSchedule(cfg.stage2.iterations, cfg.log_every, cfg.stage3.test_every,
-                                          cfg.checkpoint_every, ctx.stage2_sha))
+                                          cfg.checkpoint_every, sha or ctx.stage2_sha))
     return problem.result()
 
 

@@ -33,15 +33,19 @@ HeldoutPsnr = Callable[[SceneModel, int], dict[str, float | None] | None]
 
 
 def build_scene_model(ctx: RunContext, s2: Stage2Result, plan: Stage3Plan,
-                      smoke_points: np.ndarray | None, smoke_static: bool) -> SceneModel:
+                      smoke_points: np.ndarray | None, smoke_static: bool,
+                      rgb_s2: Stage2Result | None = None, surface: GaussianSet | None = None) -> SceneModel:
     """Surface from Stage 2 gains an RGB SH colour beside its thermal one (RGB-only runs already
-    have it); smoke starts random in the scene bounds. Stage 2's environment carries over for
-    its modality; the other modality's starts grey."""
+    have it), unless ``surface`` gives it (both Stage 2s joined); smoke starts random in the
+    scene bounds. Each Stage 2's environment carries over for its modality (``rgb_s2`` is the RGB
+    Stage 2 of a two-surface run); a modality without one starts grey."""
     cfg = ctx.cfg
-    tensors = {k: v.to(ctx.device) for k, v in s2.gaussians.state_dict().items()}
-    if "sh_dc" not in tensors:
-        add_rgb_sh(tensors, cfg.sh_degree)
-    surf = GaussianSet(tensors)
+    if surface is None:
+        tensors = {k: v.to(ctx.device) for k, v in s2.gaussians.state_dict().items()}
+        if "sh_dc" not in tensors:
+            add_rgb_sh(tensors, cfg.sh_degree)
+        surface = GaussianSet(tensors)
+    surf = surface
     smoke = None
     deform = None
     if plan.use_smoke and smoke_points is not None:
@@ -51,7 +55,8 @@ def build_scene_model(ctx: RunContext, s2: Stage2Result, plan: Stage3Plan,
         if plan.use_deform:
             deform = DeformNetwork(cfg.deform, ctx.extent, ctx.device)
     thermal_geometry = s2.color == "thermal"
-    bg_rgb = make_background(cfg, 3, ctx.device) if thermal_geometry else s2.background
+    bg_rgb = (rgb_s2.background if rgb_s2 is not None else make_background(cfg, 3, ctx.device)) \
+        if thermal_geometry else s2.background
     bg_thermal = s2.background if thermal_geometry else None
     return SceneModel(surf, smoke, deform, smoke_static or not plan.use_deform, ctx.center, cfg.sh_degree,
                       background_rgb=bg_rgb, background_thermal=bg_thermal)
@@ -83,6 +88,7 @@ class Stage3Problem(StageProblem):
 
     stage = 3
     name = "stage 3"
+    checkpoint = "stage3"
 
     def __init__(self, ctx: RunContext, model: SceneModel, rgb: ModalityData, thermal: ModalityData | None,
                  plan: Stage3Plan, prior: DepthPriorMaps | None,

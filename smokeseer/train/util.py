@@ -24,6 +24,8 @@ class NaNDetected(RuntimeError):
         self.stage = stage
         self.iteration = iteration
         self.tensor = tensor
+        self.last_good: Path | None = None
+        """The checkpoint holding the state before the step, set by the stage loop once it is written."""
 
 
 def exp_lr(step: int, total: int, lr_init: float, lr_final: float) -> float:
@@ -165,5 +167,5 @@ class RunContext:
         """One human-readable line per stage event, kept clear of the progress bars."""
         tqdm.write(f"[train-and-evaluate] {msg}", file=sys.stderr)
 
-    def checkpoint_path(self, stage: int) -> Path:
-        return self.out / "checkpoints" / f"stage{stage}.pt"
+    def checkpoint_path(self, name: str) -> Path:
+        return self.out / "checkpoints" / f"{name}.pt"

@@ -1,0 +1,119 @@
+"""Validation PSNR of candidate Full trainers (issue: thermal that never costs), beside the
+standard Full with the floor read off the images and the committed RGB-only runs.
+
+    python benchmarks/full_candidates.py NAME LABEL=RUN_DIR ... [--tables data/tables_standard]
+
+Each RUN_DIR is a finished ``train-and-evaluate DATASET --profile standard --seed S`` run; LABEL
+names its trainer (``estimated-floor`` for today's standard Full, or the candidate). For every
+scene and seed given, the committed RGB-only run of the same seed (trainer 6663d970) is added.
+Writes ``benchmarks/results/full_candidates/NAME.csv`` (every logged validation PSNR: the curves),
+``NAME_final.csv`` (last and best validation, test PSNR reported but never used to choose,
+counts and wall time) and ``NAME.png``. Choices read the validation columns only.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from contracts.atomic import atomic_path, write_rows_csv  # noqa: E402
+from contracts.train_log import read_train_log  # noqa: E402
+
+OUT = Path(__file__).resolve().parent / "results" / "full_candidates"
+RGB_ONLY_TRAINER = "6663d970"
+RGB_ONLY_LABEL = f"rgb-only ({RGB_ONLY_TRAINER}, true-alpha floor)"
+
+
+def read_run(label: str, run: Path) -> tuple[dict, list[dict]]:
+    """The run's summary and its validation curve (Stage 3 iterations)."""
+    doc = json.loads((run / "metrics.json").read_text())
+    if doc.get("status") != "ok":
+        raise ValueError(f"{run / 'metrics.json'}: status: {doc.get('status')!r}, not a finished run")
+    rows = [r for r in read_train_log(run / "train_log.csv") if r.get("val_psnr") and r["stage"] == "3"]
+    if not rows:
+        raise ValueError(f"{run / 'train_log.csv'}: val_psnr: no Stage-3 validation row")
+    curve = [{"scene": doc["scene"], "seed": int(doc["seed"]), "trainer": label, "iteration": int(r["iteration"]),
+              "wall_s": round(float(r["wall_s"]), 1), "val_psnr": round(float(r["val_psnr"]), 3)} for r in rows]
+    best = max(curve, key=lambda r: r["val_psnr"])
+    summary = {"scene": doc["scene"], "seed": int(doc["seed"]), "trainer": label,
+               "val_psnr": round(float(doc["validation"]["psnr"]), 3), "best_val_psnr": best["val_psnr"],
+               "best_at": best["iteration"], "test_psnr": round(float(doc["metrics"]["psnr"]), 3),
+               "surface": int(doc["stages"]["surface_gaussians"]), "smoke": int(doc["stages"]["smoke_gaussians"]),
+               "wall_s": round(float(doc["wall_time_s"]["total"]), 1),
+               "digest": doc["provenance"]["source_digest"][:8], "run": run.name}
+    return summary, curve
+
+
+def committed_rgb_only(tables: Path, scene: str, seed: int) -> Path:
+    for run in sorted((tables / "runs" / scene / "rgb-only").glob(f"seed{seed}-*")):
+        doc = json.loads((run / "metrics.json").read_text())
+        if doc.get("status") == "ok" and doc["provenance"]["source_digest"].startswith(RGB_ONLY_TRAINER):
+            return run
+    raise ValueError(f"{tables / 'runs' / scene / 'rgb-only'}: no finished seed-{seed} run of trainer {RGB_ONLY_TRAINER}")
+
+
+def plot(curves: list[dict], path: Path) -> None:
+    scenes = list(dict.fromkeys((c["scene"], c["seed"]) for c in curves))
+    fig, axes = plt.subplots(1, len(scenes), figsize=(4 * len(scenes), 3.6), squeeze=False)
+    for ax, (scene, seed) in zip(axes[0], scenes):
+        for label in dict.fromkeys(c["trainer"] for c in curves):
+            pts = [c for c in curves if (c["scene"], c["seed"], c["trainer"]) == (scene, seed, label)]
+            if pts:
+                ax.plot([p["iteration"] for p in pts], [p["val_psnr"] for p in pts], "-o", ms=3, label=label)
+        ax.set_title(f"{scene}, seed {seed}")
+        ax.set_xlabel("Stage-3 iteration")
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("validation PSNR (dB)")
+    axes[0][0].legend(fontsize=8)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("name")
+    p.add_argument("runs", nargs="+", help="LABEL=RUN_DIR")
+    p.add_argument("--tables", type=Path, default=Path("data/tables_standard"))
+    args = p.parse_args(argv)
+    summaries, curves = [], []
+    try:
+        given = []
+        for item in args.runs:
+            label, sep, run = item.partition("=")
+            if not sep or not label or not run:
+                raise ValueError(f"{item}: give LABEL=RUN_DIR")
+            given.append((label, Path(run)))
+        for label, run in given:
+            s, c = read_run(label, run)
+            summaries.append(s)
+            curves += c
+        for scene, seed in dict.fromkeys((s["scene"], s["seed"]) for s in list(summaries)):
+            s, c = read_run(RGB_ONLY_LABEL, committed_rgb_only(args.tables, scene, seed))
+            summaries.append(s)
+            curves += c
+    except (OSError, ValueError, KeyError) as exc:
+        print(f"full_candidates: error: {exc}", file=sys.stderr)
+        return 2
+    summaries.sort(key=lambda s: (s["scene"], s["seed"], s["trainer"]))
+    curves.sort(key=lambda c: (c["scene"], c["seed"], c["trainer"], c["iteration"]))
+    OUT.mkdir(parents=True, exist_ok=True)
+    write_rows_csv(OUT / f"{args.name}.csv", curves)
+    write_rows_csv(OUT / f"{args.name}_final.csv", summaries)
+    plot(curves, OUT / f"{args.name}.png")
+    for s in summaries:
+        print(f"{s['scene']} seed {s['seed']} {s['trainer']:>38}: validation {s['val_psnr']:.2f} dB "
+              f"(best {s['best_val_psnr']:.2f} at {s['best_at']}), {s['wall_s'] / 60:.0f} min")
+    print(f"wrote {OUT / args.name}.csv, _final.csv, .png")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

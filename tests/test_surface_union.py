@@ -1,0 +1,88 @@
+"""Stage 3's two-surface start: carving RGB Gaussians in front of the thermal surface, and the join."""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from smokeseer.model.gaussians import GaussianSet
+from smokeseer.model.scene import add_rgb_sh, make_view
+from smokeseer.train.depth_prior import DepthPriorMaps
+from smokeseer.train.surface_union import carve_in_front, union_surface
+
+W, H, F = 40, 30, 20.0
+
+
+def _camera(shift_x: float) -> np.ndarray:
+    """World-to-camera of a camera at (shift_x, 0, 0) looking down +z (OpenCV axes)."""
+    m = np.eye(4)
+    m[0, 3] = -shift_x
+    return m
+
+
+def _views(shifts: list[float]):
+    K = np.array([[F, 0, W / 2], [0, F, H / 2], [0, 0, 1.0]])
+    return [make_view(_camera(s), K, W, H, 0.0, torch.device("cpu")) for s in shifts]
+
+
+def _wall(n: int, depth: float, valid_cols: int = W) -> DepthPriorMaps:
+    maps = torch.full((n, H, W), depth)
+    valid = torch.zeros((n, H, W), dtype=torch.bool)
+    valid[:, :, :valid_cols] = True
+    return DepthPriorMaps(maps, valid, "depth", "rgb")
+
+
+def test_points_in_front_of_the_wall_are_carved_and_the_rest_kept() -> None:
+    views = _views([0.0, 0.1, -0.1])
+    means = torch.tensor([[0.0, 0.0, 1.0],     # half-way to the wall: smoke taken for surface
+                          [0.0, 0.0, 1.95],    # on the wall, within the 5 % tolerance
+                          [0.0, 0.0, 1.85],    # 7.5 % in front: carved
+                          [0.0, 0.0, 3.0],     # behind the wall (hidden), kept
+                          [50.0, 0.0, 1.0],    # outside every view: nothing checks it
+                          [0.0, 0.0, -1.0]])   # behind the cameras
+    c = carve_in_front(means, _wall(3, 2.0), views, 0.05)
+    assert c.keep.tolist() == [False, True, False, True, True, True]
+    assert c.seen.tolist() == [3, 3, 3, 3, 0, 0]
+    assert c.in_front.tolist() == [3, 0, 3, 0, 0, 0]
+
+
+def test_a_minority_of_views_in_front_does_not_carve() -> None:
+    """In front of the surface in one view of three (hidden behind it in the others): kept. On
+    pixels without valid thermal depth: nothing checks it, kept."""
+    views = _views([0.0, 0.0, 0.0])
+    depth = _wall(3, 2.0)
+    depth.maps[1:] = 0.5  # two views' surface nearer than the point: it is behind it there
+    means = torch.tensor([[0.0, 0.0, 1.0]])
+    c = carve_in_front(means, depth, views, 0.05)
+    assert c.seen.tolist() == [3] and c.in_front.tolist() == [1] and c.keep.tolist() == [True]
+    c = carve_in_front(means, _wall(3, 2.0, valid_cols=W // 2), views, 0.05)  # centre column is W/2: invalid
+    assert c.seen.tolist() == [0] and c.keep.tolist() == [True]
+
+
+def _set(points: list[list[float]], extra: dict[str, torch.Tensor]) -> GaussianSet:
+    n = len(points)
+    t = {"means": torch.tensor(points), "quats": torch.tensor([[1.0, 0, 0, 0]] * n),
+         "log_scales": torch.zeros(n, 3), "opacity": torch.zeros(n, 1)}
+    t.update(extra)
+    return GaussianSet(t)
+
+
+def test_union_takes_each_colour_from_the_nearest_gaussian_of_the_other_set() -> None:
+    thermal = _set([[0.0, 0, 0], [10.0, 0, 0]], {"thermal": torch.tensor([[-2.0], [3.0]])})
+    rgb_t: dict[str, torch.Tensor] = {"means": torch.tensor([[0.5, 0, 0], [9.0, 0, 0], [4.0, 0, 0]])}
+    add_rgb_sh(rgb_t, 1, torch.tensor([[0.9, 0.1, 0.1], [0.1, 0.9, 0.1], [0.1, 0.1, 0.9]]))
+    rgb_t["sh_rest"] += 0.3
+    rgb = _set(rgb_t.pop("means").tolist(), rgb_t)
+    joined = union_surface(thermal, rgb, torch.tensor([True, True, False]), 1)
+    assert joined.n == 4
+    assert torch.equal(joined["means"][:2], thermal["means"]) and torch.equal(joined["means"][2:], rgb["means"][:2])
+    assert torch.equal(joined["thermal"].flatten(), torch.tensor([-2.0, 3.0, -2.0, 3.0]))
+    assert torch.equal(joined["sh_dc"][0], rgb["sh_dc"][0]) and torch.equal(joined["sh_dc"][1], rgb["sh_dc"][1])
+    assert torch.equal(joined["sh_rest"][:2], torch.zeros(2, 3, 3)) and torch.all(joined["sh_rest"][2:] == 0.3)
+    none_kept = union_surface(thermal, rgb, torch.zeros(3, dtype=torch.bool), 1)
+    assert none_kept.n == 2 and torch.allclose(none_kept["sh_dc"], _grey_dc(2))
+
+
+def _grey_dc(n: int) -> torch.Tensor:
+    t = {"means": torch.zeros(n, 3)}
+    add_rgb_sh(t, 1)
+    return t["sh_dc"]
