@@ -142,9 +142,10 @@ def test_full_run_outputs_and_resume(splat: Path, tmp_path: Path) -> None:
 def test_two_surface_run_joins_both_stage2s_and_resumes(splat: Path, tmp_path: Path) -> None:
     """stage3.surface_init=thermal+rgb: a second Stage 2 on the RGB frames, with its own checkpoint
     and no rows of its own in train_log.csv; Stage 3 starts from the thermal Gaussians plus the
-    kept RGB ones, as metrics.json records; a rerun trains nothing again."""
+    kept RGB ones, as metrics.json records; a rerun trains nothing again. The thermal loss is
+    taken on a render twice as fine, box-filtered."""
     run = tmp_path / "run"
-    two = TINY + ["--set", "stage3.surface_init=thermal+rgb"]
+    two = TINY + ["--set", "stage3.surface_init=thermal+rgb", "--set", "stage3.thermal_supersample=2"]
     assert main([str(splat), "--out", str(run)] + two) == 0
     doc = _assert_complete(run)
     union = doc["stages"]["surface_union"]

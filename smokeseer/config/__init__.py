@@ -179,6 +179,11 @@ class Stage3Config:
     carve_tolerance: float = 0.05
     """With surface_init=thermal+rgb: an RGB Gaussian nearer than (1 − this) × the thermal
     surface's depth in most views that see it is smoke taken for surface, and is dropped."""
+    thermal_supersample: int = 1
+    """Stage 3 renders each thermal training frame at this many times the sensor's resolution and
+    averages each block back to one sensor pixel, as the sensor integrates over its pixel (and as
+    the generator renders thermal). At 1 the Gaussians are drawn at the sensor's pixels with the
+    rasterizer's 0.3 px² dilation, which draws a surface grown for the RGB too fat in thermal."""
     test_every: int = 1000
 
 
@@ -258,6 +263,8 @@ class TrainConfig:
                              f"{', '.join(SMOKE_COLOR_SOURCES)}")
         if self.stage3.surface_init not in SURFACE_INITS:
             raise ValueError(f"stage3.surface_init: {self.stage3.surface_init!r} is not one of {', '.join(SURFACE_INITS)}")
+        if not 1 <= self.stage3.thermal_supersample <= 8:
+            raise ValueError(f"stage3.thermal_supersample: must be 1 to 8, got {self.stage3.thermal_supersample}")
         if not 0.0 <= self.stage3.carve_tolerance < 1.0:
             raise ValueError(f"stage3.carve_tolerance: must be in [0, 1), got {self.stage3.carve_tolerance}")
         if not 0.0 < self.stage3.surface_densify_max_smoke <= 1.0:

@@ -50,6 +50,18 @@ def make_view(viewmat: np.ndarray, K: np.ndarray, width: int, height: int, time:
                 torch.as_tensor(K, dtype=torch.float32, device=device)[None], width, height, time)
 
 
+def finer_view(view: View, factor: int) -> View:
+    """The same camera with ``factor``² pixels per pixel: pixel centres sit at +0.5, so scaling
+    the intrinsics makes each block of fine pixels tile exactly one pixel of ``view``."""
+    scale = torch.tensor([factor, factor, 1.0], dtype=view.K.dtype, device=view.K.device)
+    return View(view.viewmat, view.K * scale[None, :, None], view.width * factor, view.height * factor, view.time)
+
+
+def box_filter(image: Tensor, factor: int) -> Tensor:
+    """[1, H·f, W·f, C] → [1, H, W, C], the mean of each f × f block (a sensor pixel's area)."""
+    return torch.nn.functional.avg_pool2d(image.permute(0, 3, 1, 2), factor).permute(0, 2, 3, 1)
+
+
 def init_gaussians(points: np.ndarray, opacity: float, max_scale: float, device: torch.device) -> dict[str, Tensor]:
     """3DGS initialisation: identity rotation, kNN isotropic scale capped at ``max_scale``
     (sparse random clouds otherwise start with Gaussians covering whole images, which costs

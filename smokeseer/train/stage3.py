@@ -19,7 +19,7 @@ from smokeseer.config import TrainConfig, at_iteration
 from smokeseer.model.deform import DeformNetwork
 from smokeseer.model.gaussians import DensifyStrategy, GaussianSet, make_optimizer
 from smokeseer.model.optim import Adam
-from smokeseer.model.scene import SceneModel, add_rgb_sh, make_smoke
+from smokeseer.model.scene import SceneModel, add_rgb_sh, box_filter, finer_view, make_smoke
 from smokeseer.raster.output import RasterOutput
 from smokeseer.train.depth_prior import DepthPriorMaps
 from smokeseer.train.loop import IterationOutput, StageProblem, StageSchedule, run_stage
@@ -113,14 +113,21 @@ class Stage3Problem(StageProblem):
                            if self.masks is not None and plan.floor_pixels is not None else None)
         self.th_views: list = []
         self.th_imgs = None
+        self.th_factor = 1
         if plan.use_thermal and thermal is not None:
             th_idx = thermal.indices("train")
             self.th_views = views_of(thermal, th_idx, dev)
+            self.th_factor = cfg.stage3.thermal_supersample
+            if self.th_factor > 1:
+                self.th_views = [finer_view(v, self.th_factor) for v in self.th_views]
             self.th_imgs = torch.as_tensor(thermal.images[th_idx], device=dev)
         self.depth_on = prior is not None and self.weights["depth"] > 0
         self.depth_on_thermal = self.depth_on and prior.camera == "thermal"
         if self.depth_on_thermal and self.th_imgs is None:
             raise ValueError("stage 3: the depth prior is on the thermal camera but this run has no thermal images")
+        if self.depth_on_thermal and self.th_factor > 1:
+            raise ValueError("stage3.thermal_supersample: the depth term at the thermal camera compares at the "
+                             "sensor's pixels; use 1 with it")
 
     def _make_optimizers(self) -> None:
         cfg, model = self.cfg, self.model
@@ -146,7 +153,8 @@ class Stage3Problem(StageProblem):
             j = draw_index(self.ctx, len(self.th_views))
             tout = model.render_thermal(self.th_views[j], deform_active=deform_on,
                                         surface_depth=self.depth_on_thermal)
-            terms["render_thermal"] = render_loss(tout.colors[0], self.th_imgs[j], cfg.loss.dssim)
+            thermal = tout.colors if self.th_factor == 1 else box_filter(tout.colors, self.th_factor)
+            terms["render_thermal"] = render_loss(thermal[0], self.th_imgs[j], cfg.loss.dssim)
             if self.depth_on_thermal:
                 depth_source = (tout, j)
         if model.smoke is not None:
