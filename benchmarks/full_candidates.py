@@ -50,12 +50,13 @@ def read_run(label: str, run: Path) -> tuple[dict, list[dict]]:
     return summary, curve
 
 
-def committed_rgb_only(tables: Path, scene: str, seed: int) -> Path:
-    for run in sorted((tables / "runs" / scene / "rgb-only").glob(f"seed{seed}-*")):
+def committed_run(tables: Path, scene: str, method: str, seed: int, trainer: str) -> Path:
+    """The table's finished run of ``method`` on ``scene`` at ``seed`` whose code digest starts with ``trainer``."""
+    for run in sorted((tables / "runs" / scene / method).glob(f"seed{seed}-*")):
         doc = json.loads((run / "metrics.json").read_text())
-        if doc.get("status") == "ok" and doc["provenance"]["source_digest"].startswith(RGB_ONLY_TRAINER):
+        if doc.get("status") == "ok" and doc["provenance"]["source_digest"].startswith(trainer):
             return run
-    raise ValueError(f"{tables / 'runs' / scene / 'rgb-only'}: no finished seed-{seed} run of trainer {RGB_ONLY_TRAINER}")
+    raise ValueError(f"{tables / 'runs' / scene / method}: no finished seed-{seed} run of trainer {trainer}")
 
 
 def plot(curves: list[dict], path: Path) -> None:
@@ -96,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
             summaries.append(s)
             curves += c
         for scene, seed in dict.fromkeys((s["scene"], s["seed"]) for s in list(summaries)):
-            s, c = read_run(RGB_ONLY_LABEL, committed_rgb_only(args.tables, scene, seed))
+            s, c = read_run(RGB_ONLY_LABEL, committed_run(args.tables, scene, "rgb-only", seed, RGB_ONLY_TRAINER))
             summaries.append(s)
             curves += c
     except (OSError, ValueError, KeyError) as exc:

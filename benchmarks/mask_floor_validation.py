@@ -17,6 +17,7 @@ from pathlib import Path
 
 from contracts.atomic import write_rows_csv
 from contracts.train_log import read_train_log
+from full_candidates import committed_run
 
 RESULTS = Path(__file__).resolve().parent / "results"
 TRUE_ALPHA_TRAINER = "6663d970"
@@ -36,11 +37,7 @@ def last_scores(run: Path) -> dict:
 
 
 def committed(tables: Path, scene: str, method: str, seed: int) -> dict:
-    for run in sorted((tables / "runs" / scene / method).glob(f"seed{seed}-*")):
-        doc = json.loads((run / "metrics.json").read_text())
-        if doc.get("status") == "ok" and doc["provenance"]["source_digest"].startswith(TRUE_ALPHA_TRAINER):
-            return last_scores(run)
-    raise ValueError(f"{tables / 'runs' / scene / method}: no finished seed-{seed} run of trainer {TRUE_ALPHA_TRAINER}")
+    return last_scores(committed_run(tables, scene, method, seed, TRUE_ALPHA_TRAINER))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -91,6 +91,16 @@ def project(points: np.ndarray, viewmat: np.ndarray, K: np.ndarray
     return K[0, 0] * pc[:, 0] / safe + K[0, 2], K[1, 1] * pc[:, 1] / safe + K[1, 2], z, ahead
 
 
+def pixels_of(points: np.ndarray, viewmat: np.ndarray, K: np.ndarray, width: int, height: int
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Which points land inside the image in front of the camera, the column and row of the pixel
+    each of those lands in, and every point's camera depth z."""
+    u, v, z, ahead = project(points, viewmat, K)
+    u, v = np.floor(u), np.floor(v)
+    inside = ahead & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    return inside, u[inside].astype(int), v[inside].astype(int), z
+
+
 def backproject(depth: np.ndarray, pixels_uv: np.ndarray, viewmat: np.ndarray, K: np.ndarray) -> np.ndarray:
     """World points seen at pixel centres ``pixels_uv`` (n, 2, integer) with planar ``depth`` (n,):
     the inverse of ``project``."""

@@ -47,6 +47,14 @@ def _sample(mod: ModalityData, n: int, bounds: Any, rng: np.random.Generator) ->
                           np.array([x.height for x in f]), rng)
 
 
+def _init_points(scene: SceneData, mod: ModalityData, n: int, bounds: Any, rng: np.random.Generator) -> np.ndarray:
+    """Stage 2's starting points: the capture's SfM points when it has some, else ``n`` random ones
+    that ``mod``'s training cameras see."""
+    if scene.init_points is not None and len(scene.init_points) >= 4:
+        return scene.init_points
+    return _sample(mod, n, bounds, rng)
+
+
 def _metrics_doc(prep: PreparedRun, status: str) -> dict[str, Any]:
     cfg = prep.cfg
     return {"format": RESULTS_FORMAT, "format_version": RESULTS_FORMAT_VERSION, "scene": prep.scene.name,
@@ -179,8 +187,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
     for note in plan.notes:
         ctx.log_line(f"stage 3: {note}")
     rng = np.random.default_rng(cfg.seed)
-    init = scene.init_points if scene.init_points is not None and len(scene.init_points) >= 4 else \
-        _sample(geo, cfg.stage2.init_points, b, rng)
+    init = _init_points(scene, geo, cfg.stage2.init_points, b, rng)
     deformable = cfg.mode == "deformable-3dgs"
     estimate = None
     smoke_colour: SmokeColourEstimate | None = None
@@ -215,8 +222,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
                      if plan.smoke_colour == "haze-lines" or plan.mask_floor != "all" or two_surfaces else None)
         if two_surfaces:
             t_rgb = time.perf_counter()
-            rgb_init = scene.init_points if scene.init_points is not None and len(scene.init_points) >= 4 else \
-                _sample(scene.rgb, cfg.stage2.init_points, b, np.random.default_rng(cfg.seed))
+            rgb_init = _init_points(scene, scene.rgb, cfg.stage2.init_points, b, np.random.default_rng(cfg.seed))
             joined = join_surfaces(ctx, scene.rgb, rgb_init, s2, rgb_depth)
             wall["stage2_rgb"] = time.perf_counter() - t_rgb
             plan.notes.append(joined.describe())

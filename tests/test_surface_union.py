@@ -6,7 +6,6 @@ import torch
 
 from smokeseer.model.gaussians import GaussianSet
 from smokeseer.model.scene import add_rgb_sh, make_view
-from smokeseer.train.depth_prior import DepthPriorMaps
 from smokeseer.train.surface_union import carve_in_front, union_surface
 
 W, H, F = 40, 30, 20.0
@@ -19,27 +18,27 @@ def _camera(shift_x: float) -> np.ndarray:
     return m
 
 
-def _views(shifts: list[float]):
+def _cameras(shifts: list[float]) -> tuple[np.ndarray, np.ndarray]:
     K = np.array([[F, 0, W / 2], [0, F, H / 2], [0, 0, 1.0]])
-    return [make_view(_camera(s), K, W, H, 0.0, torch.device("cpu")) for s in shifts]
+    return np.stack([_camera(s) for s in shifts]), np.stack([K] * len(shifts))
 
 
-def _wall(n: int, depth: float, valid_cols: int = W) -> DepthPriorMaps:
-    maps = torch.full((n, H, W), depth)
-    valid = torch.zeros((n, H, W), dtype=torch.bool)
+def _wall(n: int, depth: float, valid_cols: int = W) -> tuple[np.ndarray, np.ndarray]:
+    maps = np.full((n, H, W), depth)
+    valid = np.zeros((n, H, W), dtype=bool)
     valid[:, :, :valid_cols] = True
-    return DepthPriorMaps(maps, valid, "depth", "rgb")
+    return maps, valid
 
 
 def test_points_in_front_of_the_wall_are_carved_and_the_rest_kept() -> None:
-    views = _views([0.0, 0.1, -0.1])
-    means = torch.tensor([[0.0, 0.0, 1.0],     # half-way to the wall: smoke taken for surface
+    cameras = _cameras([0.0, 0.1, -0.1])
+    means = np.array([[0.0, 0.0, 1.0],     # half-way to the wall: smoke taken for surface
                           [0.0, 0.0, 1.95],    # on the wall, within the 5 % tolerance
                           [0.0, 0.0, 1.85],    # 7.5 % in front: carved
                           [0.0, 0.0, 3.0],     # behind the wall (hidden), kept
                           [50.0, 0.0, 1.0],    # outside every view: nothing checks it
                           [0.0, 0.0, -1.0]])   # behind the cameras
-    c = carve_in_front(means, _wall(3, 2.0), views, 0.05)
+    c = carve_in_front(means, *_wall(3, 2.0), *cameras, 0.05)
     assert c.keep.tolist() == [False, True, False, True, True, True]
     assert c.seen.tolist() == [3, 3, 3, 3, 0, 0]
     assert c.in_front.tolist() == [3, 0, 3, 0, 0, 0]
@@ -48,13 +47,13 @@ def test_points_in_front_of_the_wall_are_carved_and_the_rest_kept() -> None:
 def test_a_minority_of_views_in_front_does_not_carve() -> None:
     """In front of the surface in one view of three (hidden behind it in the others): kept. On
     pixels without valid thermal depth: nothing checks it, kept."""
-    views = _views([0.0, 0.0, 0.0])
-    depth = _wall(3, 2.0)
-    depth.maps[1:] = 0.5  # two views' surface nearer than the point: it is behind it there
-    means = torch.tensor([[0.0, 0.0, 1.0]])
-    c = carve_in_front(means, depth, views, 0.05)
+    cameras = _cameras([0.0, 0.0, 0.0])
+    maps, valid = _wall(3, 2.0)
+    maps[1:] = 0.5  # two views' surface nearer than the point: it is behind it there
+    means = np.array([[0.0, 0.0, 1.0]])
+    c = carve_in_front(means, maps, valid, *cameras, 0.05)
     assert c.seen.tolist() == [3] and c.in_front.tolist() == [1] and c.keep.tolist() == [True]
-    c = carve_in_front(means, _wall(3, 2.0, valid_cols=W // 2), views, 0.05)  # centre column is W/2: invalid
+    c = carve_in_front(means, *_wall(3, 2.0, valid_cols=W // 2), *cameras, 0.05)  # centre column is W/2: invalid
     assert c.seen.tolist() == [0] and c.keep.tolist() == [True]
 
 

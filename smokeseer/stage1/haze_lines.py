@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scenes.cameras import backproject, project
+from scenes.cameras import backproject, pixels_of
 
 
 @dataclass(frozen=True)
@@ -64,10 +64,7 @@ def observations(points: np.ndarray, images: np.ndarray, depths: np.ndarray, val
     colours = np.zeros((n_frames, len(points), images.shape[-1]), dtype=np.float64)
     seen = np.zeros((n_frames, len(points)), dtype=bool)
     for f in range(n_frames):
-        u, v, z, ahead = project(points, viewmats[f], Ks[f])
-        u, v = np.floor(u), np.floor(v)
-        inside = ahead & (u >= 0) & (u < width) & (v >= 0) & (v < height)
-        iu, iv = u[inside].astype(int), v[inside].astype(int)
+        inside, iu, iv, z = pixels_of(points, viewmats[f], Ks[f], width, height)
         rendered = depths[f, iv, iu]
         ok = valid[f, iv, iu] & (np.abs(rendered - z[inside]) <= tolerance * z[inside])
         idx = np.nonzero(inside)[0][ok]

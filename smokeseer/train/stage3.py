@@ -45,7 +45,6 @@ def build_scene_model(ctx: RunContext, s2: Stage2Result, plan: Stage3Plan,
         if "sh_dc" not in tensors:
             add_rgb_sh(tensors, cfg.sh_degree)
         surface = GaussianSet(tensors)
-    surf = surface
     smoke = None
     deform = None
     if plan.use_smoke and smoke_points is not None:
@@ -58,7 +57,7 @@ def build_scene_model(ctx: RunContext, s2: Stage2Result, plan: Stage3Plan,
     bg_rgb = (rgb_s2.background if rgb_s2 is not None else make_background(cfg, 3, ctx.device)) \
         if thermal_geometry else s2.background
     bg_thermal = s2.background if thermal_geometry else None
-    return SceneModel(surf, smoke, deform, smoke_static or not plan.use_deform, ctx.center, cfg.sh_degree,
+    return SceneModel(surface, smoke, deform, smoke_static or not plan.use_deform, ctx.center, cfg.sh_degree,
                       background_rgb=bg_rgb, background_thermal=bg_thermal)
 
 

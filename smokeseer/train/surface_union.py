@@ -19,10 +19,11 @@ from scipy.spatial import cKDTree
 from torch import Tensor
 
 from scenes.scene import ModalityData
+from scenes.cameras import pixels_of
 from smokeseer.model.gaussians import GaussianSet
-from smokeseer.model.scene import View, add_rgb_sh
+from smokeseer.model.scene import add_rgb_sh
 from smokeseer.train.depth_prior import DepthPriorMaps
-from smokeseer.train.stage2 import Stage2Result, train_stage2, views_of
+from smokeseer.train.stage2 import Stage2Result, train_stage2
 from smokeseer.train.util import RunContext
 
 
@@ -30,31 +31,26 @@ from smokeseer.train.util import RunContext
 class CarveResult:
     """Which RGB Gaussians stay, and how many training views saw each one in front of the thermal surface."""
 
-    keep: Tensor
-    seen: Tensor
-    in_front: Tensor
+    keep: np.ndarray
+    seen: np.ndarray
+    in_front: np.ndarray
 
 
-def carve_in_front(means: Tensor, depth: DepthPriorMaps, views: list[View], tolerance: float) -> CarveResult:
+def carve_in_front(means: np.ndarray, depths: np.ndarray, valid: np.ndarray, viewmats: np.ndarray,
+                   Ks: np.ndarray, tolerance: float) -> CarveResult:
     """A Gaussian is carved when, in more than half of the training views where its centre lands on
-    the thermal surface's valid pixels, it is nearer than (1 − ``tolerance``) × that surface's
-    depth. Gaussians no view checks (sky, outside the thermal model's cover) stay."""
-    seen = torch.zeros(len(means), dtype=torch.int32, device=means.device)
-    in_front = torch.zeros_like(seen)
-    for k, view in enumerate(views):
-        r, t = view.viewmat[0, :3, :3], view.viewmat[0, :3, 3]
-        cam = means @ r.T + t
-        z = cam[:, 2]
-        fx, fy, cx, cy = view.K[0, 0, 0], view.K[0, 1, 1], view.K[0, 0, 2], view.K[0, 1, 2]
-        safe = z.clamp_min(1e-9)
-        u = torch.floor(fx * cam[:, 0] / safe + cx).long()
-        v = torch.floor(fy * cam[:, 1] / safe + cy).long()
-        inside = (z > 0) & (u >= 0) & (u < view.width) & (v >= 0) & (v < view.height)
-        uc, vc = u.clamp(0, view.width - 1), v.clamp(0, view.height - 1)
-        surface = depth.maps[k][vc, uc]
-        checked = inside & depth.valid[k][vc, uc]
-        seen += checked.int()
-        in_front += (checked & (z < (1.0 - tolerance) * surface)).int()
+    the thermal surface's valid pixels (``depths``/``valid``: that surface rendered at the cameras
+    ``viewmats``, ``Ks``), it is nearer than (1 − ``tolerance``) × that surface's depth. Gaussians
+    no view checks (sky, outside the thermal model's cover) stay."""
+    seen = np.zeros(len(means), dtype=np.int64)
+    in_front = np.zeros_like(seen)
+    n_frames, height, width = depths.shape
+    for f in range(n_frames):
+        inside, iu, iv, z = pixels_of(means, viewmats[f], Ks[f], width, height)
+        checked = valid[f, iv, iu]
+        idx = np.nonzero(inside)[0][checked]
+        seen[idx] += 1
+        in_front[idx[z[idx] < (1.0 - tolerance) * depths[f, iv[checked], iu[checked]]]] += 1
     return CarveResult(~(2 * in_front > seen), seen, in_front)
 
 
@@ -101,9 +97,11 @@ def join_surfaces(ctx: RunContext, rgb: ModalityData, init_points: np.ndarray, t
     cfg = ctx.cfg
     rgb_s2 = train_stage2(ctx, rgb, init_points, deformable=False, checkpoint="stage2_rgb",
                           sha=replace(cfg, mode="rgb-only").stage2_sha256())
-    views = views_of(rgb, rgb.indices("train"), ctx.device)
-    carve = carve_in_front(rgb_s2.gaussians["means"].detach(), thermal_depth, views, cfg.stage3.carve_tolerance)
-    surface = union_surface(thermal.gaussians, rgb_s2.gaussians, carve.keep, cfg.sh_degree)
+    carve = carve_in_front(rgb_s2.gaussians["means"].detach().cpu().numpy().astype(np.float64),
+                           thermal_depth.maps.cpu().numpy(), thermal_depth.valid.cpu().numpy(), *rgb.cameras("train"),
+                           cfg.stage3.carve_tolerance)
+    keep = torch.as_tensor(carve.keep, device=rgb_s2.gaussians["means"].device)
+    surface = union_surface(thermal.gaussians, rgb_s2.gaussians, keep, cfg.sh_degree)
     record = {"thermal": thermal.gaussians.n, "rgb": rgb_s2.gaussians.n, "rgb_kept": int(carve.keep.sum()),
               "rgb_unchecked": int((carve.seen == 0).sum()), "tolerance": cfg.stage3.carve_tolerance}
     return TwoSurfaces(surface, rgb_s2, record)
