@@ -11,10 +11,13 @@ least-squares fit of the camera centres. Umeyama on the centres alone cannot be 
 flyovers (straight paths) the rotation about the path is undetermined by the centres (it
 returned 127-152 degree errors), and on orbits it tilts with the centre noise.
 
-    python benchmarks/sfm_poses.py DATASET... [--mask-alpha none 0.5] [--out benchmarks/results/sfm_poses]
+    python benchmarks/sfm_poses.py DATASET... [--mask-alpha none 0.5] [--set FIELD=VALUE ...] [--no-thermal]
+        [--out benchmarks/results/sfm_poses]
 
 Writes ``OUT/NAME.csv`` (``--name``, default sfm_poses; one row per dataset and mask setting); each SfM run is timed on its
-own (no cache) and the load average is recorded.
+own (no cache) and the load average is recorded. ``--set`` overrides ``SfmSettings`` fields (recorded in the
+``settings`` column, with the mapper's filter values in effect), so settings can be compared on scenes held out
+from the ones they are reported on; ``--no-thermal`` skips the thermal SfM (and the rig estimate) when only RGB poses matter.
 """
 from __future__ import annotations
 
@@ -22,7 +25,7 @@ import argparse
 import math
 import os
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -162,6 +165,21 @@ def thermal_sfm(root: Path, settings: SfmSettings) -> tuple[SfmResult | None, st
                  f"({res.stats['keypoints_median']:.0f} features per frame)")
 
 
+def parse_settings(pairs: list[str]) -> SfmSettings:
+    """``FIELD=VALUE`` overrides of ``SfmSettings``, each value read as its field's default's type."""
+    defaults = {f.name: f.default for f in fields(SfmSettings)}
+    overrides: dict[str, object] = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or key not in defaults:
+            raise ValueError(f"--set {pair}: expected FIELD=VALUE with FIELD one of {', '.join(defaults)}")
+        try:
+            overrides[key] = type(defaults[key])(value)
+        except ValueError:
+            raise ValueError(f"--set {pair}: {value!r} is not a {type(defaults[key]).__name__}") from None
+    return SfmSettings(**overrides)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("datasets", nargs="+", type=Path)
@@ -169,15 +187,23 @@ def main() -> None:
                     help="smoke-opacity thresholds above which features are masked ('none': no mask)")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/sfm_poses"))
     ap.add_argument("--name", default="sfm_poses", help="the CSV's name in --out (without .csv)")
+    ap.add_argument("--set", nargs="+", default=[], metavar="FIELD=VALUE", help="override SfmSettings fields")
+    ap.add_argument("--no-thermal", action="store_true", help="RGB poses only: no thermal SfM (no rig estimate)")
     args = ap.parse_args()
-    settings = SfmSettings()
+    try:
+        settings = parse_settings(args.set)
+    except ValueError as exc:
+        ap.error(str(exc))
     rows = []
     for root in args.datasets:
         if not (root / transforms_name("rgb")).is_file():
             ap.error(f"{root}: no {transforms_name('rgb')} (not a generated dataset)")
-        thermal = thermal_sfm(root, settings)
+        thermal = (None, "not run (--no-thermal)") if args.no_thermal else thermal_sfm(root, settings)
         for m in args.mask_alpha:
             row = evaluate(root, None if m == "none" else float(m), settings, thermal)
+            row.update(settings=" ".join(args.set) or "defaults",
+                       filter_max_reproj_error_px=settings.filter_max_reproj_error,
+                       filter_min_tri_angle_deg=settings.filter_min_tri_angle)
             row["load_1min"] = round(os.getloadavg()[0], 2)
             print(", ".join(f"{k}={v}" for k, v in row.items()), flush=True)
             rows.append(row)

@@ -68,11 +68,11 @@ def sfm_settings(meta: dict[str, Any], source: Path) -> SfmSettings:
     block = meta.get("sfm", {})
     if not isinstance(block, dict):
         raise DatasetError(f"{source}: field 'sfm' must be an object")
-    known = [f.name for f in fields(SfmSettings)]
+    defaults = {f.name: f.default for f in fields(SfmSettings)}
     for key, value in block.items():
-        if key not in known:
-            raise DatasetError(f"{source}: field 'sfm.{key}' is unknown (known: {', '.join(known)})")
-        want = str if key == "matcher" else float if key == "min_registered" else int
+        if key not in defaults:
+            raise DatasetError(f"{source}: field 'sfm.{key}' is unknown (known: {', '.join(defaults)})")
+        want = type(defaults[key])
         if isinstance(value, bool) or not isinstance(value, (int, float) if want is float else want):
             raise DatasetError(f"{source}: field 'sfm.{key}' must be {'a string' if want is str else 'a number'}")
     try:
