@@ -8,7 +8,9 @@ names its trainer (``estimated-floor`` for today's standard Full, or the candida
 scene and seed given, the committed RGB-only run of the same seed (trainer 6663d970) is added.
 Writes ``benchmarks/results/full_candidates/NAME.csv`` (every logged validation PSNR: the curves),
 ``NAME_final.csv`` (last and best validation, test PSNR reported but never used to choose,
-counts and wall time) and ``NAME.png``. Choices read the validation columns only.
+counts, wall time, and the Stage-2 and Stage-3 seconds: a run that took a finished Stage 2
+of the same key from another run's checkpoint shows its Stage 2 as about 0 s) and
+``NAME.png``. Choices read the validation columns only.
 """
 from __future__ import annotations
 
@@ -46,6 +48,8 @@ def read_run(label: str, run: Path) -> tuple[dict, list[dict]]:
                "best_at": best["iteration"], "test_psnr": round(float(doc["metrics"]["psnr"]), 3),
                "surface": int(doc["stages"]["surface_gaussians"]), "smoke": int(doc["stages"]["smoke_gaussians"]),
                "wall_s": round(float(doc["wall_time_s"]["total"]), 1),
+               "stage2_s": round(sum(float(doc["wall_time_s"].get(k, 0.0)) for k in ("stage2", "stage2_rgb")), 1),
+               "stage3_s": round(float(doc["wall_time_s"]["stage3"]), 1),
                "digest": doc["provenance"]["source_digest"][:8], "run": run.name}
     return summary, curve
 
