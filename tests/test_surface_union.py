@@ -6,7 +6,7 @@ import torch
 
 from smokeseer.model.gaussians import GaussianSet
 from smokeseer.model.scene import add_rgb_sh, make_view
-from smokeseer.train.surface_union import carve_in_front, depths_agree, union_surface
+from smokeseer.train.surface_union import carve_in_front, union_surface
 
 W, H, F = 40, 30, 20.0
 
@@ -57,35 +57,6 @@ def test_a_minority_of_views_in_front_does_not_carve() -> None:
     assert c.seen.tolist() == [0] and c.keep.tolist() == [True]
 
 
-def test_depths_agree_within_the_tolerance_where_both_cover() -> None:
-    thermal, valid = _wall(1, 2.0)
-    rgb = np.full((1, H, W), 2.0)
-    rgb[0, :, 10] = 1.7   # 15 % in front: the smoke pulled the RGB's depth off the surface
-    rgb[0, :, 11] = 2.18  # 9 % behind
-    rgb_valid = np.ones((1, H, W), dtype=bool)
-    rgb_valid[0, :, 12] = False  # the RGB Stage 2 covers nothing there
-    valid[0, :, 13] = False
-    agree = depths_agree(rgb, rgb_valid, thermal, valid, 0.1)
-    assert agree[0, 0, [9, 10, 11, 12, 13]].tolist() == [True, False, True, False, False]
-    assert not depths_agree(rgb, rgb_valid, thermal, valid, 0.05)[0, 0, 11]
-
-
-def test_off_the_agreeing_pixels_in_most_views_is_carved() -> None:
-    """Behind the wall, so depth alone keeps it: it stays only where the RGB's own depth agreed
-    with the thermal surface's in most of the views that check it."""
-    cameras = _cameras([0.0, 0.0, 0.0])
-    maps, valid = _wall(3, 2.0)
-    means = np.array([[0.0, 0.0, 3.0], [50.0, 0.0, 1.0]])  # the second: no view checks it
-    agree = np.ones((3, H, W), dtype=bool)
-    agree[:2, H // 2, W // 2] = False  # two views of three: the smoke hid the surface at its pixel
-    c = carve_in_front(means, maps, valid, *cameras, 0.05, agree)
-    assert c.agreeing.tolist() == [1, 0] and c.keep.tolist() == [False, True]
-    agree[1, H // 2, W // 2] = True
-    c = carve_in_front(means, maps, valid, *cameras, 0.05, agree)
-    assert c.agreeing.tolist() == [2, 0] and c.keep.tolist() == [True, True]
-    assert carve_in_front(means, maps, valid, *cameras, 0.05).keep.tolist() == [True, True]
-
-
 def _set(points: list[list[float]], extra: dict[str, torch.Tensor]) -> GaussianSet:
     n = len(points)
     t = {"means": torch.tensor(points), "quats": torch.tensor([[1.0, 0, 0, 0]] * n),
@@ -108,19 +79,6 @@ def test_union_takes_each_colour_from_the_nearest_gaussian_of_the_other_set() ->
     assert torch.equal(joined["sh_rest"][:2], torch.zeros(2, 3, 3)) and torch.all(joined["sh_rest"][2:] == 0.3)
     none_kept = union_surface(thermal, rgb, torch.zeros(3, dtype=torch.bool), 1)
     assert none_kept.n == 2 and torch.allclose(none_kept["sh_dc"], _grey_dc(2))
-
-
-def test_a_thermal_gaussian_takes_no_colour_from_beyond_its_reach() -> None:
-    """Standard deviation 1 (log-scale 0), reach 3: the RGB Gaussian 2.9 away lends its colour,
-    the one 3.1 away does not, and the thermal Gaussian starts grey."""
-    thermal = _set([[0.0, 0, 0], [20.0, 0, 0]], {"thermal": torch.tensor([[-2.0], [3.0]])})
-    rgb_t: dict[str, torch.Tensor] = {"means": torch.tensor([[2.9, 0, 0], [16.9, 0, 0]])}
-    add_rgb_sh(rgb_t, 1, torch.tensor([[0.9, 0.1, 0.1], [0.1, 0.9, 0.1]]))
-    rgb = _set(rgb_t.pop("means").tolist(), rgb_t)
-    joined = union_surface(thermal, rgb, torch.tensor([True, True]), 1)
-    assert torch.equal(joined["sh_dc"][0], rgb["sh_dc"][0])
-    assert torch.allclose(joined["sh_dc"][1], _grey_dc(1)[0])
-    assert torch.equal(joined["thermal"].flatten(), torch.tensor([-2.0, 3.0, -2.0, 3.0]))
 
 
 def _grey_dc(n: int) -> torch.Tensor:

@@ -179,12 +179,6 @@ class Stage3Config:
     carve_tolerance: float = 0.05
     """With surface_init=thermal+rgb: an RGB Gaussian nearer than (1 − this) × the thermal
     surface's depth in most views that see it is smoke taken for surface, and is dropped."""
-    agree_tolerance: float = 0.0
-    """With surface_init=thermal+rgb, above 0: an RGB Gaussian also stays only where, in most
-    views that check it, the RGB Stage 2's own rendered depth lies within this fraction of the
-    thermal surface's. Smoke pulls the RGB's depth in front of the surface wherever it hides it
-    (room: by a median 22-43 % where its alpha exceeds 0.5), so there the RGB did not see the
-    surface, whatever single Gaussians lie behind it. 0: every uncarved Gaussian stays."""
     thermal_supersample: int = 1
     """Stage 3 renders each thermal training frame at this many times the sensor's resolution and
     averages each block back to one sensor pixel, as the sensor integrates over its pixel (and as
@@ -273,8 +267,6 @@ class TrainConfig:
             raise ValueError(f"stage3.thermal_supersample: must be 1 to 8, got {self.stage3.thermal_supersample}")
         if not 0.0 <= self.stage3.carve_tolerance < 1.0:
             raise ValueError(f"stage3.carve_tolerance: must be in [0, 1), got {self.stage3.carve_tolerance}")
-        if not 0.0 <= self.stage3.agree_tolerance < 1.0:
-            raise ValueError(f"stage3.agree_tolerance: must be in [0, 1), got {self.stage3.agree_tolerance}")
         if not 0.0 < self.stage3.surface_densify_max_smoke <= 1.0:
             raise ValueError("stage3.surface_densify_max_smoke: must be in (0, 1], "
                              f"got {self.stage3.surface_densify_max_smoke}")
