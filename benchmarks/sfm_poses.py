@@ -25,7 +25,7 @@ import argparse
 import math
 import os
 import time
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -166,18 +166,14 @@ def thermal_sfm(root: Path, settings: SfmSettings) -> tuple[SfmResult | None, st
 
 
 def parse_settings(pairs: list[str]) -> SfmSettings:
-    """``FIELD=VALUE`` overrides of ``SfmSettings``, each value read as its field's default's type."""
-    defaults = {f.name: f.default for f in fields(SfmSettings)}
-    overrides: dict[str, object] = {}
+    """``FIELD=VALUE`` overrides of ``SfmSettings``, each value read as its field's type."""
+    overrides: dict[str, str] = {}
     for pair in pairs:
         key, sep, value = pair.partition("=")
-        if not sep or key not in defaults:
-            raise ValueError(f"--set {pair}: expected FIELD=VALUE with FIELD one of {', '.join(defaults)}")
-        try:
-            overrides[key] = type(defaults[key])(value)
-        except ValueError:
-            raise ValueError(f"--set {pair}: {value!r} is not a {type(defaults[key]).__name__}") from None
-    return SfmSettings(**overrides)
+        if not sep:
+            raise ValueError(f"--set {pair}: expected FIELD=VALUE")
+        overrides[key] = value
+    return SfmSettings.from_overrides(overrides, text=True)
 
 
 def main() -> None:

@@ -9,7 +9,7 @@ assumed, saying why, where they do not.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -68,15 +68,8 @@ def sfm_settings(meta: dict[str, Any], source: Path) -> SfmSettings:
     block = meta.get("sfm", {})
     if not isinstance(block, dict):
         raise DatasetError(f"{source}: field 'sfm' must be an object")
-    defaults = {f.name: f.default for f in fields(SfmSettings)}
-    for key, value in block.items():
-        if key not in defaults:
-            raise DatasetError(f"{source}: field 'sfm.{key}' is unknown (known: {', '.join(defaults)})")
-        want = type(defaults[key])
-        if isinstance(value, bool) or not isinstance(value, (int, float) if want is float else want):
-            raise DatasetError(f"{source}: field 'sfm.{key}' must be {'a string' if want is str else 'a number'}")
     try:
-        return SfmSettings(**block)
+        return SfmSettings.from_overrides(block)
     except ValueError as exc:
         raise DatasetError(f"{source}: {exc}") from None
 

@@ -14,9 +14,9 @@ import json
 import os
 import tempfile
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -66,6 +66,29 @@ class SfmSettings:
             raise ValueError(f"sfm.filter_max_reproj_error: {self.filter_max_reproj_error} is not positive")
         if not 0.0 <= self.filter_min_tri_angle < 90.0:
             raise ValueError(f"sfm.filter_min_tri_angle: {self.filter_min_tri_angle} is not in [0, 90) degrees")
+
+    @classmethod
+    def from_overrides(cls, values: Mapping[str, Any], text: bool = False) -> SfmSettings:
+        """The defaults with ``values`` set, each field checked by name: typed values (JSON: an
+        integer may stand for a float, text may not) or, with ``text``, strings read as the field's
+        type (the command line). Raises ValueError naming ``sfm.FIELD``."""
+        defaults = {f.name: f.default for f in fields(cls)}
+        typed: dict[str, Any] = {}
+        for key, value in values.items():
+            if key not in defaults:
+                raise ValueError(f"sfm.{key}: unknown field (known: {', '.join(defaults)})")
+            want = type(defaults[key])
+            kind = "a string" if want is str else "an integer" if want is int else "a number"
+            if text:
+                try:
+                    typed[key] = want(value)
+                except ValueError:
+                    raise ValueError(f"sfm.{key}: {value!r} is not {kind}") from None
+            elif isinstance(value, bool) or not isinstance(value, (int, float) if want is float else want):
+                raise ValueError(f"sfm.{key}: {value!r} is not {kind}")
+            else:
+                typed[key] = want(value)
+        return cls(**typed)
 
 
 @dataclass

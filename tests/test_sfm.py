@@ -142,9 +142,15 @@ def test_settings_are_checked_and_set_from_the_command_line_and_capture_json() -
     assert parse_settings(["filter_max_reproj_error=2", "matcher=sequential"]) == SfmSettings(
         filter_max_reproj_error=2.0, matcher="sequential")
     with pytest.raises(ValueError, match="FIELD=VALUE"):
+        parse_settings(["reproj"])
+    with pytest.raises(ValueError, match=r"^sfm\.reproj: unknown field \(known: matcher, "):
         parse_settings(["reproj=2"])
-    with pytest.raises(ValueError, match="'two' is not a float"):
+    with pytest.raises(ValueError, match=r"^sfm\.filter_min_tri_angle: 'two' is not a number$"):
         parse_settings(["filter_min_tri_angle=two"])
     assert sfm_settings({"sfm": {"filter_min_tri_angle": 3}}, Path("capture.json")).filter_min_tri_angle == 3.0
-    with pytest.raises(DatasetError, match="'sfm.filter_min_tri_angle' must be a number"):
+    with pytest.raises(DatasetError, match=r"^capture\.json: sfm\.filter_min_tri_angle: '3' is not a number$"):
         sfm_settings({"sfm": {"filter_min_tri_angle": "3"}}, Path("capture.json"))
+    with pytest.raises(DatasetError, match=r"^capture\.json: sfm\.overlap: 2\.5 is not an integer$"):
+        sfm_settings({"sfm": {"overlap": 2.5}}, Path("capture.json"))
+    with pytest.raises(DatasetError, match=r"^capture\.json: sfm\.oops: unknown field"):
+        sfm_settings({"sfm": {"oops": 1}}, Path("capture.json"))
