@@ -29,16 +29,14 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from contracts.atomic import write_rows_csv
 from contracts.dataset_format import file_path, load_transforms, pass_file, read_pass_image, transforms_name
 from contracts.imageio import read_png
 from scenes.cameras import c2w_gl_to_viewmat, camera_center, intrinsics, scene_bounds
+from scenes.generated import spec_rig
 from scenes.rig import RigExtrinsic, estimate_rig_rotation, thermal_from_rig
 from scenes.sfm import SfmError, SfmResult, SfmSettings, run_sfm, stretched
-
-GL_TO_CV_AXES = np.array([1.0, -1.0, -1.0])
 
 
 def rotation_error_deg(a: np.ndarray, b: np.ndarray) -> float:
@@ -53,9 +51,8 @@ def truth(root: Path, modality: str) -> tuple[dict, np.ndarray, np.ndarray]:
 
 
 def baseline_cv(root: Path) -> np.ndarray:
-    """The generator's thermal baseline (RGB camera axes, Blender's +Y up, −Z forward) in OpenCV axes."""
-    spec = yaml.safe_load((root / "scene.yaml").read_text())
-    return np.asarray(spec["rig"]["thermal"]["baseline_m"], dtype=np.float64) * GL_TO_CV_AXES + 0.0  # no -0.0
+    """The generator's thermal baseline in OpenCV axes (the rig's lever arm, metres)."""
+    return spec_rig(root).lever_arm_m
 
 
 @dataclass(frozen=True)

@@ -42,6 +42,11 @@ METHODS: dict[str, Variant] = {
                 note="Stage 1 estimated from the frames without downloaded weights (trainer setting "
                      "stage1=estimate, docs/real-captures.md); the paper reports no such row",
                 overrides={"stage1": "estimate"}),
+        Variant("full-from-images", "Ours (Full, Stage 1 from images)", "full", "methods", {},
+                note="Stage 1 from the frames alone: masks as in the estimated row, and the poses by structure from "
+                     "motion on the RGB frames and the rig for the thermal ones (trainer settings stage1=estimate, "
+                     "poses=sfm; docs/real-captures.md); a scene where SfM does not register fails with its reason",
+                overrides={"stage1": "estimate", "poses": "sfm"}),
     )
 }
 

@@ -16,15 +16,21 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
+import yaml
 
 from contracts.dataset_format import (GROUND_TRUTH_FOLDERS, dataset_files, file_path, load_transforms, pass_file,
                                       read_pass_image, transforms_name, validate_dataset)
 from contracts.errors import DatasetError
 from scenes.images import box_downscale, check_finite, downscale_depth, gray, rgb01, thermal_images, working_factor
+from scenes.rig import RigExtrinsic
 from scenes.scene import ModalityData, SceneData, set_times
 from scenes.splits import hold_out_validation
 from scenes.thermal_scale import LINEAR_SCALE, ThermalScaleSpec
 from scenes.transforms import frames_from_transforms
+
+GL_TO_CV_AXES = np.array([1.0, -1.0, -1.0])
+"""Blender's camera axes (+Y up, −Z forward) to OpenCV's (+Y down, +Z forward), per axis."""
+SPEC_FILE = "scene.yaml"
 
 
 def load_generated(path: Path, max_width: int, thermal_scale: ThermalScaleSpec = LINEAR_SCALE,
@@ -101,3 +107,18 @@ def _modality(root: Path, modality: str, passes: list[str], max_width: int, read
     return ModalityData(name=modality, frames=frames, images=smoky.astype(np.float32),
                         clean=clean, masks=None if masks is None else masks.astype(np.float32), depth=depth,
                         scale=scale)
+
+
+def spec_rig(root: Path) -> RigExtrinsic:
+    """The generator's rig as a calibration would give it: the thermal camera turned as the RGB
+    one, its centre at ``rig.thermal.baseline_m`` (RGB camera axes, metres) of the dataset's
+    ``scene.yaml``; the poses' scale is left unknown (``metres_per_unit``), as for SfM poses."""
+    spec_path = Path(root) / SPEC_FILE
+    try:
+        baseline = yaml.safe_load(spec_path.read_text())["rig"]["thermal"]["baseline_m"]
+        lever = np.asarray(baseline, dtype=np.float64)
+    except (OSError, KeyError, TypeError, ValueError, yaml.YAMLError) as exc:
+        raise DatasetError(f"{spec_path}: field 'rig.thermal.baseline_m' unreadable ({exc})") from None
+    if lever.shape != (3,) or not np.all(np.isfinite(lever)):
+        raise DatasetError(f"{spec_path}: field 'rig.thermal.baseline_m' must be 3 finite numbers")
+    return RigExtrinsic(np.eye(3), lever * GL_TO_CV_AXES + 0.0)  # + 0.0: no -0.0

@@ -71,8 +71,11 @@ class SceneData:
     """What the loader assumed or left out (no masks, no timestamps, ...): logged and written
     to metrics.json so a substitution is never silent."""
     poses: dict[str, Any] | None = None
-    """Where the loader estimated the poses, per modality (SfM counts and timings, the rig's
+    """Where the poses were estimated, per modality (SfM counts and timings, the rig's
     extrinsic): None when the layout brought them. Written to metrics.json."""
+    score_depth_scale: float = 1.0
+    """Scoring only: ground-truth depth units per pose unit. 1 with the dataset's poses; with
+    poses from SfM, the scale that takes the SfM camera centres onto the dataset's."""
 
 
 def set_times(rgb: ModalityData, thermal: ModalityData | None, duration: Any) -> None:

@@ -28,6 +28,7 @@ MODES: tuple[str, ...] = (
 PROFILES: tuple[str, ...] = ("quick", "standard", "paper")
 SMOKE_COLOR_SOURCES: tuple[str, ...] = ("learned", "haze-lines")
 SURFACE_INITS: tuple[str, ...] = ("thermal", "thermal+rgb")
+POSE_SOURCES: tuple[str, ...] = ("given", "sfm")
 MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "estimated")
 LPIPS_NETS: tuple[str, ...] = ("alex", "vgg")
 
@@ -220,6 +221,10 @@ class TrainConfig:
     registration: str = "auto"
     registration_lever_arm: tuple[float, ...] = ()
     stage1: str = "ground-truth"
+    poses: str = "given"
+    """"given": the dataset's poses. "sfm": Stage 1 poses from the images alone even where the
+    dataset brings poses (``smokeseer.stage1.poses_from_images``): the RGB frames by structure from
+    motion, the thermal frames from the rig, so a generated dataset can score the whole Stage 1."""
     mask_dir: str = ""
     validation_every: int = 8
     checkpoint_every: int = 1000
@@ -258,6 +263,8 @@ class TrainConfig:
                              "OpenCV axes), or none to leave the offset unmodelled")
         if self.stage1 not in ("ground-truth", "estimate"):
             raise ValueError(f"stage1: {self.stage1!r} is not ground-truth or estimate")
+        if self.poses not in POSE_SOURCES:
+            raise ValueError(f"poses: {self.poses!r} is not one of {', '.join(POSE_SOURCES)}")
         if self.stage3.smoke_color not in SMOKE_COLOR_SOURCES:
             raise ValueError(f"stage3.smoke_color: {self.stage3.smoke_color!r} is not one of "
                              f"{', '.join(SMOKE_COLOR_SOURCES)}")

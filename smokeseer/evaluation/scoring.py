@@ -155,7 +155,7 @@ def score(renders: TestRenders, scene: SceneData, lpips_net: str = "alex", lpips
                 lp_vals.append(entry["lpips"])
         per_image.append(entry)
         if rgb.depth is not None and np.any(rgb.depth[i] > 0):
-            de = depth_errors(renders.surface_depth[k], rgb.depth[i])
+            de = depth_errors(renders.surface_depth[k] * scene.score_depth_scale, rgb.depth[i])
             absrel.append(de["absrel"])
             rmse.append(de["rmse"])
         alpha = renders.smoke_alpha[k]

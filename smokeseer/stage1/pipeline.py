@@ -1,6 +1,7 @@
 """Stage 1: poses, masks, and one world frame for both cameras.
 
-Poses come from the dataset. When a capture's RGB and thermal poses were solved separately,
+Poses come from the dataset, or from the images alone (``poses=sfm``: structure from motion and
+the rig, ``poses_from_images``). When a capture's RGB and thermal poses were solved separately,
 the thermal poses are mapped into the RGB frame by the rig registration (orientations, centres
 and the lever arm; ``registration.register_rig``), and what it found is reported. Masks come
 from the dataset, from an external segmenter's files (``mask_dir``), or are estimated from the
@@ -18,10 +19,14 @@ from typing import Any
 import numpy as np
 
 from scenes.cameras import SceneBounds, camera_center, scene_bounds
+from scenes.capture import CAPTURE_FILE
+from scenes.generated import spec_rig
 from scenes.images import load_masks
+from scenes.rig import RigExtrinsic, parse_rig
 from scenes.scene import ModalityData, SceneData
 from scenes.similarity import Sim3
 from smokeseer.config import TrainConfig
+from smokeseer.stage1.poses_from_images import pose_from_images
 from smokeseer.stage1.registration import register_rig
 from smokeseer.stage1.smoke_presence import ESTIMATOR, decide_smoke_presence
 
@@ -65,7 +70,7 @@ def perturb_poses(mod: ModalityData, rot_deg: float, trans: float, rng: np.rando
 def _needs_registration(cfg: TrainConfig, scene: SceneData) -> bool:
     """Synthetic datasets share one world frame; a real capture says so in capture.json
     (``"pose_frames": "separate"``) or the user forces ``registration=trajectory``."""
-    if scene.thermal is None or cfg.registration == "off":
+    if scene.thermal is None or cfg.registration == "off" or cfg.poses == "sfm":
         return False
     if cfg.registration == "trajectory":
         return True
@@ -75,6 +80,11 @@ def _needs_registration(cfg: TrainConfig, scene: SceneData) -> bool:
 def run_stage1(cfg: TrainConfig, scene: SceneData) -> Stage1Report:
     """Register, choose the masks, perturb, and bound the scene, editing ``scene`` in place."""
     notes = list(scene.notes)
+    if cfg.poses == "sfm":
+        if scene.poses is None:
+            notes += pose_from_images(scene, _given_rig(scene))
+        else:
+            notes.append("poses=sfm: the capture's poses already come from its images (see above)")
     registered, scale, rmse, inliers, registration = False, 1.0, None, None, None
     if _needs_registration(cfg, scene) and scene.thermal is not None:
         th, rgb = scene.thermal.frames, scene.rgb.frames
@@ -97,6 +107,16 @@ def run_stage1(cfg: TrainConfig, scene: SceneData) -> Stage1Report:
         for m in mods:
             perturb_poses(m, cfg.pose_noise_rot_deg, cfg.pose_noise_trans * bounds.extent, rng)
     return Stage1Report(registered, scale, rmse, inliers, noisy, bounds, registration, masks, notes)
+
+
+def _given_rig(scene: SceneData) -> RigExtrinsic | None:
+    """The RGB→thermal extrinsic a calibration gives: a generated dataset's rig, or a capture's
+    ``rig`` in capture.json (None without one: the rig module then says what it assumes)."""
+    if scene.thermal is None:
+        return None
+    if scene.synthetic:
+        return spec_rig(scene.path)
+    return parse_rig(scene.meta, scene.path / CAPTURE_FILE)
 
 
 def _choose_masks(cfg: TrainConfig, scene: SceneData, notes: list[str]) -> str:
