@@ -1,0 +1,72 @@
+"""The haze-line smoke-colour decision of every finished run of a table, beside its score.
+
+    python benchmarks/smoke_colour_decisions.py [--tables data/tables_standard] [--digest PREFIX]
+
+For each finished Full and RGB-only run of one trainer version (``--digest``, default: the
+version with the most runs) this reads ``metrics.json`` → ``stages.smoke_colour``: the haze-line
+estimate (held, or refused with the colour the lines came nearest to), the fraction of lines
+that meet, and whether the run held it; beside the run's final validation and test PSNR. Writes
+``benchmarks/results/standard/smoke_colour_decisions.csv``. Why: the estimate's colour can be
+stable across seeds while its trust test flips, and which runs gain from holding it is a
+question of the colour as much as of the test.
+"""
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import re
+from pathlib import Path
+
+from contracts.atomic import write_rows_csv
+
+VARIANTS = ("full", "rgb-only")
+NEAREST = re.compile(r"nearest point \[([-\d.]+), ([-\d.]+), ([-\d.]+)\]")
+
+
+def decision(stages: dict) -> dict[str, object]:
+    """The estimate's colour (held, or the refused one), its mean over channels, the meeting
+    fraction and whether it was held."""
+    lines = (stages.get("smoke_colour") or {}).get("haze_lines") or {}
+    colour = lines.get("colour")
+    held = colour is not None
+    if colour is None:
+        found = NEAREST.search(lines.get("refused") or "")
+        colour = [float(v) for v in found.groups()] if found else None
+    return {"held": held, "meeting_fraction": lines.get("meeting_fraction"),
+            "colour": "" if colour is None else " ".join(f"{c:.3f}" for c in colour),
+            "colour_mean": None if colour is None else round(sum(colour) / 3, 3)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--tables", type=Path, default=Path("data/tables_standard"))
+    ap.add_argument("--digest", default=None, help="trainer code digest prefix (default: the one with the most runs)")
+    ap.add_argument("--out", type=Path, default=Path("benchmarks/results/standard/smoke_colour_decisions.csv"))
+    args = ap.parse_args()
+    found = []
+    for h in sorted(args.tables.glob("runs/*/*/seed*/harness.json")):
+        rec = json.loads(h.read_text())
+        if rec.get("status") == "ok" and rec.get("variant") in VARIANTS and rec.get("code_digest"):
+            found.append((h.parent, rec))
+    digest = args.digest or collections.Counter(r["code_digest"] for _, r in found).most_common(1)[0][0]
+    rows = []
+    for folder, rec in found:
+        if not rec["code_digest"].startswith(digest):
+            continue
+        doc = json.loads((folder / "metrics.json").read_text())
+        rows.append({"scene": rec["scene"], "variant": rec["variant"], "seed": rec["seed"],
+                     "code_digest": rec["code_digest"][:8], **decision(doc["stages"]),
+                     "val_psnr": round(doc["validation"]["psnr"], 3), "test_psnr": round(doc["metrics"]["psnr"], 3)})
+    if not rows:
+        raise SystemExit(f"{args.tables}: no finished full or rgb-only run of trainer {digest[:8]}")
+    write_rows_csv(args.out, rows)
+    for r in rows:
+        print(f"{r['scene']:11s} {r['variant']:8s} {r['seed']}  meet {r['meeting_fraction']:.2f}  colour "
+              f"[{r['colour']}] (mean {r['colour_mean']})  {'held   ' if r['held'] else 'learned'}  "
+              f"val {r['val_psnr']:.2f}  test {r['test_psnr']:.2f}")
+    print(f"{len(rows)} runs, trainer {rows[0]['code_digest']}; wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
