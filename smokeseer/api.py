@@ -26,7 +26,7 @@ from smokeseer.config import TrainConfig, make_config
 from smokeseer.evaluation.figures import write_test_figures
 from smokeseer.evaluation.scoring import heldout_psnr, score, score_validation, write_plys, write_renders
 from smokeseer.model.scene import Placed, SceneModel, init_gaussians, render
-from smokeseer.stage1.haze_lines import SmokeColourEstimate, estimate_smoke_colour
+from smokeseer.stage1.haze_lines import HazeLineSettings, SmokeColourEstimate, estimate_smoke_colour
 from smokeseer.stage1.pipeline import Stage1Report, run_stage1
 from smokeseer.train.depth_prior import DepthPriorMaps, file_depth_prior, monocular_depth_prior, rendered_depth_prior
 from smokeseer.train.mask_floor import estimated_dense, never_seen_clear
@@ -290,8 +290,11 @@ def haze_line_smoke_colour(cfg: TrainConfig, depth: DepthPriorMaps, rgb: Modalit
     """The smoke colour where the training RGB frames' observation lines meet, with Stage 2's
     geometry rendered as depth at each of those frames (``depth``) saying which pixels see the
     same point."""
+    settings = HazeLineSettings(min_meeting_fraction=cfg.stage3.smoke_color_min_meeting,
+                                max_brightness=cfg.stage3.smoke_color_max_brightness)
     return estimate_smoke_colour(rgb.images[rgb.indices("train")], depth.maps.cpu().numpy(),
-                                 depth.valid.cpu().numpy(), *rgb.cameras("train"), np.random.default_rng(cfg.seed + 2))
+                                 depth.valid.cpu().numpy(), *rgb.cameras("train"), np.random.default_rng(cfg.seed + 2),
+                                 settings)
 
 
 def mask_floor_pixels(plan: Stage3Plan, rgb: ModalityData, depth: DepthPriorMaps, floor: float) -> np.ndarray:

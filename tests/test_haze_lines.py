@@ -77,6 +77,18 @@ def test_estimate_recovers_the_smoke_colour_of_moving_smoke() -> None:
     np.testing.assert_allclose(est.colour, SMOKE, atol=0.01)
 
 
+def test_a_bright_estimate_is_refused_above_the_brightness_bound_only() -> None:
+    rng = np.random.default_rng(3)
+    images, depths, valid, vms, ks = _static_frames(rng.uniform(0.2, 0.9, (20, H, W)), rng)
+    mean = float(np.mean(SMOKE))
+    below = estimate_smoke_colour(images, depths, valid, vms, ks, np.random.default_rng(0),
+                                  HazeLineSettings(max_brightness=mean - 0.02))
+    assert below.colour is None and below.meeting_fraction > 0.9 and "a bright smoke colour" in below.reason
+    above = estimate_smoke_colour(images, depths, valid, vms, ks, np.random.default_rng(0),
+                                  HazeLineSettings(max_brightness=mean + 0.02))
+    np.testing.assert_allclose(above.colour, SMOKE, atol=0.01)
+
+
 def test_estimate_refuses_smoke_that_never_changes() -> None:
     rng = np.random.default_rng(4)
     images, depths, valid, vms, ks = _static_frames(np.full((20, H, W), 0.5), rng)

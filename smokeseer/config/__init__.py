@@ -14,6 +14,7 @@ from typing import Any
 import yaml
 
 from scenes.thermal_scale import check_thermal_scale
+from smokeseer.stage1.haze_lines import HazeLineSettings
 
 MODES: tuple[str, ...] = (
     "full",
@@ -173,6 +174,12 @@ class Stage3Config:
     Stage 2's geometry) and held fixed; where the estimate is not trusted (thin smoke: the lines
     do not meet) the run learns it as the paper does and says so. Under dense smoke the images
     alone let a brighter, denser smoke stand in for a darker surface (docs/method.md)."""
+    smoke_color_min_meeting: float = HazeLineSettings.min_meeting_fraction
+    """With smoke_color=haze-lines: the fraction of observation lines that must meet for the
+    estimate to be held (``HazeLineSettings.min_meeting_fraction``)."""
+    smoke_color_max_brightness: float = HazeLineSettings.max_brightness
+    """With smoke_color=haze-lines: an estimate brighter than this (channel mean) is learned, not
+    held (``HazeLineSettings.max_brightness``; 1.0 holds every colour)."""
     surface_init: str = "thermal"
     """Where Stage 3's surface starts. "thermal": the thermal Stage 2 (the paper). "thermal+rgb":
     also a Stage 2 on the smoky RGB frames (RGB-only's), whose Gaussians join the thermal ones
@@ -270,6 +277,9 @@ class TrainConfig:
                              f"{', '.join(SMOKE_COLOR_SOURCES)}")
         if self.stage3.surface_init not in SURFACE_INITS:
             raise ValueError(f"stage3.surface_init: {self.stage3.surface_init!r} is not one of {', '.join(SURFACE_INITS)}")
+        for name in ("smoke_color_min_meeting", "smoke_color_max_brightness"):
+            if not 0.0 < getattr(self.stage3, name) <= 1.0:
+                raise ValueError(f"stage3.{name}: must be in (0, 1], got {getattr(self.stage3, name)}")
         if not 1 <= self.stage3.thermal_supersample <= 8:
             raise ValueError(f"stage3.thermal_supersample: must be 1 to 8, got {self.stage3.thermal_supersample}")
         if not 0.0 <= self.stage3.carve_tolerance < 1.0:

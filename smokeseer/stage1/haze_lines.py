@@ -38,6 +38,10 @@ class HazeLineSettings:
     under dense smoke (room 0.76, the dense excavator 0.91; estimates within 0.02 and 0.05 of
     the smoke colour the truth passes imply) and not under thin smoke (house 0.07, forest 0.10),
     where shading and misregistration, not smoke, spread a point's colours."""
+    max_brightness: float = 1.0
+    """An estimate whose channel mean exceeds this is not held: a scattering (bright) smoke's
+    radiance follows the light and the viewing angle, so no single colour fits it from every view,
+    while an absorbing (dark) one adds little light of its own. 1.0 holds every colour."""
 
 
 @dataclass
@@ -147,4 +151,9 @@ def estimate_smoke_colour(images: np.ndarray, depths: np.ndarray, valid: np.ndar
     if np.any(colour < -0.05) or np.any(colour > 1.05):
         return SmokeColourEstimate(None, lines, n_points, met, "the lines meet outside the colour cube, at "
                                    f"{np.round(colour, 3).tolist()}")
+    if float(np.mean(colour)) > settings.max_brightness:
+        return SmokeColourEstimate(None, lines, n_points, met, f"a bright smoke colour {np.round(colour, 3).tolist()} "
+                                   f"(channel mean {float(np.mean(colour)):.2f}, over {settings.max_brightness}): a "
+                                   "scattering smoke's radiance follows the light and the view, so each smoke "
+                                   "Gaussian learns its own")
     return SmokeColourEstimate(np.clip(colour, 0.01, 0.99), lines, n_points, met)
