@@ -66,16 +66,18 @@ def committed_run(tables: Path, scene: str, method: str, seed: int, trainer: str
 def plot(curves: list[dict], path: Path) -> None:
     scenes = list(dict.fromkeys((c["scene"], c["seed"]) for c in curves))
     fig, axes = plt.subplots(1, len(scenes), figsize=(4 * len(scenes), 3.6), squeeze=False)
+    labels = list(dict.fromkeys(c["trainer"] for c in curves))
     for ax, (scene, seed) in zip(axes[0], scenes):
-        for label in dict.fromkeys(c["trainer"] for c in curves):
+        for k, label in enumerate(labels):  # one colour per trainer in every panel
             pts = [c for c in curves if (c["scene"], c["seed"], c["trainer"]) == (scene, seed, label)]
             if pts:
-                ax.plot([p["iteration"] for p in pts], [p["val_psnr"] for p in pts], "-o", ms=3, label=label)
+                ax.plot([p["iteration"] for p in pts], [p["val_psnr"] for p in pts], "-o", ms=3, label=label,
+                        color=f"C{k % 10}")
         ax.set_title(f"{scene}, seed {seed}")
         ax.set_xlabel("Stage-3 iteration")
         ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
     axes[0][0].set_ylabel("validation PSNR (dB)")
-    axes[0][0].legend(fontsize=8)
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=100, format="png")
