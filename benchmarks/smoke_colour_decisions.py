@@ -13,12 +13,12 @@ question of the colour as much as of the test.
 from __future__ import annotations
 
 import argparse
-import collections
 import json
 import re
 from pathlib import Path
 
 from contracts.atomic import write_rows_csv
+from eval.finished_runs import finished_runs
 
 VARIANTS = ("full", "rgb-only")
 NEAREST = re.compile(r"nearest point \[([-\d.]+), ([-\d.]+), ([-\d.]+)\]")
@@ -44,22 +44,16 @@ def main() -> None:
     ap.add_argument("--digest", default=None, help="trainer code digest prefix (default: the one with the most runs)")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/standard/smoke_colour_decisions.csv"))
     args = ap.parse_args()
-    found = []
-    for h in sorted(args.tables.glob("runs/*/*/seed*/harness.json")):
-        rec = json.loads(h.read_text())
-        if rec.get("status") == "ok" and rec.get("variant") in VARIANTS and rec.get("code_digest"):
-            found.append((h.parent, rec))
-    digest = args.digest or collections.Counter(r["code_digest"] for _, r in found).most_common(1)[0][0]
+    try:
+        _, runs = finished_runs(args.tables, VARIANTS, args.digest)
+    except ValueError as exc:
+        raise SystemExit(str(exc)) from None
     rows = []
-    for folder, rec in found:
-        if not rec["code_digest"].startswith(digest):
-            continue
+    for folder, rec in runs:
         doc = json.loads((folder / "metrics.json").read_text())
         rows.append({"scene": rec["scene"], "variant": rec["variant"], "seed": rec["seed"],
                      "code_digest": rec["code_digest"][:8], **decision(doc["stages"]),
                      "val_psnr": round(doc["validation"]["psnr"], 3), "test_psnr": round(doc["metrics"]["psnr"], 3)})
-    if not rows:
-        raise SystemExit(f"{args.tables}: no finished full or rgb-only run of trainer {digest[:8]}")
     write_rows_csv(args.out, rows)
     for r in rows:
         print(f"{r['scene']:11s} {r['variant']:8s} {r['seed']}  meet {r['meeting_fraction']:.2f}  colour "

@@ -22,12 +22,12 @@ from __future__ import annotations
 
 import argparse
 import collections
-import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from contracts.atomic import write_rows_csv
 from contracts.train_log import read_train_log
+from eval.finished_runs import finished_runs
 from eval.runs import VARIANTS
 from smokeseer.config import make_config
 
@@ -58,22 +58,12 @@ def stage2_group(scene: str, variant: str, seed: int, profile: str) -> str:
 
 
 def collect(tables: Path, digest: str | None, profile: str) -> tuple[str, list[RunRow]]:
-    records = []
-    for path in sorted((tables / "runs").glob("*/*/*/harness.json")):
-        rec = json.loads(path.read_text())
-        if rec.get("status") == "ok" and rec.get("variant") in VARIANTS and (path.parent / "train_log.csv").is_file():
-            records.append((path.parent, rec))
-    versions = collections.Counter(r.get("code_digest", "") for _, r in records if r.get("code_digest"))
-    if not versions:
-        raise SystemExit(f"{tables}/runs: no finished run records a code_digest")
-    chosen = next((v for v in versions if v.startswith(digest)), None) if digest else versions.most_common(1)[0][0]
-    if chosen is None:
-        raise SystemExit(f"--digest {digest}: no run in {tables}/runs has a code_digest starting so "
-                         f"(found {', '.join(v[:8] for v in versions)})")
+    try:
+        chosen, records = finished_runs(tables, VARIANTS, digest)
+    except ValueError as exc:
+        raise SystemExit(str(exc)) from None
     rows, seen = [], set()
     for run_dir, rec in records:
-        if rec.get("code_digest") != chosen:
-            continue
         group = stage2_group(rec["scene"], rec["variant"], int(rec["seed"]), profile)
         took = bool(rec.get("stage2_from"))
         twice = not took and group in seen

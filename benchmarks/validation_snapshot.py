@@ -14,30 +14,20 @@ from __future__ import annotations
 
 import argparse
 import collections
-import json
 import statistics
 from pathlib import Path
 
 from contracts.atomic import write_rows_csv
 from contracts.train_log import read_train_log
+from eval.finished_runs import finished_runs
 
 VARIANTS = ("full", "rgb-only")
 
 
 def run_rows(tables: Path, digest: str | None) -> list[dict[str, object]]:
     """One row per finished Full or RGB-only run of the chosen trainer version."""
-    records = []
-    for h in sorted(tables.glob("runs/*/*/seed*/harness.json")):
-        rec = json.loads(h.read_text())
-        if rec.get("status") == "ok" and rec.get("variant") in VARIANTS and rec.get("code_digest"):
-            records.append((h.parent, rec))
-    if digest is None:
-        counts = collections.Counter(r["code_digest"] for _, r in records)
-        digest = counts.most_common(1)[0][0]
     rows = []
-    for folder, rec in records:
-        if not rec["code_digest"].startswith(digest):
-            continue
+    for folder, rec in finished_runs(tables, VARIANTS, digest)[1]:
         logged = [r for r in read_train_log(folder / "train_log.csv") if r["stage"] == "3" and r["val_psnr"]]
         best = max(logged, key=lambda r: float(r["val_psnr"]))
         rows.append({"scene": rec["scene"], "variant": rec["variant"], "seed": rec["seed"],
@@ -54,9 +44,10 @@ def main() -> None:
     ap.add_argument("--digest", default=None, help="trainer code digest prefix (default: the one with the most runs)")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/standard/validation_snapshot.csv"))
     args = ap.parse_args()
-    rows = run_rows(args.tables, args.digest)
-    if not rows:
-        raise SystemExit(f"{args.tables}: no finished full or rgb-only run with a Stage-3 validation log")
+    try:
+        rows = run_rows(args.tables, args.digest)
+    except ValueError as exc:
+        raise SystemExit(str(exc)) from None
     write_rows_csv(args.out, rows)
     by = collections.defaultdict(list)
     for r in rows:

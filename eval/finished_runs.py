@@ -1,0 +1,35 @@
+"""The finished runs of one trainer version in a tables folder, for the studies that read a
+table's runs back (Stage-2 sharing, the best-validation snapshot, the smoke-colour decisions).
+
+Why one place: a tables folder keeps the runs of every trainer version it has seen (keyed by the
+code digest), and a study must read one version's runs only, the same way each time.
+"""
+from __future__ import annotations
+
+import collections
+import json
+from pathlib import Path
+from typing import Any, Iterable
+
+
+def finished_runs(tables: Path, variants: Iterable[str],
+                  digest: str | None = None) -> tuple[str, list[tuple[Path, dict[str, Any]]]]:
+    """(the chosen code digest, [(run folder, harness.json record)]) for the runs of ``variants``
+    that finished (status ok, with a train_log.csv) under one trainer version: the one whose
+    digest starts with ``digest``, else the one with the most such runs. Raises ValueError naming
+    the folder when there is none."""
+    wanted = set(variants)
+    records = []
+    for path in sorted((Path(tables) / "runs").glob("*/*/*/harness.json")):
+        rec = json.loads(path.read_text())
+        if (rec.get("status") == "ok" and rec.get("variant") in wanted and rec.get("code_digest")
+                and (path.parent / "train_log.csv").is_file()):
+            records.append((path.parent, rec))
+    versions = collections.Counter(rec["code_digest"] for _, rec in records)
+    if not versions:
+        raise ValueError(f"{tables}/runs: no finished run of {', '.join(sorted(wanted))} records a code_digest")
+    chosen = next((v for v in versions if v.startswith(digest)), None) if digest else versions.most_common(1)[0][0]
+    if chosen is None:
+        raise ValueError(f"--digest {digest}: no run in {tables}/runs has a code_digest starting so "
+                         f"(found {', '.join(v[:8] for v in versions)})")
+    return chosen, [(run_dir, rec) for run_dir, rec in records if rec["code_digest"] == chosen]
