@@ -10,7 +10,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-_GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
+GL_TO_CV_AXES = np.array([1.0, -1.0, -1.0])
+"""Blender/OpenGL camera axes (+Y up, −Z forward) to OpenCV's (+Y down, +Z forward), per axis."""
+_GL_TO_CV = np.diag([*GL_TO_CV_AXES, 1.0])
 
 
 def c2w_gl_to_viewmat(c2w: np.ndarray) -> np.ndarray:

@@ -103,10 +103,7 @@ def pose_rgb_by_sfm(path: Path, meta: dict[str, Any], source: Path, test_every: 
                             timestamp_s=float(i), time=0.0, split=split))
         kept.append(files[i])
     record = res.record()
-    notes.append(f"poses from SfM (pycolmap): {record['registered']} of {record['frames']} RGB frames registered, "
-                 f"{record['points']} points, intrinsics {record['intrinsics']}, matcher {record['matcher']}, "
-                 + (f"from the cache ({record['load_s']} s)" if record.get("cached") else
-                    f"extract {record['extract_s']} s, match {record['match_s']} s, map {record['map_s']} s"))
+    notes.append(f"poses from SfM (pycolmap): {res.describe()}")
     if record["unregistered"]:
         notes.append(f"sfm: left out {len(record['unregistered'])} RGB frames that did not register: "
                      f"{', '.join(record['unregistered'][:10])}{' ...' if len(record['unregistered']) > 10 else ''}")
@@ -133,7 +130,7 @@ def pose_thermal_by_rig(rgb: list[Frame], files: list[Path], stamps: dict[str, f
         views, rig_notes = thermal_from_rig(rgb_views, rgb_times, times, rig)
     except ValueError as exc:
         raise DatasetError(f"{where}: {exc}") from None
-    record["lever_applied"] = rig is not None and rig.metres_per_unit is not None and bool(rig.lever_arm_m.any())
+    record["lever_applied"] = rig is not None and rig.applies_lever
     h, w = size
     frames = [Frame(file_stem=n, viewmat=v, K=K.copy(), width=w, height=h, timestamp_s=float(t), time=0.0,
                     split="train") for n, v, t in zip(names, views, times)]

@@ -21,6 +21,7 @@ import yaml
 from contracts.dataset_format import (GROUND_TRUTH_FOLDERS, dataset_files, file_path, load_transforms, pass_file,
                                       read_pass_image, transforms_name, validate_dataset)
 from contracts.errors import DatasetError
+from scenes.cameras import GL_TO_CV_AXES
 from scenes.images import box_downscale, check_finite, downscale_depth, gray, rgb01, thermal_images, working_factor
 from scenes.rig import RigExtrinsic
 from scenes.scene import ModalityData, SceneData, set_times
@@ -28,8 +29,6 @@ from scenes.splits import hold_out_validation
 from scenes.thermal_scale import LINEAR_SCALE, ThermalScaleSpec
 from scenes.transforms import frames_from_transforms
 
-GL_TO_CV_AXES = np.array([1.0, -1.0, -1.0])
-"""Blender's camera axes (+Y up, −Z forward) to OpenCV's (+Y down, +Z forward), per axis."""
 SPEC_FILE = "scene.yaml"
 
 

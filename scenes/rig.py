@@ -30,6 +30,11 @@ class RigExtrinsic:
     lever_arm_m: np.ndarray
     metres_per_unit: float | None = None
 
+    @property
+    def applies_lever(self) -> bool:
+        """Whether the thermal centres are moved by the lever: it is non-zero and the poses' scale is known."""
+        return self.metres_per_unit is not None and bool(self.lever_arm_m.any())
+
     def lever_in_units(self) -> np.ndarray | None:
         """The lever arm in pose units, or None when the poses' scale is unknown."""
         return None if self.metres_per_unit is None else self.lever_arm_m / self.metres_per_unit

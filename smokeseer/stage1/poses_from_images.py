@@ -36,11 +36,7 @@ def pose_from_images(scene: SceneData, rig: RigExtrinsic | None, settings: SfmSe
     for i in keep:
         rgb.frames[i].viewmat = res.viewmats[i].copy()
         rgb.frames[i].K = res.K.copy()
-    record = res.record()
-    notes = [f"poses from SfM (pycolmap) instead of the dataset's (poses=sfm): {record['registered']} of "
-             f"{record['frames']} RGB frames registered, {record['points']} points, intrinsics {record['intrinsics']}, "
-             + (f"from the cache ({record['load_s']} s)" if record.get("cached") else
-                f"extract {record['extract_s']} s, match {record['match_s']} s, map {record['map_s']} s")]
+    notes = [f"poses from SfM (pycolmap) instead of the dataset's (poses=sfm): {res.describe()}"]
     if len(keep) < len(rgb.frames):
         dropped = [f"{rgb.frames[i].file_stem} ({rgb.frames[i].split})" for i in np.nonzero(~res.registered)[0]]
         notes.append(f"sfm: left out {len(dropped)} RGB frames that did not register, so they are neither trained on "
@@ -51,7 +47,7 @@ def pose_from_images(scene: SceneData, rig: RigExtrinsic | None, settings: SfmSe
     notes.append(f"depth is scored at {scene.score_depth_scale:.6g} dataset units per SfM unit (the similarity of the "
                  "SfM camera centres onto the dataset's; the dataset's poses are read for this score alone)")
     scene.init_points = res.points
-    scene.poses = {"rgb": record}
+    scene.poses = {"rgb": res.record()}
     if scene.thermal is not None:
         notes += _thermal(scene, rig)
     return notes
@@ -69,10 +65,9 @@ def _thermal(scene: SceneData, rig: RigExtrinsic | None) -> list[str]:
         raise DatasetError(f"{scene.path}: thermal poses from the rig: {exc}") from None
     for f, v in zip(th.frames, views):
         f.viewmat = v
-    lever = rig is not None and rig.lever_in_units() is not None and bool(rig.lever_arm_m.any())
     scene.poses = {**(scene.poses or {}), "thermal": {
         "source": "rig", "extrinsic": "given" if rig is not None else "assumed (identity, zero lever arm)",
-        "lever_applied": lever}}
+        "lever_applied": rig is not None and rig.applies_lever}}
     return [f"thermal: {n}" for n in notes]
 
 
