@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from scenes.cameras import backproject, pixels_of
+from smokeseer.config import Stage3Config
 
 
 @dataclass(frozen=True)
@@ -32,16 +33,10 @@ class HazeLineSettings:
     """Least standard deviation of a point's colours along its line (colours in [0, 1])."""
     min_lines: int = 100
     meet_tolerance: float = 0.03
-    min_meeting_fraction: float = 0.5
-    """The estimate is trusted when at least this fraction of the lines pass within
-    ``meet_tolerance`` of it. Set on the four standard datasets trained so far: the lines meet
-    under dense smoke (room 0.76, the dense excavator 0.91; estimates within 0.02 and 0.05 of
-    the smoke colour the truth passes imply) and not under thin smoke (house 0.07, forest 0.10),
-    where shading and misregistration, not smoke, spread a point's colours."""
-    max_brightness: float = 1.0
-    """An estimate whose channel mean exceeds this is not held: a scattering (bright) smoke's
-    radiance follows the light and the viewing angle, so no single colour fits it from every view,
-    while an absorbing (dark) one adds little light of its own. 1.0 holds every colour."""
+    min_meeting_fraction: float = Stage3Config.smoke_color_min_meeting
+    """The fraction of lines that must pass within ``meet_tolerance`` of the estimate."""
+    max_brightness: float = Stage3Config.smoke_color_max_brightness
+    """The brightest channel mean that is held (why: ``Stage3Config``)."""
 
 
 @dataclass
