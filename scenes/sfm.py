@@ -25,7 +25,6 @@ from contracts.errors import DatasetError
 
 CACHE_ENV = "SMOKESEER_SFM_CACHE"
 MATCHERS = ("auto", "exhaustive", "sequential")
-CONTRASTS = ("none", "clahe")
 
 
 class SfmError(DatasetError):
@@ -43,7 +42,11 @@ class SfmSettings:
     (degrees): the mapper drops 3D points that reproject worse or are seen under a smaller angle,
     so features on drifting smoke and far, poorly triangulated points do not bend the poses; 2 px
     (COLMAP's 4) lowered the rotation error on all four held-out standard scenes that register,
-    while a 4° angle cost one of them its registration."""
+    while a 4° angle cost one of them its registration. ``peak_threshold``: the least
+    difference-of-Gaussians response SIFT keeps (COLMAP's 0.0067); smoke lowers the contrast of
+    what lies behind it, and 0.002 (about 1.5-2.5× the features) lowered the centre error on all
+    four held-out scenes that register and the rotation error on three (the fourth moved 0.05°)
+    (benchmarks/results/sfm_poses/README.md)."""
 
     matcher: str = "auto"
     min_width: int = 400
@@ -55,16 +58,13 @@ class SfmSettings:
     seed: int = 0
     filter_max_reproj_error: float = 2.0
     filter_min_tri_angle: float = 1.5
-    contrast: str = "none"
-    peak_threshold: float = 0.02 / 3
-    domain_size_pooling: bool = False
-    guided_matching: bool = False
+    peak_threshold: float = 0.002
 
     def __post_init__(self) -> None:
         if self.matcher not in MATCHERS:
             raise ValueError(f"sfm.matcher: {self.matcher!r} is not one of {', '.join(MATCHERS)}")
-        if self.contrast not in CONTRASTS:
-            raise ValueError(f"sfm.contrast: {self.contrast!r} is not one of {', '.join(CONTRASTS)}")
+        if not self.peak_threshold > 0.0:
+            raise ValueError(f"sfm.peak_threshold: {self.peak_threshold} is not positive")
         if self.min_width < 0:
             raise ValueError(f"sfm.min_width: {self.min_width} is negative")
         if not 0.0 < self.min_registered <= 1.0:
@@ -85,17 +85,13 @@ class SfmSettings:
             if key not in defaults:
                 raise ValueError(f"sfm.{key}: unknown field (known: {', '.join(defaults)})")
             want = type(defaults[key])
-            kind = {str: "a string", int: "an integer", bool: "true or false"}.get(want, "a number")
-            if text and want is bool:
-                if str(value).lower() not in ("true", "false"):
-                    raise ValueError(f"sfm.{key}: {value!r} is not {kind}")
-                typed[key] = str(value).lower() == "true"
-            elif text:
+            kind = "a string" if want is str else "an integer" if want is int else "a number"
+            if text:
                 try:
                     typed[key] = want(value)
                 except ValueError:
                     raise ValueError(f"sfm.{key}: {value!r} is not {kind}") from None
-            elif isinstance(value, bool) != (want is bool) or not isinstance(value, (int, float) if want is float else want):
+            elif isinstance(value, bool) or not isinstance(value, (int, float) if want is float else want):
                 raise ValueError(f"sfm.{key}: {value!r} is not {kind}")
             else:
                 typed[key] = want(value)
@@ -239,7 +235,7 @@ def _solve(names: list[str], images: list[np.ndarray], masks: list[np.ndarray] |
         for i, (f, img) in enumerate(zip(files, images)):
             valid = np.ones((h, w), bool) if masks is None else ~np.asarray(masks[i], bool)
             keep.append(float(valid.mean()))
-            picture, mask = Image.fromarray(_contrasted(img, settings.contrast)), Image.fromarray((valid * 255).astype(np.uint8))
+            picture, mask = Image.fromarray(img), Image.fromarray((valid * 255).astype(np.uint8))
             if up > 1:
                 picture = picture.resize((w * up, h * up), Image.BICUBIC)
                 mask = mask.resize((w * up, h * up), Image.NEAREST)
@@ -257,14 +253,12 @@ def _solve(names: list[str], images: list[np.ndarray], masks: list[np.ndarray] |
         extraction.num_threads = settings.threads
         extraction.sift.max_num_features = settings.max_features
         extraction.sift.peak_threshold = settings.peak_threshold
-        extraction.sift.domain_size_pooling = settings.domain_size_pooling
         t0 = time.perf_counter()
         pycolmap.extract_features(db_path, img_dir, image_names=files, camera_mode=pycolmap.CameraMode.SINGLE,
                                   reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
         timings["extract_s"] = time.perf_counter() - t0
         matching = pycolmap.FeatureMatchingOptions()
         matching.num_threads = settings.threads
-        matching.guided_matching = settings.guided_matching
         exhaustive = settings.matcher == "exhaustive" or (settings.matcher == "auto"
                                                           and len(files) <= settings.exhaustive_max)
         t0 = time.perf_counter()
@@ -330,17 +324,6 @@ def _solve(names: list[str], images: list[np.ndarray], masks: list[np.ndarray] |
                         f"{float(np.median(keypoints)):.0f} features per frame, {100 * float(np.mean(keep)):.0f} % of "
                         "the pixels outside the masks on average")
     return SfmResult(list(names), registered, viewmats, K_found, points, colors, stats)
-
-
-def _contrasted(img: np.ndarray, contrast: str) -> np.ndarray:
-    """The frame SIFT sees: as given, or its luminance locally equalised (CLAHE)."""
-    if contrast == "none":
-        return img
-    from skimage.exposure import equalize_adapthist
-
-    grey = img.astype(np.float64) @ np.array([0.299, 0.587, 0.114]) / 255.0
-    eq = (equalize_adapthist(grey) * 255.0).round().astype(np.uint8)
-    return np.repeat(eq[..., None], 3, axis=2)
 
 
 def _why_none(keypoints: np.ndarray, keep: list[float], pairs: int, what: str) -> str:
