@@ -68,18 +68,19 @@ def test_images_only_capture_is_posed_by_sfm_and_the_rig(tmp_path: Path, monkeyp
     est = np.stack([f.viewmat for f in scene.rgb.frames])
     sim = align(est, views)
     errs = pose_errors(est, views, sim, extent)
-    # Measured here: 0.27 degrees and 0.7 % of the extent (thermal 0.24 degrees).
-    assert errs["rot_median_deg"] < 0.75, errs
-    assert errs["centre_rmse_frac"] < 0.015, errs
+    # Measured here: 0.10 degrees and 0.3 % of the extent (thermal 0.10 degrees).
+    assert errs["rot_median_deg"] < 0.3, errs
+    assert errs["centre_rmse_frac"] < 0.01, errs
     assert scene.init_points is not None and len(scene.init_points) > 100
     th_est = np.stack([f.viewmat for f in scene.thermal.frames])
     assert scene.poses["thermal"]["source"] == "rig" and len(th_est) == len(th_views)
     th_errs = pose_errors(th_est, th_views, sim, extent)
-    assert th_errs["rot_median_deg"] < 0.75, th_errs
+    assert th_errs["rot_median_deg"] < 0.3, th_errs
     assert any("lever arm" in n and "not applied" in n for n in scene.notes)
     assert any(n.startswith("poses from SfM") for n in scene.notes)
-    # Without the rig, its rotation is estimated from thermal SfM; these 80x60 thermal frames have too
-    # few features to register (a median of 22), so the identity is assumed, saying why.
+    # Without the rig, its rotation is estimated from thermal SfM. These 80x60 thermal frames register,
+    # but on this straight flyover the rotation about the path is unobservable, so the identity is
+    # assumed, saying why.
     meta = json.loads((tmp_path / "cap" / "capture.json").read_text())
     del meta["rig"]
     (tmp_path / "cap" / "capture.json").write_text(json.dumps(meta))
@@ -89,7 +90,7 @@ def test_images_only_capture_is_posed_by_sfm_and_the_rig(tmp_path: Path, monkeyp
     assert poses["rgb"]["cached"] is True and poses["rgb"]["registered"] == len(views)
     assert poses["thermal"]["source"] == "rig" and poses["thermal"]["lever_applied"] is False
     assert poses["thermal"]["extrinsic"].startswith("assumed (identity, zero lever arm): not estimated")
-    assert "thermal frames registered" in poses["thermal"]["extrinsic"]
+    assert "centres lie on a straight line" in poses["thermal"]["extrinsic"]
     assert any(n.startswith("thermal: rig not estimated") for n in doc["stages"]["notes"])
     assert json.loads((tmp_path / "run" / "metrics.json").read_text())["stages"]["poses"] == poses
 
