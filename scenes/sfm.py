@@ -117,13 +117,13 @@ class SfmResult:
                 "unregistered": [n for n, ok in zip(self.names, self.registered) if not ok],
                 "points": int(len(self.points)), **self.stats}
 
-    def describe(self, what: str = "RGB frames") -> str:
+    def describe(self) -> str:
         """One log line: how many frames registered, the points, the intrinsics, the matcher and
         where the time went (or that the cache answered)."""
         r = self.record()
         timing = (f"from the cache ({r['load_s']} s)" if r.get("cached") else
                   f"extract {r['extract_s']} s, match {r['match_s']} s, map {r['map_s']} s")
-        return (f"{r['registered']} of {r['frames']} {what} registered, {r['points']} points, intrinsics "
+        return (f"{r['registered']} of {r['frames']} RGB frames registered, {r['points']} points, intrinsics "
                 f"{r['intrinsics']}, matcher {r['matcher']}, {timing}")
 
 
