@@ -14,7 +14,8 @@ returned 127-152 degree errors), and on orbits it tilts with the centre noise.
     python benchmarks/sfm_poses.py DATASET... [--mask-alpha none 0.5] [--set FIELD=VALUE ...] [--no-thermal]
         [--out benchmarks/results/sfm_poses]
 
-Writes ``OUT/NAME.csv`` (``--name``, default sfm_poses; one row per dataset and mask setting); each SfM run is timed on its
+Writes ``OUT/NAME.csv`` (``--name``, default sfm_poses; one row per dataset and mask setting) and
+``OUT/NAME_frames.csv`` (one row per registered frame: its errors beside the true smoke over it); each SfM run is timed on its
 own (no cache) and the load average is recorded. ``--set`` overrides ``SfmSettings`` fields (recorded in the
 ``settings`` column, with the mapper's filter values in effect), so settings can be compared on scenes held out
 from the ones they are reported on; ``--no-thermal`` skips the thermal SfM (and the rig estimate) when only RGB poses matter.
@@ -85,26 +86,33 @@ def align(est: np.ndarray, ref: np.ndarray) -> Alignment:
     return Alignment(scale, rotation, c_ref.mean(0) - scale * c_est.mean(0))
 
 
-def pose_errors(est: np.ndarray, ref: np.ndarray, sim: Alignment, extent: float) -> dict[str, float]:
-    """Median and max rotation error (deg) and centre RMSE (fraction of ``extent``) after ``sim``."""
+def frame_errors(est: np.ndarray, ref: np.ndarray, sim: Alignment) -> tuple[np.ndarray, np.ndarray]:
+    """Each frame's rotation error (deg) and centre distance (m) after ``sim``."""
     moved = np.stack([sim.viewmat(v) for v in est])
     rot = np.array([rotation_error_deg(m[:3, :3], r[:3, :3]) for m, r in zip(moved, ref)])
     dist = np.linalg.norm(np.stack([camera_center(m) - camera_center(r) for m, r in zip(moved, ref)]), axis=1)
+    return rot, dist
+
+
+def pose_errors(est: np.ndarray, ref: np.ndarray, sim: Alignment, extent: float) -> dict[str, float]:
+    """Median and max rotation error (deg) and centre RMSE (fraction of ``extent``) after ``sim``."""
+    rot, dist = frame_errors(est, ref, sim)
     return {"rot_median_deg": float(np.median(rot)), "rot_max_deg": float(rot.max()),
             "centre_rmse_m": float(np.sqrt(np.mean(dist ** 2))),
             "centre_rmse_frac": float(np.sqrt(np.mean(dist ** 2)) / extent)}
 
 
 def evaluate(root: Path, mask_alpha: float | None, settings: SfmSettings,
-             thermal: tuple[SfmResult | None, str]) -> dict[str, object]:
+             thermal: tuple[SfmResult | None, str]) -> tuple[dict[str, object], list[dict[str, object]]]:
+    """The scene's row, and one row per registered frame: its errors beside the true smoke over it
+    (scoring only; SfM never reads it unless ``mask_alpha`` masks features)."""
     rgb, views, times = truth(root, "rgb")
     _, th_views, th_times = truth(root, "thermal")
     names = [f["file_stem"] for f in rgb["frames"]]
     images = [read_png(root / "rgb" / "smoky" / f"{n}.png") for n in names]
-    masks = None
-    if mask_alpha is not None:
-        pf = pass_file("rgb", "smoke_alpha", "exr")
-        masks = [read_pass_image(file_path(root, pf, n), pf, (rgb["h"], rgb["w"])) > mask_alpha for n in names]
+    pf = pass_file("rgb", "smoke_alpha", "exr")
+    alpha = [read_pass_image(file_path(root, pf, n), pf, (rgb["h"], rgb["w"])) for n in names]
+    masks = None if mask_alpha is None else [a > mask_alpha for a in alpha]
     K = intrinsics(rgb["fl_x"], rgb["fl_y"], rgb["cx"], rgb["cy"])
     bounds = scene_bounds(views, np.repeat(K[None], len(views), 0), np.full(len(views), rgb["w"]))
     row: dict[str, object] = {"scene": root.name, "mask_alpha": "none" if mask_alpha is None else mask_alpha,
@@ -115,11 +123,17 @@ def evaluate(root: Path, mask_alpha: float | None, settings: SfmSettings,
         res = run_sfm(names, images, masks, K, settings, cache=None)
     except SfmError as exc:
         row.update(wall_s=round(time.perf_counter() - t0, 2), registered=0, status=str(exc))
-        return row
+        return row, []
     wall = time.perf_counter() - t0
     reg = res.registered
     sim = align(res.viewmats[reg], views[reg])
     errs = pose_errors(res.viewmats[reg], views[reg], sim, bounds.extent)
+    rot, dist = frame_errors(res.viewmats[reg], views[reg], sim)
+    frames = [{"scene": root.name, "mask_alpha": row["mask_alpha"], "frame": names[i], "timestamp_s": times[i],
+               "true_alpha_mean": round(float(alpha[i].mean()), 4),
+               "true_alpha_over_half": round(float(np.mean(alpha[i] > 0.5)), 4),
+               "rot_deg": round(float(r), 4), "centre_err_frac": round(float(d) / bounds.extent, 5)}
+              for i, r, d in zip(np.flatnonzero(reg), rot, dist)]
     row.update(wall_s=round(wall, 2), extract_s=res.stats["extract_s"], match_s=res.stats["match_s"],
                map_s=res.stats["map_s"], registered=int(reg.sum()), registered_frac=round(float(reg.mean()), 4),
                keypoints_median=res.stats["keypoints_median"], points=len(res.points),
@@ -143,7 +157,7 @@ def evaluate(root: Path, mask_alpha: float | None, settings: SfmSettings,
                     f"thermal_{label}_rot_max_deg": round(th["rot_max_deg"], 5),
                     f"thermal_{label}_centre_rmse_m": round(th["centre_rmse_m"], 5)})
     row["status"] = "ok"
-    return row
+    return row, frames
 
 
 def thermal_sfm(root: Path, settings: SfmSettings) -> tuple[SfmResult | None, str]:
@@ -187,13 +201,14 @@ def main() -> None:
         settings = parse_settings(args.set)
     except ValueError as exc:
         ap.error(str(exc))
-    rows = []
+    rows, frame_rows = [], []
     for root in args.datasets:
         if not (root / transforms_name("rgb")).is_file():
             ap.error(f"{root}: no {transforms_name('rgb')} (not a generated dataset)")
         thermal = (None, "not run (--no-thermal)") if args.no_thermal else thermal_sfm(root, settings)
         for m in args.mask_alpha:
-            row = evaluate(root, None if m == "none" else float(m), settings, thermal)
+            row, frames = evaluate(root, None if m == "none" else float(m), settings, thermal)
+            frame_rows += frames
             row.update(settings=" ".join(args.set) or "defaults",
                        filter_max_reproj_error_px=settings.filter_max_reproj_error,
                        filter_min_tri_angle_deg=settings.filter_min_tri_angle)
@@ -202,6 +217,8 @@ def main() -> None:
             rows.append(row)
     keys = list(dict.fromkeys(k for r in rows for k in r))
     write_rows_csv(args.out / f"{args.name}.csv", [{k: r.get(k, "") for k in keys} for r in rows])
+    if frame_rows:
+        write_rows_csv(args.out / f"{args.name}_frames.csv", frame_rows)
 
 
 if __name__ == "__main__":
