@@ -1,6 +1,7 @@
 """The haze-line smoke-colour decision of every finished run of a table, beside its score.
 
     python benchmarks/smoke_colour_decisions.py [--tables data/tables_standard] [--digest PREFIX]
+        [--min-meeting F --max-brightness F]
 
 For each finished Full and RGB-only run of one trainer version (``--digest``, default: the
 version with the most runs) this reads ``metrics.json`` → ``stages.smoke_colour``: the haze-line
@@ -8,20 +9,26 @@ estimate (held, or refused with the colour the lines came nearest to), the fract
 that meet, and whether the run held it; beside the run's final validation and test PSNR. Writes
 ``benchmarks/results/standard/smoke_colour_decisions.csv``. Why: the estimate's colour can be
 stable across seeds while its trust test flips, and which runs gain from holding it is a
-question of the colour as much as of the test.
+question of the colour as much as of the test. ``--min-meeting`` / ``--max-brightness`` add what
+``smokeseer.stage1.haze_lines.refusal`` decides for each run's estimate under those settings
+(``rule_holds``), so a rule can be read against every run before any run retrains with it.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import re
+from dataclasses import replace
 from pathlib import Path
+
+import numpy as np
 
 from contracts.atomic import write_rows_csv
 from eval.finished_runs import finished_runs
+from smokeseer.stage1.haze_lines import HazeLineSettings, refusal
 
 VARIANTS = ("full", "rgb-only")
-NEAREST = re.compile(r"nearest point \[([-\d.]+), ([-\d.]+), ([-\d.]+)\]")
+REFUSED_COLOUR = re.compile(r"(?:nearest point|smoke colour|at) \[([-\d.]+), ([-\d.]+), ([-\d.]+)\]")
 
 
 def decision(stages: dict) -> dict[str, object]:
@@ -31,7 +38,7 @@ def decision(stages: dict) -> dict[str, object]:
     colour = lines.get("colour")
     held = colour is not None
     if colour is None:
-        found = NEAREST.search(lines.get("refused") or "")
+        found = REFUSED_COLOUR.search(lines.get("refused") or "")
         colour = [float(v) for v in found.groups()] if found else None
     return {"held": held, "meeting_fraction": lines.get("meeting_fraction"),
             "colour": "" if colour is None else " ".join(f"{c:.3f}" for c in colour),
@@ -43,7 +50,16 @@ def main() -> None:
     ap.add_argument("--tables", type=Path, default=Path("data/tables_standard"))
     ap.add_argument("--digest", default=None, help="trainer code digest prefix (default: the one with the most runs)")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/standard/smoke_colour_decisions.csv"))
+    ap.add_argument("--min-meeting", type=float, default=None, help="a rule's least meeting fraction (rule_holds)")
+    ap.add_argument("--max-brightness", type=float, default=None, help="a rule's brightest channel mean (rule_holds)")
     args = ap.parse_args()
+    rule = None
+    if args.min_meeting is not None or args.max_brightness is not None:
+        rule = HazeLineSettings()
+        if args.min_meeting is not None:
+            rule = replace(rule, min_meeting_fraction=args.min_meeting)
+        if args.max_brightness is not None:
+            rule = replace(rule, max_brightness=args.max_brightness)
     try:
         _, runs = finished_runs(args.tables, VARIANTS, args.digest)
     except ValueError as exc:
@@ -54,11 +70,19 @@ def main() -> None:
         rows.append({"scene": rec["scene"], "variant": rec["variant"], "seed": rec["seed"],
                      "code_digest": rec["code_digest"][:8], **decision(doc["stages"]),
                      "val_psnr": round(doc["validation"]["psnr"], 3), "test_psnr": round(doc["metrics"]["psnr"], 3)})
+        if rule is not None:
+            d = rows[-1]
+            holds = "" if not d["colour"] else not refusal(np.array([float(c) for c in d["colour"].split()]),
+                                                             d["meeting_fraction"], rule)
+            d.update(rule=f"min_meeting {rule.min_meeting_fraction}, max_brightness {rule.max_brightness}",
+                     rule_holds=holds)
     write_rows_csv(args.out, rows)
     for r in rows:
         print(f"{r['scene']:11s} {r['variant']:8s} {r['seed']}  meet {r['meeting_fraction']:.2f}  colour "
               f"[{r['colour']}] (mean {r['colour_mean']})  {'held   ' if r['held'] else 'learned'}  "
-              f"val {r['val_psnr']:.2f}  test {r['test_psnr']:.2f}")
+              f"val {r['val_psnr']:.2f}  test {r['test_psnr']:.2f}"
+              + ("" if rule is None or r["rule_holds"] == r["held"] else
+                 f"  -> rule: {'held' if r['rule_holds'] else 'learned'}"))
     print(f"{len(rows)} runs, trainer {rows[0]['code_digest']}; wrote {args.out}")
 
 

@@ -5,8 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from benchmarks.smoke_colour_decisions import decision
 from scenes.cameras import backproject
-from smokeseer.stage1.haze_lines import HazeLineSettings, estimate_smoke_colour, fit_lines, meeting_point, observations
+from smokeseer.stage1.haze_lines import (HazeLineSettings, estimate_smoke_colour, fit_lines, meeting_point, observations,
+                                         refusal)
 
 SMOKE = np.array([0.2, 0.3, 0.25])
 F, W, H = 100.0, 64, 48
@@ -114,3 +116,16 @@ def test_estimate_on_a_smokeless_sequence_is_a_refusal_not_nan(spread: float) ->
     images, depths, valid, vms, ks = _static_frames(np.ones((20, H, W)) - spread * rng.random((20, H, W)), rng)
     est = estimate_smoke_colour(images, depths, valid, vms, ks, np.random.default_rng(0))
     assert est.colour is None and est.meeting_fraction is None
+
+
+@pytest.mark.parametrize("colour, met", [((0.7, 0.53, 0.42), 0.3),      # the lines do not meet
+                                         ((0.7, 0.53, 0.42), 0.6),      # bright
+                                         ((1.2, 0.5, 0.4), 0.6)])       # outside the cube
+def test_the_decisions_table_reads_the_colour_back_from_every_refusal(colour: tuple, met: float) -> None:
+    reason = refusal(np.array(colour), met, HazeLineSettings(max_brightness=0.5))
+    assert reason
+    stages = {"smoke_colour": {"haze_lines": {"colour": None, "meeting_fraction": met, "refused": reason}}}
+    got = decision(stages)
+    assert not got["held"]
+    assert [float(c) for c in got["colour"].split()] == pytest.approx(colour, abs=1e-3)
+    assert refusal(np.array((0.2, 0.2, 0.22)), 0.6, HazeLineSettings(max_brightness=0.5)) == ""

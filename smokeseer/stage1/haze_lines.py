@@ -55,6 +55,21 @@ class SmokeColourEstimate:
         return f"{found} ({self.lines} observation lines from {self.points} points{met})"
 
 
+def refusal(colour: np.ndarray, met: float, settings: HazeLineSettings) -> str:
+    """Why a meeting point ``colour`` whose lines meet at fraction ``met`` is not held, or "" when
+    it is: the trust test, the colour cube, then the brightness rule (reasons: ``Stage3Config``)."""
+    if met < settings.min_meeting_fraction:
+        return (f"the lines do not meet: under {settings.min_meeting_fraction} of them pass within "
+                f"{settings.meet_tolerance} of their nearest point {np.round(colour, 3).tolist()}")
+    if np.any(colour < -0.05) or np.any(colour > 1.05):
+        return f"the lines meet outside the colour cube, at {np.round(colour, 3).tolist()}"
+    if float(np.mean(colour)) > settings.max_brightness:
+        return (f"a bright smoke colour {np.round(colour, 3).tolist()} (channel mean {float(np.mean(colour)):.2f}, "
+                f"over {settings.max_brightness}): a scattering smoke's radiance follows the light and the view, "
+                "so each smoke Gaussian learns its own")
+    return ""
+
+
 def observations(points: np.ndarray, images: np.ndarray, depths: np.ndarray, valid: np.ndarray,
                  viewmats: np.ndarray, Ks: np.ndarray, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
     """Each frame's colour of each world point (frames, points, 3) and whether the frame sees it:
@@ -139,16 +154,7 @@ def estimate_smoke_colour(images: np.ndarray, depths: np.ndarray, valid: np.ndar
     if colour is None:
         return SmokeColourEstimate(None, lines, n_points, reason="the observation lines are parallel")
     met = float((line_distances(colour, means, dirs) <= settings.meet_tolerance).mean())
-    if met < settings.min_meeting_fraction:
-        return SmokeColourEstimate(None, lines, n_points, met, f"the lines do not meet: under {settings.min_meeting_fraction} "
-                                   f"of them pass within {settings.meet_tolerance} of their nearest point "
-                                   f"{np.round(colour, 3).tolist()}")
-    if np.any(colour < -0.05) or np.any(colour > 1.05):
-        return SmokeColourEstimate(None, lines, n_points, met, "the lines meet outside the colour cube, at "
-                                   f"{np.round(colour, 3).tolist()}")
-    if float(np.mean(colour)) > settings.max_brightness:
-        return SmokeColourEstimate(None, lines, n_points, met, f"a bright smoke colour {np.round(colour, 3).tolist()} "
-                                   f"(channel mean {float(np.mean(colour)):.2f}, over {settings.max_brightness}): a "
-                                   "scattering smoke's radiance follows the light and the view, so each smoke "
-                                   "Gaussian learns its own")
+    reason = refusal(colour, met, settings)
+    if reason:
+        return SmokeColourEstimate(None, lines, n_points, met, reason)
     return SmokeColourEstimate(np.clip(colour, 0.01, 0.99), lines, n_points, met)
