@@ -1,7 +1,7 @@
 """The haze-line smoke-colour decision of every finished run of a table, beside its score.
 
     python benchmarks/smoke_colour_decisions.py [--tables data/tables_standard] [--digest PREFIX]
-        [--min-meeting F --max-brightness F]
+        [--min-meeting F --max-brightness F] [--datasets data/standard]
 
 For each finished Full and RGB-only run of one trainer version (``--digest``, default: the
 version with the most runs) this reads ``metrics.json`` → ``stages.smoke_colour``: the haze-line
@@ -12,6 +12,9 @@ stable across seeds while its trust test flips, and which runs gain from holding
 question of the colour as much as of the test. ``--min-meeting`` / ``--max-brightness`` add what
 ``smokeseer.stage1.haze_lines.refusal`` decides for each run's estimate under those settings
 (``rule_holds``), so a rule can be read against every run before any run retrains with it.
+``--datasets`` adds each scene's true smoke colour, read off the generator's passes (scoring only):
+(smoky − (1 − α)·clean) / α over the pixels of every third RGB frame where α > 0.3, its median
+and the mean 10th-90th percentile spread over channels (how far one colour is from every pixel's).
 """
 from __future__ import annotations
 
@@ -24,6 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from contracts.atomic import write_rows_csv
+from contracts.dataset_format import file_path, load_transforms, pass_file, read_pass_image
+from contracts.imageio import image01, read_png
 from eval.finished_runs import finished_runs
 from smokeseer.stage1.haze_lines import HazeLineSettings, refusal
 
@@ -45,6 +50,24 @@ def decision(stages: dict) -> dict[str, object]:
             "colour_mean": None if colour is None else round(sum(colour) / 3, 3)}
 
 
+def true_smoke_colour(root: Path, min_alpha: float = 0.3, every: int = 3) -> tuple[list[float], float]:
+    """The median of the per-pixel smoke colour the passes imply, and its 10th-90th percentile spread."""
+    data = load_transforms(root, "rgb")
+    spec = pass_file("rgb", "smoke_alpha", "exr")
+    colours = []
+    for frame in data["frames"][::every]:
+        name = frame["file_stem"]
+        smoky, clean = (image01(read_png(root / "rgb" / kind / f"{name}.png")[..., :3]) for kind in ("smoky", "clean"))
+        alpha = read_pass_image(file_path(root, spec, name), spec, (data["h"], data["w"]))[..., None]
+        inside = alpha[..., 0] > min_alpha
+        colours.append(((smoky - (1.0 - alpha) * clean) / np.maximum(alpha, min_alpha))[inside])
+    c = np.concatenate(colours)
+    if not len(c):
+        return [], 0.0
+    spread = np.percentile(c, 90, axis=0) - np.percentile(c, 10, axis=0)
+    return [round(float(v), 3) for v in np.median(c, axis=0)], round(float(spread.mean()), 3)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--tables", type=Path, default=Path("data/tables_standard"))
@@ -52,6 +75,7 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/standard/smoke_colour_decisions.csv"))
     ap.add_argument("--min-meeting", type=float, default=None, help="a rule's least meeting fraction (rule_holds)")
     ap.add_argument("--max-brightness", type=float, default=None, help="a rule's brightest channel mean (rule_holds)")
+    ap.add_argument("--datasets", type=Path, default=None, help="the scenes' datasets, for the true smoke colour")
     args = ap.parse_args()
     rule = None
     if args.min_meeting is not None or args.max_brightness is not None:
@@ -64,6 +88,7 @@ def main() -> None:
         _, runs = finished_runs(args.tables, VARIANTS, args.digest)
     except ValueError as exc:
         raise SystemExit(str(exc)) from None
+    truth: dict[str, tuple[list[float], float]] = {}
     rows = []
     for folder, rec in runs:
         doc = json.loads((folder / "metrics.json").read_text())
@@ -76,6 +101,11 @@ def main() -> None:
                                                              d["meeting_fraction"], rule)
             d.update(rule=f"min_meeting {rule.min_meeting_fraction}, max_brightness {rule.max_brightness}",
                      rule_holds=holds)
+        if args.datasets is not None:
+            if rec["scene"] not in truth:
+                truth[rec["scene"]] = true_smoke_colour(args.datasets / rec["scene"])
+            colour, spread = truth[rec["scene"]]
+            rows[-1].update(true_colour=" ".join(f"{c:.3f}" for c in colour), true_colour_spread=spread)
     write_rows_csv(args.out, rows)
     for r in rows:
         print(f"{r['scene']:11s} {r['variant']:8s} {r['seed']}  meet {r['meeting_fraction']:.2f}  colour "
