@@ -96,7 +96,11 @@ def frame_errors(est: np.ndarray, ref: np.ndarray, sim: Alignment) -> tuple[np.n
 
 def pose_errors(est: np.ndarray, ref: np.ndarray, sim: Alignment, extent: float) -> dict[str, float]:
     """Median and max rotation error (deg) and centre RMSE (fraction of ``extent``) after ``sim``."""
-    rot, dist = frame_errors(est, ref, sim)
+    return summarise(*frame_errors(est, ref, sim), extent)
+
+
+def summarise(rot: np.ndarray, dist: np.ndarray, extent: float) -> dict[str, float]:
+    """``pose_errors`` from the per-frame errors."""
     return {"rot_median_deg": float(np.median(rot)), "rot_max_deg": float(rot.max()),
             "centre_rmse_m": float(np.sqrt(np.mean(dist ** 2))),
             "centre_rmse_frac": float(np.sqrt(np.mean(dist ** 2)) / extent)}
@@ -127,8 +131,8 @@ def evaluate(root: Path, mask_alpha: float | None, settings: SfmSettings,
     wall = time.perf_counter() - t0
     reg = res.registered
     sim = align(res.viewmats[reg], views[reg])
-    errs = pose_errors(res.viewmats[reg], views[reg], sim, bounds.extent)
     rot, dist = frame_errors(res.viewmats[reg], views[reg], sim)
+    errs = summarise(rot, dist, bounds.extent)
     frames = [{"scene": root.name, "mask_alpha": row["mask_alpha"], "frame": names[i], "timestamp_s": times[i],
                "true_alpha_mean": round(float(alpha[i].mean()), 4),
                "true_alpha_over_half": round(float(np.mean(alpha[i] > 0.5)), 4),

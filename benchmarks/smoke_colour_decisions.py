@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import re
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -36,16 +35,21 @@ VARIANTS = ("full", "rgb-only")
 REFUSED_COLOUR = re.compile(r"(?:nearest point|smoke colour|at) \[([-\d.]+), ([-\d.]+), ([-\d.]+)\]")
 
 
-def decision(stages: dict) -> dict[str, object]:
-    """The estimate's colour (held, or the refused one), its mean over channels, the meeting
-    fraction and whether it was held."""
+def estimate(stages: dict) -> tuple[list[float] | None, float | None, bool]:
+    """The estimate's colour (held, or the refused one), the meeting fraction and whether it was held."""
     lines = (stages.get("smoke_colour") or {}).get("haze_lines") or {}
     colour = lines.get("colour")
     held = colour is not None
     if colour is None:
         found = REFUSED_COLOUR.search(lines.get("refused") or "")
         colour = [float(v) for v in found.groups()] if found else None
-    return {"held": held, "meeting_fraction": lines.get("meeting_fraction"),
+    return colour, lines.get("meeting_fraction"), held
+
+
+def decision(stages: dict) -> dict[str, object]:
+    """``estimate`` as table columns, with the colour's mean over channels."""
+    colour, met, held = estimate(stages)
+    return {"held": held, "meeting_fraction": met,
             "colour": "" if colour is None else " ".join(f"{c:.3f}" for c in colour),
             "colour_mean": None if colour is None else round(sum(colour) / 3, 3)}
 
@@ -77,13 +81,9 @@ def main() -> None:
     ap.add_argument("--max-brightness", type=float, default=None, help="a rule's brightest channel mean (rule_holds)")
     ap.add_argument("--datasets", type=Path, default=None, help="the scenes' datasets, for the true smoke colour")
     args = ap.parse_args()
-    rule = None
-    if args.min_meeting is not None or args.max_brightness is not None:
-        rule = HazeLineSettings()
-        if args.min_meeting is not None:
-            rule = replace(rule, min_meeting_fraction=args.min_meeting)
-        if args.max_brightness is not None:
-            rule = replace(rule, max_brightness=args.max_brightness)
+    given = {k: v for k, v in (("min_meeting_fraction", args.min_meeting), ("max_brightness", args.max_brightness))
+             if v is not None}
+    rule = HazeLineSettings(**given) if given else None
     try:
         _, runs = finished_runs(args.tables, VARIANTS, args.digest)
     except ValueError as exc:
@@ -96,11 +96,9 @@ def main() -> None:
                      "code_digest": rec["code_digest"][:8], **decision(doc["stages"]),
                      "val_psnr": round(doc["validation"]["psnr"], 3), "test_psnr": round(doc["metrics"]["psnr"], 3)})
         if rule is not None:
-            d = rows[-1]
-            holds = "" if not d["colour"] else not refusal(np.array([float(c) for c in d["colour"].split()]),
-                                                             d["meeting_fraction"], rule)
-            d.update(rule=f"min_meeting {rule.min_meeting_fraction}, max_brightness {rule.max_brightness}",
-                     rule_holds=holds)
+            colour, met, _ = estimate(doc["stages"])
+            rows[-1].update(rule=f"min_meeting {rule.min_meeting_fraction}, max_brightness {rule.max_brightness}",
+                            rule_holds="" if colour is None else not refusal(np.array(colour), met, rule))
         if args.datasets is not None:
             if rec["scene"] not in truth:
                 truth[rec["scene"]] = true_smoke_colour(args.datasets / rec["scene"])

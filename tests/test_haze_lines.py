@@ -128,4 +128,7 @@ def test_the_decisions_table_reads_the_colour_back_from_every_refusal(colour: tu
     got = decision(stages)
     assert not got["held"]
     assert [float(c) for c in got["colour"].split()] == pytest.approx(colour, abs=1e-3)
+
+
+def test_a_dark_colour_whose_lines_meet_is_held() -> None:
     assert refusal(np.array((0.2, 0.2, 0.22)), 0.6, HazeLineSettings(max_brightness=0.5)) == ""
