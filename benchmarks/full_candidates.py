@@ -1,7 +1,7 @@
 """Validation PSNR of candidate Full trainers (issue: thermal that never costs), beside the
 standard Full with the floor read off the images and the committed RGB-only runs.
 
-    python benchmarks/full_candidates.py NAME LABEL=RUN_DIR ... [--tables data/tables_standard]
+    python benchmarks/full_candidates.py NAME LABEL=RUN_DIR ... [--tables data/tables_standard] [--add]
 
 Each RUN_DIR is a finished ``train-and-evaluate DATASET --profile standard --seed S`` run; LABEL
 names its trainer (``estimated-floor`` for today's standard Full, or the candidate). For every
@@ -10,11 +10,16 @@ Writes ``benchmarks/results/full_candidates/NAME.csv`` (every logged validation 
 ``NAME_final.csv`` (last and best validation, test PSNR reported but never used to choose,
 counts, wall time, and the Stage-2 and Stage-3 seconds: a run that took a finished Stage 2
 of the same key from another run's checkpoint shows its Stage 2 as about 0 s) and
-``NAME.png``. Choices read the validation columns only.
+``NAME.png``. Choices read the validation columns only. ``--add`` keeps the rows already in
+``NAME.csv`` and ``NAME_final.csv`` of every (scene, seed, trainer) the given runs do not replace,
+so a table grows run by run without the folders of its earlier runs. ``--take TABLE:LABEL``
+copies the rows of trainer LABEL from the table TABLE (another NAME here) for the scenes and
+seeds this table holds, so a baseline trained once serves every comparison.
 """
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import sys
 from pathlib import Path
@@ -63,6 +68,25 @@ def committed_run(tables: Path, scene: str, method: str, seed: int, trainer: str
     raise ValueError(f"{tables / 'runs' / scene / method}: no finished seed-{seed} run of trainer {trainer}")
 
 
+INT_COLUMNS = ("seed", "iteration", "best_at", "surface", "smoke")
+FLOAT_COLUMNS = ("wall_s", "val_psnr", "best_val_psnr", "test_psnr", "stage2_s", "stage3_s")
+
+
+def read_rows(path: Path) -> list[dict]:
+    """A CSV this script wrote, its number columns parsed back, so kept rows sort and print as new ones do."""
+    with path.open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    for row in rows:
+        row.update({k: int(v) for k, v in row.items() if k in INT_COLUMNS})
+        row.update({k: float(v) for k, v in row.items() if k in FLOAT_COLUMNS})
+    return rows
+
+
+def kept_rows(path: Path, replaced: set[tuple]) -> list[dict]:
+    """The rows of ``path`` whose (scene, seed, trainer) is not in ``replaced``."""
+    return [r for r in read_rows(path) if (r["scene"], r["seed"], r["trainer"]) not in replaced]
+
+
 def plot(curves: list[dict], path: Path) -> None:
     scenes = list(dict.fromkeys((c["scene"], c["seed"]) for c in curves))
     fig, axes = plt.subplots(1, len(scenes), figsize=(4 * len(scenes), 3.6), squeeze=False)
@@ -89,6 +113,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("name")
     p.add_argument("runs", nargs="+", help="LABEL=RUN_DIR")
     p.add_argument("--tables", type=Path, default=Path("data/tables_standard"))
+    p.add_argument("--add", action="store_true", help="keep the existing rows the given runs do not replace")
+    p.add_argument("--take", action="append", default=[], metavar="TABLE:LABEL",
+                   help="copy trainer LABEL's rows of these scenes and seeds from table TABLE")
     args = p.parse_args(argv)
     summaries, curves = [], []
     try:
@@ -106,6 +133,21 @@ def main(argv: list[str] | None = None) -> int:
             s, c = read_run(RGB_ONLY_LABEL, committed_run(args.tables, scene, "rgb-only", seed, RGB_ONLY_TRAINER))
             summaries.append(s)
             curves += c
+        if args.add:
+            replaced = {(s["scene"], s["seed"], s["trainer"]) for s in summaries}
+            summaries += kept_rows(OUT / f"{args.name}_final.csv", replaced)
+            curves += kept_rows(OUT / f"{args.name}.csv", replaced)
+        pairs = {(s["scene"], s["seed"]) for s in summaries}
+        for item in args.take:
+            table, sep, label = item.partition(":")
+            if not sep or not table or not label:
+                raise ValueError(f"--take {item}: give TABLE:LABEL")
+            have = {(s["scene"], s["seed"], s["trainer"]) for s in summaries}
+            taken = [r for r in read_rows(OUT / f"{table}_final.csv")
+                     if r["trainer"] == label and (r["scene"], r["seed"]) in pairs and (r["scene"], r["seed"], label) not in have]
+            keys = {(r["scene"], r["seed"], label) for r in taken}
+            summaries += taken
+            curves += [r for r in read_rows(OUT / f"{table}.csv") if (r["scene"], r["seed"], r["trainer"]) in keys]
     except (OSError, ValueError, KeyError) as exc:
         print(f"full_candidates: error: {exc}", file=sys.stderr)
         return 2

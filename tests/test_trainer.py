@@ -25,7 +25,8 @@ from scipy import ndimage
 from smokeseer.cli import main
 from smokeseer.evaluation.figures import figure_path
 from smokeseer.raster import read_ply
-from smokeseer.train.stage3 import Stage3Problem, smoke_free_centres
+from smokeseer.model.scene import make_view
+from smokeseer.train.stage3 import Stage3Problem, smoke_free_centres, smoke_min_log_scale
 from contracts.results_format import validate_run_dir
 from tests.test_smokeseer_data import write_splat_dataset
 
@@ -231,6 +232,41 @@ def test_surface_refinement_densifies_the_surface_only_when_asked(splat: Path, t
         counts[name] = (stage2, doc["stages"]["surface_gaussians"])
     assert counts["off"][1] == counts["off"][0]
     assert counts["on"][0] == counts["off"][0] and counts["on"][1] > counts["on"][0]
+
+
+def test_smoke_min_scale_is_pixels_at_the_median_camera_distance() -> None:
+    """Three cameras 2, 4 and 10 units from the centre, focal lengths 100, 200 and 100 px: one
+    pixel there is 0.02, 0.02 and 0.1 units, so 3 pixels at the median is 0.06."""
+    views = []
+    for distance, focal in ((2.0, 100.0), (4.0, 200.0), (10.0, 100.0)):
+        viewmat = np.eye(4)
+        viewmat[2, 3] = distance  # camera at (0, 0, -distance), looking along +z at the origin
+        K = np.array([[focal, 0.0, 32.0], [0.0, focal, 24.0], [0.0, 0.0, 1.0]])
+        views.append(make_view(viewmat, K, 64, 48, 0.0, torch.device("cpu")))
+    assert math.exp(smoke_min_log_scale(views, torch.zeros(3), 3.0)) == pytest.approx(0.06, rel=1e-6)
+
+
+def test_smoke_min_scale_bounds_every_placed_smoke_gaussian(splat: Path, tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture) -> None:
+    """With stage3.smoke_min_scale_px, no smoke Gaussian is finer than the bound the log states,
+    neither the trained parameters nor the Gaussians placed at any time (the deformation network
+    predicts scale offsets); the same run without it has finer smoke, so the check can fail."""
+    finest = {}
+    for name, extra in (("free", []), ("bounded", ["--set", "stage3.smoke_min_scale_px=6"])):
+        run = tmp_path / name
+        capsys.readouterr()
+        assert main([str(splat), "--out", str(run)] + TINY + extra) == 0
+        _assert_complete(run)
+        state = torch.load(run / "checkpoints" / "stage3.pt", map_location="cpu", weights_only=False)
+        placed = min(float(read_ply(p).log_scales.min()) for p in (run / "ply").glob("smoke_t*.ply"))
+        finest[name] = (float(state["smoke"]["log_scales"].min()), placed)
+        stated = re.search(r"smoke Gaussians kept at least 6 RGB pixels wide \(([0-9.e+-]+) scene units",
+                           capsys.readouterr().err)
+        assert (stated is None) == (name == "free")
+    bound = math.log(float(stated.group(1)))
+    assert finest["bounded"][0] == pytest.approx(bound, abs=1e-3)  # some parameters sit on the bound
+    assert finest["bounded"][1] >= bound - 1e-3
+    assert min(finest["free"]) < bound - 0.1
 
 
 def test_smoke_free_centres_gate_on_the_centre_pixel() -> None:

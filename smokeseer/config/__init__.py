@@ -196,6 +196,11 @@ class Stage3Config:
     averages each block back to one sensor pixel, as the sensor integrates over its pixel (and as
     the generator renders thermal). At 1 the Gaussians are drawn at the sensor's pixels with the
     rasterizer's 0.3 px² dilation, which draws a surface grown for the RGB too fat in thermal."""
+    smoke_min_scale_px: float = 0.0
+    """Smoke Gaussians are kept at least this wide (standard deviation along every axis) in RGB
+    pixels at the median distance from the training cameras to the scene centre. Smoke is a smooth
+    medium; smoke Gaussians a pixel or two wide can carry the surface's texture, which the surface
+    should hold. 0: no bound."""
     test_every: int = 1000
 
 
@@ -288,6 +293,8 @@ class TrainConfig:
             raise ValueError(f"stage3.thermal_supersample: must be 1 to 8, got {self.stage3.thermal_supersample}")
         if not 0.0 <= self.stage3.carve_tolerance < 1.0:
             raise ValueError(f"stage3.carve_tolerance: must be in [0, 1), got {self.stage3.carve_tolerance}")
+        if not 0.0 <= self.stage3.smoke_min_scale_px <= 50.0:
+            raise ValueError(f"stage3.smoke_min_scale_px: must be in [0, 50] pixels, got {self.stage3.smoke_min_scale_px}")
         if not 0.0 < self.stage3.surface_densify_max_smoke <= 1.0:
             raise ValueError("stage3.surface_densify_max_smoke: must be in (0, 1], "
                              f"got {self.stage3.surface_densify_max_smoke}")

@@ -210,6 +210,9 @@ class SceneModel:
     surface_deform: DeformNetwork | None = None
     background_rgb: EnvironmentBackground | None = None
     background_thermal: EnvironmentBackground | None = None
+    smoke_min_log_scale: float | None = None
+    """No placed smoke Gaussian is finer than this (``stage3.smoke_min_scale_px``), whatever the
+    deformation network's scale offsets; None: no bound."""
 
     def surface_at(self, t: float) -> Placed:
         """Surface Gaussians are static, except in the deformable-3dgs baseline."""
@@ -223,6 +226,8 @@ class SceneModel:
             raise ValueError("smoke_at: this model has no smoke Gaussians")
         placed = place_deformed(self.smoke, None if self.smoke_static else self.deform, t, self.center,
                                 deform_active)
+        if self.smoke_min_log_scale is not None:
+            placed = replace(placed, log_scales=placed.log_scales.clamp_min(self.smoke_min_log_scale))
         tw = smoke_time_opacity(self.smoke, t, self.smoke_static)
         return (placed, torch.sigmoid(self.smoke["opacity_rgb"]) * tw,
                 torch.sigmoid(self.smoke["opacity_thermal"]) * tw)

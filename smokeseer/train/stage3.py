@@ -19,7 +19,7 @@ from smokeseer.config import TrainConfig, at_iteration
 from smokeseer.model.deform import DeformNetwork
 from smokeseer.model.gaussians import DensifyStrategy, GaussianSet, make_optimizer
 from smokeseer.model.optim import Adam
-from smokeseer.model.scene import SceneModel, add_rgb_sh, box_filter, finer_view, make_smoke
+from smokeseer.model.scene import SceneModel, View, add_rgb_sh, box_filter, finer_view, make_smoke
 from smokeseer.raster.output import RasterOutput
 from smokeseer.train.depth_prior import DepthPriorMaps
 from smokeseer.train.loop import IterationOutput, StageProblem, StageSchedule, run_stage
@@ -120,6 +120,11 @@ class Stage3Problem(StageProblem):
             if self.th_factor > 1:
                 self.th_views = [finer_view(v, self.th_factor) for v in self.th_views]
             self.th_imgs = torch.as_tensor(thermal.images[th_idx], device=dev)
+        if model.smoke is not None and cfg.stage3.smoke_min_scale_px > 0:
+            model.smoke_min_log_scale = smoke_min_log_scale(self.rgb_views, ctx.center, cfg.stage3.smoke_min_scale_px)
+            ctx.log_line(f"stage 3: smoke Gaussians kept at least {cfg.stage3.smoke_min_scale_px:g} RGB pixels wide "
+                         f"({np.exp(model.smoke_min_log_scale):.4g} scene units at the cameras' median distance)")
+        self._hold_smoke_scale()
         self.depth_on = prior is not None and self.weights["depth"] > 0
         self.depth_on_thermal = self.depth_on and prior.camera == "thermal"
         if self.depth_on_thermal and self.th_imgs is None:
@@ -226,6 +231,15 @@ class Stage3Problem(StageProblem):
             self.surface_strategy.step(it, model.surface, self.surface_optimizer, self.ctx.generator)
         if smoke:
             self.strategy.step(it, model.smoke, self.smoke_optimizer, self.ctx.generator)
+        self._hold_smoke_scale()
+
+    def _hold_smoke_scale(self) -> None:
+        """Raise every smoke scale below ``stage3.smoke_min_scale_px`` to it (after each step and
+        split, so no parameter sits where the bound at placement leaves it without a gradient)."""
+        floor = self.model.smoke_min_log_scale
+        if floor is not None and self.model.smoke is not None:
+            with torch.no_grad():
+                self.model.smoke["log_scales"].clamp_(min=floor)
 
     def _smoke_cover(self, raster: RasterOutput, k: int) -> torch.Tensor | None:
         """Where this RGB view has smoke: the smoke alpha of the same render pass, and the Stage 1
@@ -270,6 +284,17 @@ class Stage3Problem(StageProblem):
 
     def heldout_psnr(self, it: int) -> dict[str, float | None] | None:
         return None if self.heldout_fn is None else self.heldout_fn(self.model, it)
+
+
+def smoke_min_log_scale(views: list[View], center: torch.Tensor, pixels: float) -> float:
+    """The log of the world size of ``pixels`` pixels at the median distance from the cameras of
+    ``views`` to ``center``, each view's pixel being its distance over its focal length."""
+    sizes = []
+    for v in views:
+        rot, t = v.viewmat[0, :3, :3], v.viewmat[0, :3, 3]
+        eye = -rot.T @ t
+        sizes.append(float(torch.linalg.vector_norm(eye - center)) / float(v.K[0, 0, 0]))
+    return float(np.log(pixels * float(np.median(sizes))))
 
 
 def _rendered_smoke_alpha(raster: RasterOutput) -> torch.Tensor | None:
