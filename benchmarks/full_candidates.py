@@ -78,7 +78,7 @@ def read_rows(path: Path) -> list[dict]:
         rows = list(csv.DictReader(f))
     for row in rows:
         row.update({k: int(v) for k, v in row.items() if k in INT_COLUMNS})
-        row.update({k: float(v) for k, v in row.items() if k in FLOAT_COLUMNS})
+        row.update({k: float(v) for k, v in row.items() if k in FLOAT_COLUMNS and v != ""})  # "": not recorded
     return rows
 
 
@@ -155,7 +155,8 @@ def main(argv: list[str] | None = None) -> int:
     curves.sort(key=lambda c: (c["scene"], c["seed"], c["trainer"], c["iteration"]))
     OUT.mkdir(parents=True, exist_ok=True)
     write_rows_csv(OUT / f"{args.name}.csv", curves)
-    write_rows_csv(OUT / f"{args.name}_final.csv", summaries)
+    columns = list(dict.fromkeys(k for row in summaries for k in row))  # tables written before a column existed lack it
+    write_rows_csv(OUT / f"{args.name}_final.csv", [{k: row.get(k, "") for k in columns} for row in summaries])
     plot(curves, OUT / f"{args.name}.png")
     for s in summaries:
         print(f"{s['scene']} seed {s['seed']} {s['trainer']:>38}: validation {s['val_psnr']:.2f} dB "
