@@ -1,7 +1,7 @@
 """Validation PSNR of candidate Full trainers (issue: thermal that never costs), beside the
 standard Full with the floor read off the images and the committed RGB-only runs.
 
-    python benchmarks/full_candidates.py NAME LABEL=RUN_DIR ... [--tables data/tables_standard] [--add]
+    python benchmarks/full_candidates.py NAME LABEL=RUN_DIR ... [--tables data/tables_standard] [--add] [--take TABLE:LABEL]
 
 Each RUN_DIR is a finished ``train-and-evaluate DATASET --profile standard --seed S`` run; LABEL
 names its trainer (``estimated-floor`` for today's standard Full, or the candidate). For every
