@@ -14,12 +14,13 @@ from typing import Any, Callable
 import numpy as np
 import torch
 
+from scenes.cameras import camera_center
 from scenes.scene import ModalityData
 from smokeseer.config import TrainConfig, at_iteration
 from smokeseer.model.deform import DeformNetwork
 from smokeseer.model.gaussians import DensifyStrategy, GaussianSet, make_optimizer
 from smokeseer.model.optim import Adam
-from smokeseer.model.scene import SceneModel, View, add_rgb_sh, box_filter, finer_view, make_smoke
+from smokeseer.model.scene import SceneModel, add_rgb_sh, box_filter, finer_view, make_smoke
 from smokeseer.raster.output import RasterOutput
 from smokeseer.train.depth_prior import DepthPriorMaps
 from smokeseer.train.loop import IterationOutput, StageProblem, StageSchedule, run_stage
@@ -121,7 +122,8 @@ class Stage3Problem(StageProblem):
                 self.th_views = [finer_view(v, self.th_factor) for v in self.th_views]
             self.th_imgs = torch.as_tensor(thermal.images[th_idx], device=dev)
         if model.smoke is not None and cfg.stage3.smoke_min_scale_px > 0:
-            model.smoke_min_log_scale = smoke_min_log_scale(self.rgb_views, ctx.center, cfg.stage3.smoke_min_scale_px)
+            model.smoke_min_log_scale = smoke_min_log_scale(*rgb.cameras("train"), ctx.center.cpu().numpy(),
+                                                            cfg.stage3.smoke_min_scale_px)
             ctx.log_line(f"stage 3: smoke Gaussians kept at least {cfg.stage3.smoke_min_scale_px:g} RGB pixels wide "
                          f"({np.exp(model.smoke_min_log_scale):.4g} scene units at the cameras' median distance)")
         self._hold_smoke_scale()
@@ -286,14 +288,11 @@ class Stage3Problem(StageProblem):
         return None if self.heldout_fn is None else self.heldout_fn(self.model, it)
 
 
-def smoke_min_log_scale(views: list[View], center: torch.Tensor, pixels: float) -> float:
-    """The log of the world size of ``pixels`` pixels at the median distance from the cameras of
-    ``views`` to ``center``, each view's pixel being its distance over its focal length."""
-    sizes = []
-    for v in views:
-        rot, t = v.viewmat[0, :3, :3], v.viewmat[0, :3, 3]
-        eye = -rot.T @ t
-        sizes.append(float(torch.linalg.vector_norm(eye - center)) / float(v.K[0, 0, 0]))
+def smoke_min_log_scale(viewmats: np.ndarray, Ks: np.ndarray, center: np.ndarray, pixels: float) -> float:
+    """The log of the world size of ``pixels`` pixels at the median distance from the cameras
+    (world-to-camera ``viewmats``, intrinsics ``Ks``) to ``center``, each camera's pixel being its
+    distance over its focal length."""
+    sizes = [np.linalg.norm(camera_center(v) - center) / K[0, 0] for v, K in zip(viewmats, Ks)]
     return float(np.log(pixels * float(np.median(sizes))))
 
 
