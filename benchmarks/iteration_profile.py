@@ -213,6 +213,7 @@ class ProfiledProblem(StageProblem):
     def __init__(self, inner: StageProblem, offset: int, prof: profile) -> None:
         self.inner, self.offset, self.prof = inner, offset, prof
         self.stage, self.name = inner.stage, inner.name
+        self.checkpoint = f"{inner.checkpoint}_profiled"  # never the real stage's: nothing to resume
         self.clock: dict[int, tuple[float, float]] = {}
 
     def forward(self, it: int) -> IterationOutput:

@@ -24,6 +24,7 @@ from scipy import ndimage
 
 from smokeseer.cli import main
 from smokeseer.evaluation.figures import figure_path
+from smokeseer.model.deform import fourier_bases, motion_offsets, motion_tensors
 from smokeseer.raster import read_ply
 from smokeseer.train.stage3 import Stage3Problem, smoke_free_centres, smoke_min_log_scale
 from contracts.results_format import validate_run_dir
@@ -715,3 +716,55 @@ def test_guard_names_the_first_non_finite_tensor_and_passes_huge_finite_values(b
     with pytest.raises(NaNDetected) as exc:
         guard(3, 7, named + [("f.grad", broken), ("g.grad", torch.full((2,), bad))])
     assert (exc.value.stage, exc.value.iteration, exc.value.tensor) == (3, 7, "f.grad")
+
+
+def test_fourier_bases_and_offsets_match_their_closed_form() -> None:
+    """The bases at t are (t, sin kπt, cos kπt); an offset is the coefficients' sum over them, and
+    its gradient with respect to a coefficient is that basis (autograd against the closed form)."""
+    t, terms = 0.3, 3
+    phi = fourier_bases(t, terms, torch.zeros(1, dtype=torch.float64))
+    k = np.arange(1, terms + 1)
+    assert phi.numpy() == pytest.approx(np.concatenate([[t], np.sin(k * np.pi * t), np.cos(k * np.pi * t)]), abs=1e-15)
+    gen = torch.Generator().manual_seed(0)
+    params = {key: torch.randn(5, 1 + 2 * terms, c, generator=gen, dtype=torch.float64, requires_grad=True)
+              for key, c in (("motion_means", 3), ("motion_quats", 4), ("motion_log_scales", 3))}
+    d_xyz, d_rot, d_scale = motion_offsets(params, t)
+    for out, key in ((d_xyz, "motion_means"), (d_rot, "motion_quats"), (d_scale, "motion_log_scales")):
+        assert out.detach().numpy() == pytest.approx(np.einsum("nbc,b->nc", params[key].detach().numpy(), phi.numpy()))
+    d_xyz[2, 1].backward()
+    expected = torch.zeros_like(params["motion_means"])
+    expected[2, :, 1] = phi
+    assert torch.equal(params["motion_means"].grad, expected)
+    zero = motion_tensors(4, terms, False, torch.device("cpu"))
+    assert set(zero) == {"motion_means"}
+    assert motion_offsets(zero, 0.7)[0].abs().max() == 0 and motion_offsets(zero, 0.7)[1] is None
+
+
+def test_fourier_motion_trains_the_smoke_without_a_network(splat: Path, tmp_path: Path) -> None:
+    """deform.kind=fourier: no network in the checkpoint, every smoke Gaussian (densified or not)
+    carries its own coefficients, they leave zero once the warm-up ends, and the placed smoke
+    PLYs differ between times; the run is otherwise complete."""
+    run = tmp_path / "run"
+    assert main([str(splat), "--out", str(run), "--set", "deform.kind=fourier", "--set", "deform.fourier_terms=2",
+                              "--set", "deform.predict_rotation_scale=true"] + TINY) == 0
+    doc = _assert_complete(run)
+    state = torch.load(run / "checkpoints" / "stage3.pt", map_location="cpu", weights_only=False)
+    assert state["deform"] is None and state["deform_optimizer"] is None
+    smoke = state["smoke"]
+    assert doc["stages"]["smoke_gaussians"] == smoke["means"].shape[0] > 0
+    for key, c in (("motion_means", 3), ("motion_quats", 4), ("motion_log_scales", 3)):
+        assert tuple(smoke[key].shape) == (smoke["means"].shape[0], 5, c)
+        assert smoke[key].abs().max() > 0
+    plys = sorted((run / "ply").glob("smoke_t*.ply"))
+    assert len(plys) >= 2
+    assert not np.allclose(read_ply(plys[0]).means, read_ply(plys[-1]).means)
+
+
+def test_fourier_motion_is_refused_for_the_deformable_baseline_and_checked() -> None:
+    from smokeseer.config import make_config
+    with pytest.raises(ValueError, match="deform.kind: the deformable-3dgs baseline is the MLP"):
+        make_config("deformable-3dgs", overrides={"deform.kind": "fourier"})
+    with pytest.raises(ValueError, match="deform.kind: 'spline' is not one of mlp, fourier"):
+        make_config(overrides={"deform.kind": "spline"})
+    with pytest.raises(ValueError, match="deform.fourier_terms: must be at least 1"):
+        make_config(overrides={"deform.kind": "fourier", "deform.fourier_terms": 0})

@@ -30,6 +30,7 @@ SMOKE_COLOR_SOURCES: tuple[str, ...] = ("learned", "haze-lines")
 SURFACE_INITS: tuple[str, ...] = ("thermal", "thermal+rgb")
 POSE_SOURCES: tuple[str, ...] = ("given", "sfm")
 MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "estimated")
+DEFORM_KINDS: tuple[str, ...] = ("mlp", "fourier")
 LPIPS_NETS: tuple[str, ...] = ("alex", "vgg")
 
 
@@ -73,6 +74,18 @@ class DeformConfig:
     lr_init: float = 8e-4
     lr_final: float = 1.6e-6
     predict_rotation_scale: bool = False  # smoke offsets in rotation and log-scale too (the paper)
+    kind: str = "mlp"
+    """How the smoke moves: ``mlp`` (the paper's network on position and time) or ``fourier``
+    (each smoke Gaussian's own offsets, a linear term plus ``fourier_terms`` sine and cosine
+    pairs in time; no network). The deformable-3dgs baseline is the MLP by definition."""
+    fourier_terms: int = 4
+
+    @property
+    def fourier_lr_scale(self) -> float:
+        """The Fourier coefficients learn at their tensor's rate over the number of bases: Adam
+        moves every coefficient by about its rate, so an offset would otherwise move several
+        times faster than the Gaussian's own parameter."""
+        return 1.0 / (1 + 2 * self.fourier_terms)
 
 
 def at_iteration(fraction: float, iterations: int) -> int:
@@ -319,6 +332,12 @@ class TrainConfig:
             raise ValueError(f"validation_every: must be 0 (none) or at least 2, got {self.validation_every}")
         if self.deform.skip_layer >= self.deform.depth:
             raise ValueError("deform.skip_layer: must be below deform.depth")
+        if self.deform.kind not in DEFORM_KINDS:
+            raise ValueError(f"deform.kind: {self.deform.kind!r} is not one of {', '.join(DEFORM_KINDS)}")
+        if self.deform.kind != "mlp" and self.mode == "deformable-3dgs":
+            raise ValueError("deform.kind: the deformable-3dgs baseline is the MLP by definition; use mlp")
+        if self.deform.fourier_terms < 1:
+            raise ValueError(f"deform.fourier_terms: must be at least 1, got {self.deform.fourier_terms}")
         if self.lpips_net not in LPIPS_NETS:
             raise ValueError(f"lpips_net: {self.lpips_net!r} is not one of {', '.join(LPIPS_NETS)}")
         for t in self.smoke_ply_times:

@@ -1,7 +1,9 @@
-"""Smoke motion: the Deformable-3DGS deformation MLP and SmokeSeer's bimodal temporal opacity."""
+"""Smoke motion: the Deformable-3DGS deformation MLP or per-Gaussian Fourier trajectories, and
+SmokeSeer's bimodal temporal opacity."""
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 import torch
 from torch import Tensor, nn
@@ -63,6 +65,40 @@ class DeformNetwork(nn.Module):
         if not self.cfg.predict_rotation_scale:
             return d_xyz, None, None
         return d_xyz, out[:, 3:7], out[:, 7:10]
+
+
+MOTION_KEYS: tuple[str, ...] = ("motion_means", "motion_quats", "motion_log_scales")
+"""The per-Gaussian coefficients of ``deform.kind=fourier``, named for the tensor they offset."""
+
+
+def fourier_bases(t: float, terms: int, like: Tensor) -> Tensor:
+    """[1 + 2·terms] values at normalised time ``t``: t, then sin(kπt), cos(kπt) for k = 1..terms.
+    Frequencies rise linearly (the slowest half-period spans the sequence), not by octaves as the
+    MLP's encoding does: a Gaussian's own trajectory is fitted from the few dozen frames it is seen
+    in, where octave frequencies would alias between them."""
+    k = torch.arange(1, terms + 1, dtype=like.dtype, device=like.device) * (math.pi * float(t))
+    return torch.cat([like.new_full((1,), float(t)), torch.sin(k), torch.cos(k)])
+
+
+def motion_tensors(n: int, terms: int, rotation_scale: bool, device: torch.device) -> dict[str, Tensor]:
+    """Zero coefficients for ``n`` Gaussians (no motion until trained): position offsets, and with
+    ``rotation_scale`` quaternion and log-scale offsets as the MLP's full head predicts."""
+    shapes = {"motion_means": 3, "motion_quats": 4, "motion_log_scales": 3}
+    keys = MOTION_KEYS if rotation_scale else MOTION_KEYS[:1]
+    return {k: torch.zeros((n, 1 + 2 * terms, shapes[k]), device=device) for k in keys}
+
+
+def motion_offsets(params: Mapping[str, Tensor], t: float) -> tuple[Tensor, Tensor | None, Tensor | None]:
+    """Each Gaussian's offsets at time ``t`` from its own coefficients (``motion_tensors``), in
+    the order the MLP returns them. Position coefficients are in scene units. Costs a few
+    multiply-adds per Gaussian, where the standard MLP costs about 10^5."""
+    coeffs = params["motion_means"]
+    phi = fourier_bases(t, (coeffs.shape[1] - 1) // 2, coeffs)
+    d_xyz = torch.einsum("nbc,b->nc", coeffs, phi)
+    if "motion_quats" not in params:
+        return d_xyz, None, None
+    return (d_xyz, torch.einsum("nbc,b->nc", params["motion_quats"], phi),
+            torch.einsum("nbc,b->nc", params["motion_log_scales"], phi))
 
 
 def temporal_opacity(t: float, t_lo: Tensor, t_hi: Tensor, log_sigma: Tensor) -> Tensor:

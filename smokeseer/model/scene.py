@@ -3,8 +3,9 @@
 Surface tensors: ``means quats log_scales opacity`` (one opacity for both modalities), ``thermal``
 (a logit; thermal emission is treated as view-independent) and ``sh_dc``/``sh_rest`` (RGB SH).
 Smoke tensors: ``means quats log_scales opacity_rgb opacity_thermal color thermal`` plus the
-temporal-opacity parameters ``t_lo t_hi t_log_sigma``; smoke lives in a canonical space moved by
-the deformation MLP. A renderer call takes any subset of the two sets, so the composite, the
+temporal-opacity parameters ``t_lo t_hi t_log_sigma``, and with ``deform.kind=fourier`` the
+coefficients ``motion_*``; smoke lives in a canonical space moved by the deformation MLP or by
+those coefficients. A renderer call takes any subset of the two sets, so the composite, the
 surface-only prediction and smoke-only views all come from the same code path.
 """
 from __future__ import annotations
@@ -16,7 +17,7 @@ import torch
 from torch import Tensor
 
 from smokeseer.model.background import EnvironmentBackground, composite_over
-from smokeseer.model.deform import DeformNetwork, temporal_opacity
+from smokeseer.model.deform import MOTION_KEYS, DeformNetwork, motion_offsets, temporal_opacity
 from smokeseer.model.gaussians import GaussianSet, knn_log_scales, logit, rgb_to_sh_dc
 from smokeseer.raster import RasterOutput, rasterize
 
@@ -123,10 +124,16 @@ def place_static(g: GaussianSet) -> Placed:
 
 def place_deformed(g: GaussianSet, deform: DeformNetwork | None, t: float, center: Tensor,
                    active: bool) -> Placed:
-    """Canonical Gaussians moved to time t (unchanged during warm-up or without a network)."""
-    if deform is None or not active:
+    """Canonical Gaussians moved to time t by their own Fourier coefficients where the set has
+    them, else by the network (unchanged during warm-up, or with neither)."""
+    if not active:
         return place_static(g)
-    d_xyz, d_rot, d_scale = deform(g["means"], t, center)
+    if MOTION_KEYS[0] in g:
+        d_xyz, d_rot, d_scale = motion_offsets(g.params, t)
+    elif deform is not None:
+        d_xyz, d_rot, d_scale = deform(g["means"], t, center)
+    else:
+        return place_static(g)
     means = g["means"] + d_xyz
     if d_rot is None:
         return Placed(means, g.quats, g["log_scales"])
@@ -224,8 +231,7 @@ class SceneModel:
         """Smoke placed at time t with its RGB and thermal opacities (temporal opacity applied)."""
         if self.smoke is None:
             raise ValueError("smoke_at: this model has no smoke Gaussians")
-        placed = place_deformed(self.smoke, None if self.smoke_static else self.deform, t, self.center,
-                                deform_active)
+        placed = place_deformed(self.smoke, self.deform, t, self.center, deform_active and not self.smoke_static)
         if self.smoke_min_log_scale is not None:
             placed = replace(placed, log_scales=placed.log_scales.clamp_min(self.smoke_min_log_scale))
         tw = smoke_time_opacity(self.smoke, t, self.smoke_static)

@@ -17,7 +17,7 @@ import torch
 from scenes.cameras import camera_center
 from scenes.scene import ModalityData
 from smokeseer.config import TrainConfig, at_iteration
-from smokeseer.model.deform import DeformNetwork
+from smokeseer.model.deform import DeformNetwork, motion_tensors
 from smokeseer.model.gaussians import DensifyStrategy, GaussianSet, make_optimizer
 from smokeseer.model.optim import Adam
 from smokeseer.model.scene import SceneModel, add_rgb_sh, box_filter, finer_view, make_smoke
@@ -52,8 +52,11 @@ def build_scene_model(ctx: RunContext, s2: Stage2Result, plan: Stage3Plan,
         smoke = make_smoke(smoke_points, cfg.stage3.smoke_init_opacity, cfg.stage3.smoke_init_scale,
                            cfg.stage2.init_scale_max * ctx.extent, np.random.default_rng(cfg.seed + 1), ctx.device,
                            plan.colour)
-        if plan.use_deform:
+        if plan.use_deform and cfg.deform.kind == "mlp":
             deform = DeformNetwork(cfg.deform, ctx.extent, ctx.device)
+        elif plan.use_deform:
+            smoke = GaussianSet({**smoke.state_dict(), **motion_tensors(smoke.n, cfg.deform.fourier_terms,
+                                                                        cfg.deform.predict_rotation_scale, ctx.device)})
     thermal_geometry = s2.color == "thermal"
     bg_rgb = (rgb_s2.background if rgb_s2 is not None else make_background(cfg, 3, ctx.device)) \
         if thermal_geometry else s2.background
@@ -80,7 +83,9 @@ def _smoke_lrs(cfg: TrainConfig, extent: float, colour_fixed: bool) -> dict[str,
     lr = cfg.lr
     return {"means": lr.means_init * extent, "quats": lr.quats, "log_scales": lr.scales,
             "opacity_rgb": lr.opacity, "opacity_thermal": lr.opacity, "color": 0.0 if colour_fixed else lr.sh_dc * 4,
-            "thermal": lr.thermal, "t_lo": lr.temporal, "t_hi": lr.temporal, "t_log_sigma": lr.temporal}
+            "thermal": lr.thermal, "t_lo": lr.temporal, "t_hi": lr.temporal, "t_log_sigma": lr.temporal,
+            **{f"motion_{k}": v * cfg.deform.fourier_lr_scale
+               for k, v in (("means", lr.means_init * extent), ("quats", lr.quats), ("log_scales", lr.scales))}}
 
 
 class Stage3Problem(StageProblem):

@@ -41,13 +41,16 @@ def step_optimizers(it: int, total: int, cfg: TrainConfig, extent: float,
                     other_optimizers: Sequence[Adam | None],
                     deform_optimizer: Adam | None, deform_warmup: int) -> None:
     """One optimiser step of a stage of ``total`` iterations: the Gaussian sets' ``means`` learning
-    rate decays over the stage as in 3DGS (a group frozen at lr 0 stays frozen), every optimiser
+    rate decays over the stage as in 3DGS (a group frozen at lr 0 stays frozen), and so does the
+    Fourier position offsets' (``deform.fourier_lr_scale`` of it), every optimiser
     steps and clears its gradients, and the deformation network follows its own decay over the
     stage and only steps after its warm-up (an iteration of the stage)."""
     for opt in gaussian_optimizers:
         for group in opt.param_groups if opt is not None else ():
-            if group["name"] == "means" and group["lr"] > 0:
+            if group["name"] in ("means", "motion_means") and group["lr"] > 0:
                 group["lr"] = exp_lr(it, total, cfg.lr.means_init * extent, cfg.lr.means_final * extent)
+                if group["name"] == "motion_means":
+                    group["lr"] *= cfg.deform.fourier_lr_scale
     for opt in (*gaussian_optimizers, *other_optimizers):
         if opt is not None:
             opt.step()
