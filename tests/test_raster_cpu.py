@@ -152,3 +152,35 @@ def test_each_torch_installation_keeps_its_own_build(tmp_path: Path, monkeypatch
     assert extension.build_directory()[0] == here
     monkeypatch.setattr(torch, "__file__", str(tmp_path / "other-venv" / "torch" / "__init__.py"))
     assert extension.build_directory()[0] != here
+
+
+@pytest.mark.parametrize("degree", [0, 1, 2, 3])
+def test_compiled_sh_colours_match_the_torch_basis_and_finite_differences(degree: int) -> None:
+    """The C++ SH colours against the torch closed form (``sh.eval_sh`` + 0.5, clamped at 0) and
+    its autograd, in float64: two cameras, more coefficients than the degree uses, colours clamped
+    at 0, and one Gaussian at a camera centre (a zero direction: DC only). Then torch's finite
+    differences on the compiled Function itself."""
+    from smokeseer.raster.api import view_colors
+    from smokeseer.raster.cpu_backend import sh_colors
+    gen = torch.Generator().manual_seed(degree)
+    coeffs = torch.randn(40, 16, 3, dtype=torch.float64, generator=gen) * 0.6
+    means = torch.randn(40, 3, dtype=torch.float64, generator=gen)
+    viewmats = torch.eye(4, dtype=torch.float64).repeat(2, 1, 1)
+    viewmats[:, :3, 3] = torch.randn(2, 3, dtype=torch.float64, generator=gen)
+    means[7] = -viewmats[0, :3, 3]  # the first camera's centre
+    weights = torch.randn(2, 40, 3, dtype=torch.float64, generator=gen)
+    results = []
+    for compiled in (True, False):
+        c, m = coeffs.clone().requires_grad_(), means.clone().requires_grad_()
+        out = view_colors(c, m, viewmats, degree, compiled=compiled)
+        (out * weights).sum().backward()
+        results.append((out.detach(), c.grad, torch.zeros_like(m) if m.grad is None else m.grad))
+    (fast, fast_c, fast_m), (ref, ref_c, ref_m) = results
+    assert bool((ref == 0).any()) and bool((ref > 0).any())  # some colours clamped, some not
+    assert torch.allclose(fast, ref, atol=1e-12, rtol=0)
+    assert torch.allclose(fast_c, ref_c, atol=1e-12, rtol=0)
+    assert torch.allclose(fast_m, ref_m, atol=1e-10, rtol=0)
+    assert bool(fast_c[:, (degree + 1) ** 2:].eq(0).all())
+    campos = -viewmats[:, :3, 3]
+    c, m = coeffs[:6].clone().requires_grad_(), (means[:6] + 0.1).clone().requires_grad_()
+    assert torch.autograd.gradcheck(lambda a, b: sh_colors(a, b, campos, degree), (c, m), eps=1e-6, atol=1e-7)

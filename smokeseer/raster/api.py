@@ -8,7 +8,7 @@ from dataclasses import replace
 import torch
 from torch import Tensor
 
-from smokeseer.raster.cpu_backend import composite_tiles, project_compiled
+from smokeseer.raster.cpu_backend import composite_tiles, project_compiled, sh_colors
 from smokeseer.raster.finite import first_non_finite
 from smokeseer.raster.output import RADIUS_INT_MAX, RasterOutput, normalised_depth
 from smokeseer.raster.projection import project_gaussians
@@ -100,12 +100,17 @@ def _resolve_backend(backend: str, device: torch.device) -> str:
     return backend
 
 
-def view_colors(colors: Tensor, means: Tensor, viewmats: Tensor, sh_degree: int | None) -> Tensor:
-    """Plain colours [N, D] unchanged, or SH evaluated per camera -> [C, N, D] (+0.5, clamped at 0)."""
+def view_colors(colors: Tensor, means: Tensor, viewmats: Tensor, sh_degree: int | None,
+                compiled: bool = False) -> Tensor:
+    """Plain colours [N, D] unchanged, or SH evaluated per camera -> [C, N, D] (+0.5, clamped at 0).
+    ``compiled``: the same maths in C++ (``cpu_backend.sh_colors``), except where the cameras
+    need a gradient, which only the torch path gives."""
     if sh_degree is None:
         return colors
     rot = viewmats[:, :3, :3]
     campos = -torch.einsum("cji,cj->ci", rot, viewmats[:, :3, 3])
+    if compiled and not viewmats.requires_grad:
+        return sh_colors(colors, means, campos, sh_degree)
     dirs = means[None, :, :] - campos[:, None, :]
     return torch.clamp_min(eval_sh(sh_degree, colors[None], dirs) + 0.5, 0.0)
 
@@ -176,7 +181,7 @@ def rasterize(
     if proj.means2d.requires_grad:
         proj.means2d.retain_grad()
     comp = (composite_tiles if chosen == "cpu" else composite)(
-        proj, opacities, view_colors(colors, means, viewmats, sh_degree), width, height,
+        proj, opacities, view_colors(colors, means, viewmats, sh_degree, compiled=chosen == "cpu"), width, height,
         render_depth=render_depth, subset_mask=subset_mask, rest_alone=render_rest_alone,
     )
     alphas = comp.alphas.reshape(c, height, width, 1)

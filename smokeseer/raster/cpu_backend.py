@@ -1,5 +1,5 @@
 """Compiled CPU backend: EWA projection and 16x16-tile compositing in C++, each with an analytic
-backward, wrapped as autograd Functions (SH colours stay in torch: elementwise, cheap).
+backward, and SH colours (``sh_colors``), each wrapped as an autograd Function.
 
 The projection returns the same ``Projection`` as the torch one. The compositing kernel takes one
 feature table per camera, [C, N, F] = colours, then depth and the subset flag when asked, so one
@@ -52,6 +52,28 @@ def project_compiled(means: Tensor, quats: Tensor, scales: Tensor, viewmats: Ten
         ks.detach().contiguous(), width, height, float(near_plane), float(far_plane))
     return Projection(means2d=means2d, conics=conics, depths=depths, radii=radii, visible=visible,
                       sort_depths=sort_depths)
+
+
+class _ShColors(torch.autograd.Function):
+    """(SH coefficients [N, K, D], means [N, 3], camera centres [C, 3]) -> colours [C, N, D]."""
+
+    @staticmethod
+    def forward(ctx: Any, coeffs: Tensor, means: Tensor, campos: Tensor, degree: int) -> Tensor:
+        ctx.save_for_backward(coeffs, means, campos)
+        ctx.degree = degree
+        return load_kernel().sh_forward(coeffs, means, campos, degree)
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx: Any, g_colors: Tensor) -> tuple:
+        g_coeffs, g_means = load_kernel().sh_backward(*ctx.saved_tensors, ctx.degree, g_colors.contiguous())
+        return g_coeffs, g_means, None, None
+
+
+def sh_colors(coeffs: Tensor, means: Tensor, campos: Tensor, degree: int) -> Tensor:
+    """``raster.api.view_colors`` in C++: max(SH sum along means - campos + 0.5, 0) per camera
+    (no gradient for the camera centres: the caller checks)."""
+    return _ShColors.apply(coeffs.contiguous(), means.contiguous(), campos.detach().contiguous(), degree)
 
 
 class _TileComposite(torch.autograd.Function):

@@ -23,8 +23,8 @@ from pathlib import Path
 from types import ModuleType
 
 CSRC = Path(__file__).resolve().parent / "csrc"
-SOURCES = [CSRC / "tile_raster.cpp", CSRC / "projection.cpp"]
-HEADERS = [CSRC / "projection.h"]
+SOURCES = [CSRC / "tile_raster.cpp", CSRC / "projection.cpp", CSRC / "sh_colors.cpp"]
+HEADERS = [CSRC / "projection.h", CSRC / "sh_colors.h"]
 # -ffp-contract=off: forward and backward recompute alpha with the same rounding (no FMA fusion
 # that could differ between the two call sites), so both passes agree on which pairs are skipped.
 # -fno-math-errno: sqrt/ceil inline as single instructions (the kernel never reads errno).

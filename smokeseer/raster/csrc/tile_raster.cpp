@@ -19,6 +19,7 @@
 #include <torch/extension.h>
 
 #include "projection.h"
+#include "sh_colors.h"
 
 #include <ATen/Parallel.h>
 #include <omp.h>
@@ -891,4 +892,6 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("backward", &backward, "Gradients w.r.t. means2d, conics, per-camera opacities and features");
   m.def("project_forward", &smokeseer::project_forward, "EWA projection: means2d, conics, depths, radii, visible");
   m.def("project_backward", &smokeseer::project_backward, "Gradients of the projection w.r.t. its inputs");
+  m.def("sh_forward", &smokeseer::sh_forward, "View-dependent colours from SH coefficients (+0.5, clamped at 0)");
+  m.def("sh_backward", &smokeseer::sh_backward, "Gradients of the SH colours w.r.t. coefficients and means");
 }
