@@ -3,6 +3,12 @@ Gaussian counts of a finished standard run.
 
     python benchmarks/iteration_profile.py [--scenes house,room] [--modes full,rgb-only] [--threads 1]
     python benchmarks/iteration_profile.py --scenes house --modes full --checkpoints RUN/checkpoints
+    python benchmarks/iteration_profile.py --scenes room --modes full --counts-from RUN \
+        --checkpoints RUN/checkpoints --set deform.kind=fourier
+
+``--set`` profiles a variant of the standard settings (its column is named mode + overrides); a
+Fourier variant started from a network-trained state gets zero coefficients with fresh moments.
+``--counts-from`` takes the Gaussian counts from any finished run instead of the committed one.
 
 A standard run takes 20-40 min of one thread, so each scene and mode is profiled in three steps:
 
@@ -69,15 +75,16 @@ from benchmarks.iteration_attribution import (DENSIFY_STEP, LABEL, PART_ORDER, a
 from contracts.atomic import write_dataclass_csv, write_text  # noqa: E402
 from contracts.train_log import read_train_log  # noqa: E402
 from smokeseer import api  # noqa: E402
-from smokeseer.config import DensifyConfig, DensifyWindow, TrainConfig, make_config  # noqa: E402
-from smokeseer.model.gaussians import GaussianSet, edit_rows, quat_to_rotmat  # noqa: E402
+from smokeseer.config import DensifyConfig, DensifyWindow, TrainConfig, make_config, parse_set_items  # noqa: E402
+from smokeseer.model.deform import MOTION_KEYS, motion_tensors  # noqa: E402
+from smokeseer.model.gaussians import GaussianSet, edit_rows, make_optimizer, quat_to_rotmat  # noqa: E402
 from smokeseer.model.optim import Adam  # noqa: E402
 from smokeseer.raster import api as raster_api  # noqa: E402
 from smokeseer.train import losses, stage2  # noqa: E402
 from smokeseer.train import loop as trainloop  # noqa: E402
 from smokeseer.train.loop import IterationOutput, StageProblem, StageSchedule, run_stage  # noqa: E402
 from smokeseer.train.stage2 import Stage2Problem  # noqa: E402
-from smokeseer.train.stage3 import Stage3Problem  # noqa: E402
+from smokeseer.train.stage3 import Stage3Problem, smoke_lrs  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 RUNS = ROOT / "data" / "tables_standard" / "runs"
@@ -140,23 +147,27 @@ def labelled(fn: Callable[..., Any], label: str) -> Callable[..., Any]:
     return call
 
 
-def committed_counts(scene: str, mode: str, runs: Path) -> Counts:
-    """The Gaussian counts of the committed seed-0 run of today's standard settings."""
-    want = make_config(mode, "standard", 0).sha256()
+def run_counts(run: Path) -> Counts:
+    """The Gaussian counts a finished run (``run``/train_log.csv) logged at ``WINDOW_END``."""
+    rows = {(int(r["stage"]), int(r["iteration"])): r for r in read_train_log(run / "train_log.csv")}
+    ends = {s: (rows.get((s, WINDOW_END - 100)), rows.get((s, WINDOW_END))) for s in (2, 3)}
+    if any(r is None for pair in ends.values() for r in pair):
+        raise SystemExit(f"{run / 'train_log.csv'}: no stage 2 and 3 rows at iterations "
+                         f"{WINDOW_END - 100} and {WINDOW_END}")
+    per_it = {s: (float(b["wall_s"]) - float(a["wall_s"])) / 100 * 1e3 for s, (a, b) in ends.items()}
+    s2, s3 = ends[2][1], ends[3][1]
+    return Counts(int(s2["n_gaussians"]), int(s3["n_gaussians"]), int(s3["n_smoke"] or 0), run, per_it)
+
+
+def committed_counts(scene: str, mode: str, runs: Path, overrides: dict[str, Any] | None = None) -> Counts:
+    """The Gaussian counts of the committed seed-0 run of today's standard settings (with ``overrides``)."""
+    want = make_config(mode, "standard", 0, overrides).sha256()
     for metrics in sorted((runs / scene / mode).glob("seed0-*/metrics.json")):
         doc = json.loads(metrics.read_text())
-        if doc.get("status") != "ok" or doc.get("config_sha256") != want:
-            continue
-        rows = {(int(r["stage"]), int(r["iteration"])): r for r in read_train_log(metrics.parent / "train_log.csv")}
-        ends = {s: (rows.get((s, WINDOW_END - 100)), rows.get((s, WINDOW_END))) for s in (2, 3)}
-        if any(r is None for pair in ends.values() for r in pair):
-            raise SystemExit(f"{metrics.parent / 'train_log.csv'}: no stage 2 and 3 rows at iterations "
-                             f"{WINDOW_END - 100} and {WINDOW_END}")
-        per_it = {s: (float(b["wall_s"]) - float(a["wall_s"])) / 100 * 1e3 for s, (a, b) in ends.items()}
-        s2, s3 = ends[2][1], ends[3][1]
-        return Counts(int(s2["n_gaussians"]), int(s3["n_gaussians"]), int(s3["n_smoke"] or 0), metrics.parent, per_it)
+        if doc.get("status") == "ok" and doc.get("config_sha256") == want:
+            return run_counts(metrics.parent)
     raise SystemExit(f"{runs / scene / mode}: no finished seed-0 run of the current standard settings "
-                     f"(config_sha256 {want[:12]}...)")
+                     f"(config_sha256 {want[:12]}...); --counts-from RUN takes the counts from another run")
 
 
 def scaled_overrides(cfg: TrainConfig, fraction: float) -> dict[str, Any]:
@@ -315,13 +326,13 @@ class WindowsDone(Exception):
 
 
 def profile_case(dataset: Path, mode: str, counts: Counts, tmp: Path, fraction: float,
-                 checkpoints: Path | None) -> dict[int, Window]:
+                 checkpoints: Path | None, overrides: dict[str, Any]) -> dict[int, Window]:
     """Pretrain (unless ``checkpoints`` holds a finished run's), then profile one Stage-2 and one
     Stage-3 window (module docstring)."""
     if checkpoints is None:
         t = time.perf_counter()
         api.train_and_evaluate(dataset, tmp / "pretrain", mode, "standard", 0,
-                               scaled_overrides(make_config(mode, "standard", 0), fraction))
+                               {**overrides, **scaled_overrides(make_config(mode, "standard", 0, overrides), fraction)})
         print(f"  pretrained in {time.perf_counter() - t:.0f} s", flush=True)
         checkpoints = tmp / "pretrain" / "checkpoints"
     payload = {s: torch.load(checkpoints / f"stage{s}.pt", map_location="cpu", weights_only=False) for s in (2, 3)}
@@ -344,6 +355,12 @@ def profile_case(dataset: Path, mode: str, counts: Counts, tmp: Path, fraction: 
                       heldout_psnr: Any = None) -> Any:
         problem = Stage3Problem(ctx, model, rgb, thermal, switches, prior, heldout_psnr)
         problem.load_state(payload[3])
+        if model.smoke is not None and ctx.cfg.deform.kind == "fourier" and MOTION_KEYS[0] not in model.smoke:
+            # A state trained with the network: zero Fourier coefficients (fresh moments) in its place,
+            # so the window pays for the motion as such a run does.
+            model.smoke = GaussianSet({**model.smoke.state_dict(), **motion_tensors(
+                model.smoke.n, ctx.cfg.deform.fourier_terms, ctx.cfg.deform.predict_rotation_scale, ctx.device)})
+            problem.smoke_optimizer = make_optimizer(model.smoke, smoke_lrs(ctx.cfg, ctx.extent, problem.colour_fixed))
         loaded = (model.surface.n, model.smoke.n if model.smoke is not None else 0)
         match_count(model.surface, problem.surface_optimizer, counts.surface, split_rng)
         if model.smoke is not None:
@@ -362,7 +379,7 @@ def profile_case(dataset: Path, mode: str, counts: Counts, tmp: Path, fraction: 
 
     with mock.patch.object(api, "train_stage2", stage2_window), mock.patch.object(api, "train_stage3", stage3_window):
         try:
-            api.train_and_evaluate(dataset, tmp / "profiled", mode, "standard", 0, {"progress": False})
+            api.train_and_evaluate(dataset, tmp / "profiled", mode, "standard", 0, {**overrides, "progress": False})
         except WindowsDone:
             pass
     return windows
@@ -402,7 +419,17 @@ def merged(path: Path, new: list[Any]) -> list[Any]:
     return [r for r in old if (r.scene, r.mode) not in done] + new
 
 
-def markdown(rows: list[PartRow], ops: list[OpRow], counts: dict[tuple[str, str], Counts]) -> str:
+def earlier_counts(scene: str, label: str, runs: Path) -> Counts | None:
+    """The committed run behind the rows an earlier call wrote for ``label`` (a mode, or a mode and
+    its overrides), or None where there is none to find (rows profiled at another run's counts)."""
+    mode, *sets = label.split(" ")
+    try:
+        return committed_counts(scene, mode, runs, parse_set_items(sets))
+    except SystemExit:
+        return None
+
+
+def markdown(rows: list[PartRow], ops: list[OpRow], counts: dict[tuple[str, str], Counts | None]) -> str:
     """Per stage, one column per scene/mode: ms per iteration (share); then each case's largest ops."""
     cases = list(dict.fromkeys((r.scene, r.mode) for r in rows))
     lines = ["# Where a standard iteration spends its time", "",
@@ -440,8 +467,8 @@ def markdown(rows: list[PartRow], ops: list[OpRow], counts: dict[tuple[str, str]
         lines.append("| CPU share of the window; load (1 min) | " + " | ".join(
             f"{r.cpu_share:.2f}; {r.load_1min:.1f}" for r in info) + " |")
         lines.append("| threads; commit | " + " | ".join(f"{r.threads}; {r.commit}" for r in info) + " |")
-        lines.append("| the committed run's logged ms per iteration, 2300-2400 | " + " | ".join(
-            f"{counts[c].ms_per_iteration[stage]:.0f}" for c in cols) + " |")
+        lines.append("| the counts' run: its logged ms per iteration, 2300-2400 | " + " | ".join(
+            f"{counts[c].ms_per_iteration[stage]:.0f}" if counts.get(c) else "-" for c in cols) + " |")
         lines.append("")
     lines += ["The densification step ran once in each window; its row is that step spread over the run's 22 steps",
               "in 3000 iterations (an upper bound: earlier steps see fewer Gaussians).", "",
@@ -473,32 +500,42 @@ def main() -> None:
                     help="a finished standard run's checkpoints/ (stage2.pt, stage3.pt) to start from instead of "
                          "pretraining: that run's trained state (one scene and mode)")
     ap.add_argument("--runs", type=Path, default=RUNS, help="committed standard runs (for the Gaussian counts)")
+    ap.add_argument("--counts-from", type=Path,
+                    help="a finished run folder whose logged Gaussian counts to profile at, instead of the "
+                         "committed seed-0 run (one scene and mode)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="config overrides for every case (as train-and-evaluate's); the column names them")
     ap.add_argument("--out", type=Path, default=RESULTS)
     args = ap.parse_args()
+    overrides = parse_set_items(args.set)
+    variant = " ".join(args.set)
     torch.set_num_threads(args.threads)
     cases = [(s, m) for s in args.scenes.split(",") for m in args.modes.split(",")]
     for scene, _ in cases:
         if not (DATASETS / scene / "dataset.json").is_file():
             raise SystemExit(f"{DATASETS / scene}: no standard dataset (dataset.json missing)")
+    if (args.checkpoints is not None or args.counts_from is not None) and len(cases) != 1:
+        raise SystemExit("--checkpoints, --counts-from: give one scene and one mode (the run they are of)")
     if args.checkpoints is not None:
-        if len(cases) != 1:
-            raise SystemExit("--checkpoints: give one scene and one mode (the run the checkpoints are of)")
         for s in (2, 3):
             if not (args.checkpoints / f"stage{s}.pt").is_file():
                 raise SystemExit(f"{args.checkpoints / f'stage{s}.pt'}: no such checkpoint (--checkpoints)")
     start = (f"checkpoints {args.checkpoints.resolve().parent.name}" if args.checkpoints is not None
              else f"pretrained {args.pretrain_fraction:g}")
-    counts = {c: committed_counts(*c, args.runs) for c in cases}
+    counts = {(s_, f"{m} {variant}".strip()): run_counts(args.counts_from) if args.counts_from is not None
+              else committed_counts(s_, m, args.runs, overrides) for s_, m in cases}
     commit = git_commit()
     parts: list[PartRow] = []
     ops: list[OpRow] = []
     for scene, mode in cases:
-        c = counts[(scene, mode)]
-        print(f"{scene} {mode}: stage 2 {c.stage2}, stage 3 {c.surface} + {c.smoke} Gaussians "
+        label = f"{mode} {variant}".strip()
+        c = counts[(scene, label)]
+        print(f"{scene} {label}: stage 2 {c.stage2}, stage 3 {c.surface} + {c.smoke} Gaussians "
               f"(from {c.run.relative_to(ROOT) if c.run.is_relative_to(ROOT) else c.run})", flush=True)
         with tempfile.TemporaryDirectory() as tmp:
-            windows = profile_case(DATASETS / scene, mode, c, Path(tmp), args.pretrain_fraction, args.checkpoints)
-        new_parts, new_ops = rows_for(scene, mode, windows, start, commit)
+            windows = profile_case(DATASETS / scene, mode, c, Path(tmp), args.pretrain_fraction, args.checkpoints,
+                                   overrides)
+        new_parts, new_ops = rows_for(scene, label, windows, start, commit)
         parts += new_parts
         ops += new_ops
         for stage, w in sorted(windows.items()):
@@ -506,8 +543,8 @@ def main() -> None:
                   f"unprofiled, cpu share {w.cpu_share:.2f}, load {w.load:.1f}", flush=True)
     parts = merged(args.out / "iteration_profile.csv", parts)
     ops = merged(args.out / "iteration_profile_ops.csv", ops)
-    every = {c: counts.get(c) or committed_counts(*c, args.runs) for c in {(r.scene, r.mode) for r in parts}}
-    text = markdown(parts, ops, every)
+    text = markdown(parts, ops, {**{c: earlier_counts(*c, args.runs) for c in {(r.scene, r.mode) for r in parts}},
+                                 **counts})
     write_dataclass_csv(args.out / "iteration_profile.csv", parts)
     write_dataclass_csv(args.out / "iteration_profile_ops.csv", ops)
     write_text(args.out / "iteration_profile.md", text)

@@ -79,7 +79,7 @@ def _surface_lrs(cfg: TrainConfig, g: GaussianSet, extent: float) -> dict[str, f
     return {k: table[k] for k in g.params}
 
 
-def _smoke_lrs(cfg: TrainConfig, extent: float, colour_fixed: bool) -> dict[str, float]:
+def smoke_lrs(cfg: TrainConfig, extent: float, colour_fixed: bool) -> dict[str, float]:
     lr = cfg.lr
     return {"means": lr.means_init * extent, "quats": lr.quats, "log_scales": lr.scales,
             "opacity_rgb": lr.opacity, "opacity_thermal": lr.opacity, "color": 0.0 if colour_fixed else lr.sh_dc * 4,
@@ -143,7 +143,7 @@ class Stage3Problem(StageProblem):
     def _make_optimizers(self) -> None:
         cfg, model = self.cfg, self.model
         self.surface_optimizer = make_optimizer(model.surface, _surface_lrs(cfg, model.surface, self.ctx.extent))
-        self.smoke_optimizer = (make_optimizer(model.smoke, _smoke_lrs(cfg, self.ctx.extent, self.colour_fixed))
+        self.smoke_optimizer = (make_optimizer(model.smoke, smoke_lrs(cfg, self.ctx.extent, self.colour_fixed))
                                 if model.smoke is not None else None)
         self.deform_optimizer = (Adam(model.deform.parameters(), lr=cfg.deform.lr_init)
                                  if model.deform else None)
