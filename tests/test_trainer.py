@@ -768,3 +768,36 @@ def test_fourier_motion_is_refused_for_the_deformable_baseline_and_checked() -> 
         make_config(overrides={"deform.kind": "spline"})
     with pytest.raises(ValueError, match="deform.fourier_terms: must be at least 1"):
         make_config(overrides={"deform.kind": "fourier", "deform.fourier_terms": 0})
+
+
+def test_training_renders_without_depth_train_the_same_bytes(splat: Path, tmp_path: Path,
+                                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    """Training passes leave out the depth image they never read (a kernel channel per blended
+    pair); forcing it back in every pass gives the same trained bytes, so leaving it out changes
+    nothing but time. The forced run must really render it (a spy counts the depth images)."""
+    from smokeseer.model import scene as scene_module
+    original = scene_module.render
+    drawn = {"with": 0, "without": 0}
+
+    def spy(*args, force: bool, **kwargs):
+        if force:
+            kwargs["depth"] = True
+        out = original(*args, **kwargs)
+        drawn["with" if out.depths is not None else "without"] += 1
+        return out
+
+    states = []
+    for force in (False, True):
+        monkeypatch.setattr(scene_module, "render", lambda *a, force=force, **k: spy(*a, force=force, **k))
+        monkeypatch.setattr("smokeseer.train.stage2.render", lambda *a, force=force, **k: spy(*a, force=force, **k))
+        run = tmp_path / f"force{force}"
+        assert main([str(splat), "--out", str(run), "--set", "depth_prior=none"] + TINY) == 0
+        states.append(torch.load(run / "checkpoints" / "stage3.pt", map_location="cpu", weights_only=False))
+        if not force:
+            assert drawn["without"] >= 24 and drawn["with"] > 0  # training without, evaluation with
+            drawn.update({"with": 0, "without": 0})
+    assert drawn["without"] == 0
+    for part in ("surface", "smoke"):
+        assert states[0][part].keys() == states[1][part].keys()
+        for key in states[0][part]:
+            assert torch.equal(states[0][part][key], states[1][part][key]), f"{part}.{key}"

@@ -160,7 +160,7 @@ def smoke_sh(smoke: GaussianSet, k: int) -> Tensor:
 
 def render(view: View, parts: list[tuple[Placed, Tensor, Tensor]], sh_degree: int | None,
            background: Tensor | EnvironmentBackground | None, subset: int | None = None,
-           normalize_depth: bool = True, rest_alone: bool = False) -> RasterOutput:
+           normalize_depth: bool = True, rest_alone: bool = False, depth: bool = True) -> RasterOutput:
     """Rasterize several placed sets in one pass. Each part is (placed, opacity, colour); with
     ``subset`` = k, the k-th part's accumulated alpha is returned in the same pass, and with
     ``rest_alone`` also the depth and alpha of the other parts rendered without it
@@ -170,7 +170,11 @@ def render(view: View, parts: list[tuple[Placed, Tensor, Tensor]], sh_degree: in
     Why ``rest_alone``: Stage 3's depth term needs the surface's depth without the smoke in front,
     and a separate surface render cost a sixth of a demo iteration. One consequence: the depth
     term's screen-space gradient joins the pass's ``means2d`` gradient, the statistic surface
-    densification reads (as where depth is rendered in the image pass)."""
+    densification reads (as where depth is rendered in the image pass).
+
+    ``depth=False`` leaves out the depth image (``depths`` is None) unless ``rest_alone`` needs
+    it: each channel costs kernel work per blended pair, and a training pass without a depth
+    term never reads it. Colours, alphas and their gradients are the same bytes either way."""
     means = torch.cat([p.means for p, _, _ in parts])
     quats = torch.cat([p.quats for p, _, _ in parts])
     scales = torch.cat([p.log_scales for p, _, _ in parts])
@@ -187,7 +191,7 @@ def render(view: View, parts: list[tuple[Placed, Tensor, Tensor]], sh_degree: in
         mask = torch.cat(flags)
     out = rasterize(means, quats, scales, opac, cols, view.viewmat, view.K, view.width, view.height,
                     sh_degree=sh_degree, log_scales=True, backgrounds=flat,
-                    subset_mask=mask, render_depth=True, normalize_depth=normalize_depth,
+                    subset_mask=mask, render_depth=depth or rest_alone, normalize_depth=normalize_depth,
                     render_rest_alone=rest_alone and mask is not None)
     if rest_alone and mask is None:
         out = replace(out, rest_depths=out.depths, rest_alphas=out.alphas)
@@ -239,11 +243,12 @@ class SceneModel:
                 torch.sigmoid(self.smoke["opacity_thermal"]) * tw)
 
     def render_rgb(self, view: View, surface: bool = True, smoke: bool = True, degree: int | None = None,
-                   deform_active: bool = True, surface_depth: bool = False) -> RasterOutput:
+                   deform_active: bool = True, surface_depth: bool = False, depth: bool = True) -> RasterOutput:
         """RGB = surface ∪ smoke with RGB opacities; with both, smoke alpha comes from the same pass.
         The environment is drawn behind any render that includes the surface (a smoke-only
         view is shown on black). ``surface_depth``: the surface's own depth and alpha as
-        ``rest_depths``/``rest_alphas``, from the same pass (see ``render``)."""
+        ``rest_depths``/``rest_alphas``, from the same pass; ``depth``: the depth image (both: see
+        ``render``)."""
         if surface_depth and not surface:
             raise ValueError("render_rgb: surface_depth needs the surface in the render")
         degree = self.sh_degree if degree is None else degree
@@ -259,12 +264,12 @@ class SceneModel:
         if not parts:
             raise ValueError("render_rgb: nothing to render (no surface and no smoke)")
         return render(view, parts, degree, self.background_rgb if surface else None, subset=subset,
-                      rest_alone=surface_depth)
+                      rest_alone=surface_depth, depth=depth)
 
     def render_thermal(self, view: View, surface: bool = True, smoke: bool = True,
-                       deform_active: bool = True, surface_depth: bool = False) -> RasterOutput:
+                       deform_active: bool = True, surface_depth: bool = False, depth: bool = True) -> RasterOutput:
         """Thermal = surface ∪ smoke with thermal opacities and 1-channel thermal colours.
-        ``surface_depth``: as for ``render_rgb``."""
+        ``surface_depth``, ``depth``: as for ``render_rgb``."""
         if surface_depth and not surface:
             raise ValueError("render_thermal: surface_depth needs the surface in the render")
         parts = []
@@ -276,4 +281,4 @@ class SceneModel:
             placed, _, o_th = self.smoke_at(view.time, deform_active)
             parts.append((placed, o_th, torch.sigmoid(self.smoke["thermal"])))
         return render(view, parts, None, self.background_thermal if surface else None,
-                      subset=len(parts) - 1 if use_smoke else None, rest_alone=surface_depth)
+                      subset=len(parts) - 1 if use_smoke else None, rest_alone=surface_depth, depth=depth)

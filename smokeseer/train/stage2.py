@@ -105,7 +105,7 @@ class Stage2Problem(StageProblem):
         placed = place_deformed(self.g, self.deform, view.time, self.ctx.center, deform_on)
         cols, is_sh = colors_for(self.g, self.color)
         degree = min(cfg.sh_degree, (it - 1) // max(cfg.sh_increase_every, 1)) if is_sh else None
-        out = render(view, [(placed, torch.sigmoid(self.g["opacity"]), cols)], degree, self.background)
+        out = render(view, [(placed, torch.sigmoid(self.g["opacity"]), cols)], degree, self.background, depth=False)
         loss = render_loss(out.colors[0], self.images[k], cfg.loss.dssim)
         return IterationOutput(cfg.loss.render * loss, {f"render_{self.color}": loss},
                                {"raster": out, "view": view, "deform_on": deform_on})

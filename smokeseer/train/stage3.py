@@ -157,13 +157,13 @@ class Stage3Problem(StageProblem):
         k = draw_index(self.ctx, len(self.rgb_views))
         view = self.rgb_views[k]
         out = model.render_rgb(view, degree=degree, deform_active=deform_on,
-                               surface_depth=self.depth_on and not self.depth_on_thermal)
+                               surface_depth=self.depth_on and not self.depth_on_thermal, depth=False)
         terms: dict[str, torch.Tensor] = {"render_rgb": render_loss(out.colors[0], self.rgb_imgs[k], cfg.loss.dssim)}
         depth_source = (out, k)
         if self.th_imgs is not None:
             j = draw_index(self.ctx, len(self.th_views))
             tout = model.render_thermal(self.th_views[j], deform_active=deform_on,
-                                        surface_depth=self.depth_on_thermal)
+                                        surface_depth=self.depth_on_thermal, depth=False)
             thermal = tout.colors if self.th_factor == 1 else box_filter(tout.colors, self.th_factor)
             terms["render_thermal"] = render_loss(thermal[0], self.th_imgs[j], cfg.loss.dssim)
             if self.depth_on_thermal:
