@@ -1,0 +1,115 @@
+"""Validation PSNR against Stage-3 time for the ways the smoke can move (``deform.*``): the
+paper's network at the standard width, a narrower one, and per-Gaussian Fourier trajectories.
+
+    python benchmarks/deformation_tradeoff.py [--table deformation] [--profile DIR] [--out DIR]
+
+Reads the candidate table ``benchmarks/results/full_candidates/TABLE_final.csv`` (one finished
+standard run per scene, seed and trainer; the trainer label is the run's ``--set`` overrides,
+``estimated-floor`` for today's standard Full) and the quiet per-iteration cost of each trainer
+from ``iteration_profile.csv`` (``benchmarks/iteration_profile.py --set ...``: the thread CPU
+milliseconds of an unprofiled Stage-3 iteration at that scene's Gaussian counts, its column named
+``full`` plus the same overrides). The runs' own wall times are not used: they ran two at a time,
+on more than one machine. Writes ``deformation_tradeoff.csv`` (per scene and trainer: seeds,
+mean and std of the final validation PSNR, Stage-3 ms per iteration, the Stage-3 minutes that
+makes at 3000 iterations) and ``deformation_tradeoff.png`` (one panel per scene).
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import statistics
+import sys
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from contracts.atomic import atomic_path, write_rows_csv  # noqa: E402
+
+RESULTS = ROOT / "benchmarks" / "results"
+BASELINE = "estimated-floor"
+STAGE3_ITERATIONS = 3000
+
+
+def profile_label(trainer: str) -> str:
+    """The iteration_profile column of a trainer label: ``full`` plus its overrides."""
+    return "full" if trainer == BASELINE else f"full {trainer}"
+
+
+def stage3_costs(path: Path) -> dict[tuple[str, str], float]:
+    """(scene, profile column) -> unprofiled Stage-3 thread CPU ms per iteration."""
+    with path.open(newline="") as fh:
+        return {(r["scene"], r["mode"]): float(r["unprofiled_cpu_ms_per_iteration"])
+                for r in csv.DictReader(fh) if r["stage"] == "3" and r["part"] == "total"}
+
+
+def tradeoff_rows(final: list[dict], costs: dict[tuple[str, str], float]) -> list[dict]:
+    rows = []
+    for scene in dict.fromkeys(r["scene"] for r in final):
+        for trainer in dict.fromkeys(r["trainer"] for r in final if r["scene"] == scene):
+            cost = costs.get((scene, profile_label(trainer)))
+            if cost is None:
+                continue  # the committed RGB-only beside each table, and anything not profiled
+            vals = [float(r["val_psnr"]) for r in final if (r["scene"], r["trainer"]) == (scene, trainer)]
+            seeds = sorted(int(r["seed"]) for r in final if (r["scene"], r["trainer"]) == (scene, trainer))
+            rows.append({"scene": scene, "trainer": trainer, "seeds": " ".join(map(str, seeds)),
+                         "val_psnr_mean": round(statistics.fmean(vals), 3),
+                         "val_psnr_std": round(statistics.stdev(vals), 3) if len(vals) > 1 else "",
+                         "stage3_ms_per_iteration": round(cost, 1),
+                         "stage3_min": round(cost * STAGE3_ITERATIONS / 60e3, 1)})
+    return rows
+
+
+def plot(rows: list[dict], path: Path) -> None:
+    scenes = list(dict.fromkeys(r["scene"] for r in rows))
+    trainers = list(dict.fromkeys(r["trainer"] for r in rows))
+    fig, axes = plt.subplots(1, len(scenes), figsize=(4 * len(scenes), 3.6), squeeze=False)
+    for ax, scene in zip(axes[0], scenes):
+        for k, trainer in enumerate(trainers):
+            for r in (r for r in rows if (r["scene"], r["trainer"]) == (scene, trainer)):
+                ax.errorbar([r["stage3_min"]], [r["val_psnr_mean"]], yerr=[r["val_psnr_std"] or 0.0], fmt="o",
+                            capsize=3, color=f"C{k % 10}", label=f"{trainer} (seeds {r['seeds']})")
+        ax.set_title(scene)
+        ax.set_xlabel("Stage 3 at 3000 iterations, one thread (min)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    axes[0][0].set_ylabel("validation PSNR (dB), mean ± std over seeds")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--table", default="deformation", help="full_candidates table NAME")
+    p.add_argument("--profile", type=Path, default=RESULTS, help="folder of iteration_profile.csv")
+    p.add_argument("--out", type=Path, default=RESULTS)
+    args = p.parse_args(argv)
+    final_path = RESULTS / "full_candidates" / f"{args.table}_final.csv"
+    try:
+        with final_path.open(newline="") as fh:
+            final = list(csv.DictReader(fh))
+        rows = tradeoff_rows(final, stage3_costs(args.profile / "iteration_profile.csv"))
+    except (OSError, KeyError, ValueError) as exc:
+        print(f"deformation_tradeoff: error: {exc}", file=sys.stderr)
+        return 2
+    if not rows:
+        print(f"deformation_tradeoff: error: no trainer of {final_path} has a profiled Stage-3 cost", file=sys.stderr)
+        return 2
+    write_rows_csv(args.out / "deformation_tradeoff.csv", rows)
+    plot(rows, args.out / "deformation_tradeoff.png")
+    for r in rows:
+        print(f"{r['scene']:>10} {r['trainer']:>22}: {r['val_psnr_mean']:.2f} dB (seeds {r['seeds']}), "
+              f"{r['stage3_ms_per_iteration']:.0f} ms/it, {r['stage3_min']:.1f} min")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
