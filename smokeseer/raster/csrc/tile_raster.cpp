@@ -160,10 +160,10 @@ inline D4 half_as_double(const float* v, int h) { return __builtin_convertvector
 inline D4 half_as_double(const double* v, int h) { return load_v<D4>(v + kHalf * h); }
 
 // Pixels where alpha can reach 1/255 lie inside the ellipse sigma <= log(255 * opacity). What a
-// tile walk needs of one packed record, computed once per record (a log and a square root): the
-// centre, conic and opacity, and the pixel rectangle with its rows narrowed, conservatively (a
-// margin in sigma and one row on each side), to those that meet that ellipse. The exact per-pixel
-// test still decides; the narrowing only skips rows that test would reject. A record whose opacity
+// tile walk needs of one packed record, computed once per record (a log and two square roots):
+// the centre, conic and opacity, and the pixel rectangle with its rows and columns narrowed,
+// conservatively (a margin in sigma and one pixel on each side), to the ellipse's bounding box. The exact per-pixel
+// test still decides; the narrowing only skips pixels that test would reject. A record whose opacity
 // can never reach 1/255 gets an empty rectangle.
 template <typename scalar_t>
 struct Footprint {
@@ -186,9 +186,11 @@ struct Footprint {
     }
     const double det = 4.0 * half_a * half_c - b * b;
     if (!shaped || !(det > 0.0)) return;  // no usable bound: every row of the rectangle is tested
-    const double reach = std::sqrt(4.0 * limit * half_a / det);
-    y0 = std::max(y0, int32_t(std::ceil(std::max(-1e9, double(my) - reach - 0.5)) - 1.0));
-    y1 = std::min(y1, int32_t(std::floor(std::min(1e9, double(my) + reach - 0.5)) + 1.0));
+    const double reach_y = std::sqrt(4.0 * limit * half_a / det), reach_x = std::sqrt(4.0 * limit * half_c / det);
+    y0 = std::max(y0, int32_t(std::ceil(std::max(-1e9, double(my) - reach_y - 0.5)) - 1.0));
+    y1 = std::min(y1, int32_t(std::floor(std::min(1e9, double(my) + reach_y - 0.5)) + 1.0));
+    x0 = std::max(x0, int32_t(std::ceil(std::max(-1e9, double(mx) - reach_x - 0.5)) - 1.0));
+    x1 = std::min(x1, int32_t(std::floor(std::min(1e9, double(mx) + reach_x - 0.5)) + 1.0));
   }
 };
 
