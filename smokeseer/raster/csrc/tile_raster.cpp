@@ -168,6 +168,9 @@ inline D4 half_as_double(const double* v, int h) { return load_v<D4>(v + kHalf *
 template <typename scalar_t>
 struct Footprint {
   scalar_t mx, my, qa, qb, qc, opac;
+  // No pixel with sigma above this reaches alpha 1/255 (the ellipse's limit with its margin, which
+  // dwarfs the exponent's rounding); infinite where the conic gives no usable bound.
+  scalar_t sigma_cut = std::numeric_limits<scalar_t>::infinity();
   int32_t x0, x1, y0, y1;  // inclusive; empty when x1 < x0 or y1 < y0
 
   Footprint() = default;
@@ -184,6 +187,7 @@ struct Footprint {
       y1 = y0 - 1;
       return;
     }
+    if (shaped) sigma_cut = scalar_t(limit);
     const double det = 4.0 * half_a * half_c - b * b;
     if (!shaped || !(det > 0.0)) return;  // no usable bound: every row of the rectangle is tested
     const double reach_y = std::sqrt(4.0 * limit * half_a / det), reach_x = std::sqrt(4.0 * limit * half_c / det);
@@ -403,6 +407,14 @@ struct Lanes {
       const V x = (index + scalar_t(x_first)) + scalar_t(0.5);
       const V d = fp.mx - x;
       const V sigma = scalar_t(0.5) * fp.qa * d * d + row_term + fp.qb * d * dy;
+      if (!lane_bits(sigma <= fp.sigma_cut)) {  // no lane inside the ellipse: no exponent needed
+        if constexpr (std::is_same_v<M, I8>) {
+          store_v(hit + c, I8{});
+        } else {
+          store_v(hit + c, I4{});
+        }
+        continue;
+      }
       const V f = exp_neg(sigma);
       const V a0 = fp.opac * f;
       const V a = scalar_t(kAlphaMax) < a0 ? V{} + scalar_t(kAlphaMax) : a0;
