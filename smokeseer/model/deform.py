@@ -59,7 +59,7 @@ class DeformNetwork(nn.Module):
         for i, layer in enumerate(self.layers):
             if i == self.cfg.skip_layer:
                 h = torch.cat([inp, h], dim=-1)
-            h = torch.relu(layer(h))
+            h = torch.relu_(layer(h))  # in place: the layer's output is not kept for its backward
         out = self.head(h)
         d_xyz = out[:, :3] * self.position_scale
         if not self.cfg.predict_rotation_scale:
