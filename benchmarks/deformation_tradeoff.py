@@ -4,14 +4,14 @@ paper's network at the standard width, a narrower one, and per-Gaussian Fourier 
     python benchmarks/deformation_tradeoff.py [--table deformation] [--profile DIR] [--out DIR]
 
 Reads the candidate table ``benchmarks/results/full_candidates/TABLE_final.csv`` (one finished
-standard run per scene, seed and trainer; the trainer label is the run's ``--set`` overrides,
-``estimated-floor`` for today's standard Full) and the quiet per-iteration cost of each trainer
-from ``iteration_profile.csv`` (``benchmarks/iteration_profile.py --set ...``: the thread CPU
-milliseconds of an unprofiled Stage-3 iteration at that scene's Gaussian counts, its column named
-``full`` plus the same overrides). The runs' own wall times are not used: they ran two at a time,
+standard run per scene, seed and trainer: ``estimated-floor`` for today's standard Full,
+``width 64`` for ``--set deform.width=64``, ``fourier`` for ``--set deform.kind=fourier``) and the
+quiet per-iteration cost of each from ``iteration_profile.csv`` (``benchmarks/iteration_profile.py
+--set ...``: the thread CPU milliseconds of an unprofiled Stage-3 iteration at that scene's
+Gaussian counts, its column named ``full`` plus the same overrides). The runs' own wall times are not used: they ran two at a time,
 on more than one machine. Writes ``deformation_tradeoff.csv`` (per scene and trainer: seeds,
-mean and std of the final validation PSNR, Stage-3 ms per iteration, the Stage-3 minutes that
-makes at 3000 iterations) and ``deformation_tradeoff.png`` (one panel per scene).
+mean and std of the final validation PSNR, Stage-3 ms per iteration, iterations, and the Stage-3
+minutes they make) and ``deformation_tradeoff.png`` (one panel per scene).
 """
 from __future__ import annotations
 
@@ -33,36 +33,39 @@ if str(ROOT) not in sys.path:
 from contracts.atomic import atomic_path, write_rows_csv  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
-BASELINE = "estimated-floor"
-STAGE3_ITERATIONS = 3000
+PROFILED = {"estimated-floor": ("full", 3000), "width 64": ("full deform.width=64", 3000),
+            "fourier": ("full deform.kind=fourier", 3000), "fourier, 6000": ("full deform.kind=fourier", 6000)}
+"""Each trainer label of the table: the iteration_profile column of its settings, and its Stage-3
+iterations (``fourier, 6000``: ``--set stage3.iterations=6000`` as well)."""
 
 
-def profile_label(trainer: str) -> str:
-    """The iteration_profile column of a trainer label: ``full`` plus its overrides."""
-    return "full" if trainer == BASELINE else f"full {trainer}"
-
-
-def stage3_costs(path: Path) -> dict[tuple[str, str], float]:
-    """(scene, profile column) -> unprofiled Stage-3 thread CPU ms per iteration."""
+def stage3_costs(path: Path) -> dict[tuple[str, str], tuple[float, str]]:
+    """(scene, profile column) -> (unprofiled Stage-3 thread CPU ms per iteration, code commit)."""
     with path.open(newline="") as fh:
-        return {(r["scene"], r["mode"]): float(r["unprofiled_cpu_ms_per_iteration"])
+        return {(r["scene"], r["mode"]): (float(r["unprofiled_cpu_ms_per_iteration"]), r["commit"])
                 for r in csv.DictReader(fh) if r["stage"] == "3" and r["part"] == "total"}
 
 
-def tradeoff_rows(final: list[dict], costs: dict[tuple[str, str], float]) -> list[dict]:
+def tradeoff_rows(final: list[dict], costs: dict[tuple[str, str], tuple[float, str]]) -> list[dict]:
+    """Scenes where at least two trainers were profiled by one commit (costs of different code
+    do not compare); the committed RGB-only beside each table is never profiled."""
     rows = []
     for scene in dict.fromkeys(r["scene"] for r in final):
-        for trainer in dict.fromkeys(r["trainer"] for r in final if r["scene"] == scene):
-            cost = costs.get((scene, profile_label(trainer)))
-            if cost is None:
-                continue  # the committed RGB-only beside each table, and anything not profiled
+        trainers = [t for t in dict.fromkeys(r["trainer"] for r in final if r["scene"] == scene)
+                    if (scene, PROFILED.get(t, ("", 0))[0]) in costs]
+        if len(trainers) < 2 or len({costs[(scene, PROFILED[t][0])][1] for t in trainers}) > 1:
+            print(f"deformation_tradeoff: {scene}: left out (fewer than two trainers profiled by one commit)")
+            continue
+        for trainer in trainers:
+            column, iterations = PROFILED[trainer]
+            cost = costs[(scene, column)][0]
             vals = [float(r["val_psnr"]) for r in final if (r["scene"], r["trainer"]) == (scene, trainer)]
             seeds = sorted(int(r["seed"]) for r in final if (r["scene"], r["trainer"]) == (scene, trainer))
             rows.append({"scene": scene, "trainer": trainer, "seeds": " ".join(map(str, seeds)),
                          "val_psnr_mean": round(statistics.fmean(vals), 3),
                          "val_psnr_std": round(statistics.stdev(vals), 3) if len(vals) > 1 else "",
-                         "stage3_ms_per_iteration": round(cost, 1),
-                         "stage3_min": round(cost * STAGE3_ITERATIONS / 60e3, 1)})
+                         "stage3_ms_per_iteration": round(cost, 1), "stage3_iterations": iterations,
+                         "stage3_min": round(cost * iterations / 60e3, 1)})
     return rows
 
 
@@ -76,7 +79,7 @@ def plot(rows: list[dict], path: Path) -> None:
                 ax.errorbar([r["stage3_min"]], [r["val_psnr_mean"]], yerr=[r["val_psnr_std"] or 0.0], fmt="o",
                             capsize=3, color=f"C{k % 10}", label=f"{trainer} (seeds {r['seeds']})")
         ax.set_title(scene)
-        ax.set_xlabel("Stage 3 at 3000 iterations, one thread (min)")
+        ax.set_xlabel("Stage 3, one thread, quiet (min)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
     axes[0][0].set_ylabel("validation PSNR (dB), mean ± std over seeds")

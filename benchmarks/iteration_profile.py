@@ -7,7 +7,8 @@ Gaussian counts of a finished standard run.
         --checkpoints RUN/checkpoints --set deform.kind=fourier
 
 ``--set`` profiles a variant of the standard settings (its column is named mode + overrides); a
-Fourier variant started from a network-trained state gets zero coefficients with fresh moments.
+Fourier variant started from a network-trained state gets zero coefficients with fresh moments,
+a network of another shape starts fresh.
 ``--counts-from`` takes the Gaussian counts from any finished run instead of the committed one.
 
 A standard run takes 20-40 min of one thread, so each scene and mode is profiled in three steps:
@@ -354,7 +355,13 @@ def profile_case(dataset: Path, mode: str, counts: Counts, tmp: Path, fraction: 
     def stage3_window(ctx: Any, model: Any, rgb: Any, thermal: Any, switches: Any, prior: Any,
                       heldout_psnr: Any = None) -> Any:
         problem = Stage3Problem(ctx, model, rgb, thermal, switches, prior, heldout_psnr)
-        problem.load_state(payload[3])
+        state = payload[3]
+        if model.deform is not None and state.get("deform") is not None:
+            own = model.deform.state_dict()
+            if own.keys() != state["deform"].keys() or any(own[k].shape != v.shape for k, v in state["deform"].items()):
+                # A network of another shape (``--set deform.width=...``): this one starts fresh.
+                state = {**state, "deform": None, "deform_optimizer": None}
+        problem.load_state(state)
         if model.smoke is not None and ctx.cfg.deform.kind == "fourier" and MOTION_KEYS[0] not in model.smoke:
             # A state trained with the network: zero Fourier coefficients (fresh moments) in its place,
             # so the window pays for the motion as such a run does.
