@@ -160,3 +160,25 @@ def test_match_count_grows_by_splits_and_trims_the_most_transparent() -> None:
     match_count(g, opt, 5, torch.Generator())
     assert g.n == 5
     assert torch.equal(torch.sort(g["opacity"].detach(), descending=True).values, kept)
+
+
+def test_deformation_tradeoff_averages_seeds_and_keeps_one_commit_per_scene() -> None:
+    """Per scene and trainer: the seeds' mean and std of the final validation PSNR beside the
+    profiled Stage-3 cost times the trainer's iterations; a scene whose trainers were profiled by
+    different commits is left out (their costs do not compare), as are unprofiled trainers."""
+    from benchmarks.deformation_tradeoff import tradeoff_rows
+    final = [{"scene": "a", "seed": s, "trainer": t, "val_psnr": v} for s, t, v in
+             ((0, "estimated-floor", 12.0), (1, "estimated-floor", 14.0), (0, "fourier", 11.0), (1, "fourier", 12.0),
+              (1, "fourier, 6000", 13.5), (0, "rgb-only (6663d970, true-alpha floor)", 9.0),
+              (0, "estimated-floor", 20.0))]
+    final[-1]["scene"] = "b"
+    final.append({"scene": "b", "seed": 0, "trainer": "fourier", "val_psnr": 19.0})
+    costs = {("a", "full"): (300.0, "c1"), ("a", "full deform.kind=fourier"): (150.0, "c1"),
+             ("b", "full"): (300.0, "c1"), ("b", "full deform.kind=fourier"): (150.0, "c2")}
+    listed = tradeoff_rows(final, costs)
+    assert {(r["scene"], r["trainer"]) for r in listed} == {("a", "estimated-floor"), ("a", "fourier"),
+                                                            ("a", "fourier, 6000")}  # b left out, RGB-only unprofiled
+    rows = {r["trainer"]: r for r in listed}
+    assert rows["estimated-floor"]["val_psnr_mean"] == 13.0 and rows["estimated-floor"]["val_psnr_std"] == pytest.approx(1.414, abs=1e-3)
+    assert rows["estimated-floor"]["stage3_min"] == 15.0 and rows["fourier"]["stage3_min"] == 7.5
+    assert rows["fourier, 6000"]["stage3_min"] == 15.0 and rows["fourier, 6000"]["val_psnr_std"] == ""
