@@ -13,9 +13,11 @@ before/after comparisons of wall time and PSNR at the same seed.
 runs (their train_log.csv), one line per run, written as ``train_speed_curve.csv`` + ``.png``
 (``--name`` changes the stem).
 
-``e2e``: ``train-and-evaluate`` on DATASET at the quick profile, this checkout against an earlier
-commit (exported with ``git archive``), alternated, default threads; keeps the best wall time of
-each side, prints the ratio and the load, writes ``train_speed_e2e.csv``; the run folders stay
+``e2e``: ``train-and-evaluate`` on DATASET at ``--profile`` (quick by default), this checkout
+against an earlier commit (exported with ``git archive``), alternated, at ``--threads`` (default:
+each CLI's own); ``--current-set KEY=VALUE`` passes settings to this checkout's side only (for
+example ``deform.kind=fourier``, which an earlier commit may not know). Keeps the best wall time
+of each side, prints the ratio and the load, writes ``train_speed_e2e.csv``; the run folders stay
 under ``--keep`` for ``curve``.
 
 ``parity``: test PSNR of finished ``train`` runs grouped by label (one run per seed), mean and
@@ -28,6 +30,8 @@ seed's difference is a draw from the seed-to-seed spread.
     python benchmarks/train_speed.py train DATASET --backend torch --out RUN [--seed 0]
     python benchmarks/train_speed.py curve torch=RUN_A cpu=RUN_B
     python benchmarks/train_speed.py e2e DATASET --baseline c300de9 [--repeats 2] [--keep DIR]
+    python benchmarks/train_speed.py e2e data/standard/food_plate --baseline 2341510 --profile standard \
+        --threads 1 --repeats 2 --keep DIR [--current-set deform.kind=fourier]
     python benchmarks/train_speed.py parity cpu=RUN_S0 cpu=RUN_S1 torch=RUN_T0 torch=RUN_T1
 """
 
@@ -254,7 +258,11 @@ def run_e2e(args: argparse.Namespace) -> None:
             for side, commit, root in sides:
                 out = args.keep / f"{side}_{repeat}"
                 cmd = [sys.executable, "-m", "smokeseer.cli", str(args.dataset.resolve()), "--out", str(out.resolve()),
-                       "--profile", "quick", "--no-progress"]
+                       "--profile", args.profile, "--no-progress"]
+                if args.threads:
+                    cmd += ["--threads", str(args.threads)]
+                if side == "current":
+                    cmd += [a for item in args.current_set for a in ("--set", item)]
                 if args.iterations:
                     cmd += ["--iterations-stage2", str(args.iterations), "--iterations-stage3", str(args.iterations)]
                 before = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -268,7 +276,8 @@ def run_e2e(args: argparse.Namespace) -> None:
                 after = resource.getrusage(resource.RUSAGE_CHILDREN)
                 cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
                 psnr = json.loads((out / "metrics.json").read_text())["metrics"]["psnr"]
-                rows.append(EndToEnd(side, commit, repeat, wall, cpu, psnr, torch.get_num_threads(), load0,
+                rows.append(EndToEnd(side, commit + "".join(f" {item}" for item in args.current_set if side == "current"),
+                                     repeat, wall, cpu, psnr, args.threads or torch.get_num_threads(), load0,
                                      os.getloadavg()[0]))
                 print(f"{side} {commit} #{repeat}: {wall:.1f} s wall, {cpu:.1f} s CPU, test PSNR {psnr:.3f} dB, "
                       f"load {load0:.2f} -> {os.getloadavg()[0]:.2f}", flush=True)
@@ -334,6 +343,10 @@ def main() -> None:
     e2e.add_argument("--repeats", type=int, default=2, help="runs of each side (best wall time kept)")
     e2e.add_argument("--keep", type=Path, required=True, help="folder for the run folders (for curve)")
     e2e.add_argument("--iterations", type=int, default=0, help="iterations per stage (default: the profile's)")
+    e2e.add_argument("--profile", choices=["quick", "standard"], default="quick")
+    e2e.add_argument("--threads", type=int, default=0, help="--threads for both sides' runs (default: their own)")
+    e2e.add_argument("--current-set", action="append", default=[], metavar="KEY=VALUE",
+                     help="a setting for this checkout's runs only")
     e2e.add_argument("--out", type=Path, default=RESULTS)
     parity = sub.add_parser("parity", help="test PSNR per label over seeds, same-seed differences")
     parity.add_argument("runs", nargs="+", help="LABEL=RUN_DIR (finished train runs, one per seed)")
