@@ -20,17 +20,14 @@ import csv
 import statistics
 import sys
 from pathlib import Path
-
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from contracts.atomic import atomic_path, write_rows_csv  # noqa: E402
+from benchmarks.full_candidates import OUT as CANDIDATES, save_panels  # noqa: E402
+from contracts.atomic import write_rows_csv  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 PROFILED = {"estimated-floor": ("full", 3000), "width 64": ("full deform.width=64", 3000),
@@ -72,21 +69,13 @@ def tradeoff_rows(final: list[dict], costs: dict[tuple[str, str], tuple[float, s
 def plot(rows: list[dict], path: Path) -> None:
     scenes = list(dict.fromkeys(r["scene"] for r in rows))
     trainers = list(dict.fromkeys(r["trainer"] for r in rows))
-    fig, axes = plt.subplots(1, len(scenes), figsize=(4 * len(scenes), 3.6), squeeze=False)
-    for ax, scene in zip(axes[0], scenes):
+
+    def draw(ax: Any, i: int) -> None:
         for k, trainer in enumerate(trainers):
-            for r in (r for r in rows if (r["scene"], r["trainer"]) == (scene, trainer)):
+            for r in (r for r in rows if (r["scene"], r["trainer"]) == (scenes[i], trainer)):
                 ax.errorbar([r["stage3_min"]], [r["val_psnr_mean"]], yerr=[r["val_psnr_std"] or 0.0], fmt="o",
                             capsize=3, color=f"C{k % 10}", label=f"{trainer} (seeds {r['seeds']})")
-        ax.set_title(scene)
-        ax.set_xlabel("Stage 3, one thread, quiet (min)")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
-    axes[0][0].set_ylabel("validation PSNR (dB), mean ± std over seeds")
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
+    save_panels(path, scenes, draw, "Stage 3, one thread, quiet (min)", "validation PSNR (dB), mean ± std over seeds")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -95,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--profile", type=Path, default=RESULTS, help="folder of iteration_profile.csv")
     p.add_argument("--out", type=Path, default=RESULTS)
     args = p.parse_args(argv)
-    final_path = RESULTS / "full_candidates" / f"{args.table}_final.csv"
+    final_path = CANDIDATES / f"{args.table}_final.csv"
     try:
         with final_path.open(newline="") as fh:
             final = list(csv.DictReader(fh))

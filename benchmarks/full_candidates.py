@@ -23,6 +23,7 @@ import csv
 import json
 import sys
 from pathlib import Path
+from typing import Any, Callable
 
 import matplotlib
 
@@ -87,25 +88,35 @@ def kept_rows(path: Path, replaced: set[tuple]) -> list[dict]:
     return [r for r in read_rows(path) if (r["scene"], r["seed"], r["trainer"]) not in replaced]
 
 
-def plot(curves: list[dict], path: Path) -> None:
-    scenes = list(dict.fromkeys((c["scene"], c["seed"]) for c in curves))
-    fig, axes = plt.subplots(1, len(scenes), figsize=(4 * len(scenes), 3.6), squeeze=False)
-    labels = list(dict.fromkeys(c["trainer"] for c in curves))
-    for ax, (scene, seed) in zip(axes[0], scenes):
-        for k, label in enumerate(labels):  # one colour per trainer in every panel
-            pts = [c for c in curves if (c["scene"], c["seed"], c["trainer"]) == (scene, seed, label)]
-            if pts:
-                ax.plot([p["iteration"] for p in pts], [p["val_psnr"] for p in pts], "-o", ms=3, label=label,
-                        color=f"C{k % 10}")
-        ax.set_title(f"{scene}, seed {seed}")
-        ax.set_xlabel("Stage-3 iteration")
+def save_panels(path: Path, titles: list[str], draw: Callable[[Any, int], None], xlabel: str, ylabel: str) -> None:
+    """One panel per title, side by side, each drawn by ``draw(axes, index)``, with a grid and a
+    legend; written atomically as a PNG."""
+    fig, axes = plt.subplots(1, len(titles), figsize=(4 * len(titles), 3.6), squeeze=False)
+    for i, (ax, title) in enumerate(zip(axes[0], titles)):
+        draw(ax, i)
+        ax.set_title(title)
+        ax.set_xlabel(xlabel)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
-    axes[0][0].set_ylabel("validation PSNR (dB)")
+    axes[0][0].set_ylabel(ylabel)
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=100, format="png")
     plt.close(fig)
+
+
+def plot(curves: list[dict], path: Path) -> None:
+    scenes = list(dict.fromkeys((c["scene"], c["seed"]) for c in curves))
+    labels = list(dict.fromkeys(c["trainer"] for c in curves))
+
+    def draw(ax: Any, i: int) -> None:
+        for k, label in enumerate(labels):  # one colour per trainer in every panel
+            pts = [c for c in curves if (c["scene"], c["seed"], c["trainer"]) == (*scenes[i], label)]
+            if pts:
+                ax.plot([p["iteration"] for p in pts], [p["val_psnr"] for p in pts], "-o", ms=3, label=label,
+                        color=f"C{k % 10}")
+    save_panels(path, [f"{scene}, seed {seed}" for scene, seed in scenes], draw, "Stage-3 iteration",
+                "validation PSNR (dB)")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -78,14 +78,14 @@ from contracts.train_log import read_train_log  # noqa: E402
 from smokeseer import api  # noqa: E402
 from smokeseer.config import DensifyConfig, DensifyWindow, TrainConfig, make_config, parse_set_items  # noqa: E402
 from smokeseer.model.deform import MOTION_KEYS, motion_tensors  # noqa: E402
-from smokeseer.model.gaussians import GaussianSet, edit_rows, make_optimizer, quat_to_rotmat  # noqa: E402
+from smokeseer.model.gaussians import GaussianSet, edit_rows, quat_to_rotmat  # noqa: E402
 from smokeseer.model.optim import Adam  # noqa: E402
 from smokeseer.raster import api as raster_api  # noqa: E402
 from smokeseer.train import losses, stage2  # noqa: E402
 from smokeseer.train import loop as trainloop  # noqa: E402
 from smokeseer.train.loop import IterationOutput, StageProblem, StageSchedule, run_stage  # noqa: E402
 from smokeseer.train.stage2 import Stage2Problem  # noqa: E402
-from smokeseer.train.stage3 import Stage3Problem, smoke_lrs  # noqa: E402
+from smokeseer.train.stage3 import Stage3Problem  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 RUNS = ROOT / "data" / "tables_standard" / "runs"
@@ -361,13 +361,14 @@ def profile_case(dataset: Path, mode: str, counts: Counts, tmp: Path, fraction: 
             if own.keys() != state["deform"].keys() or any(own[k].shape != v.shape for k, v in state["deform"].items()):
                 # A network of another shape (``--set deform.width=...``): this one starts fresh.
                 state = {**state, "deform": None, "deform_optimizer": None}
-        problem.load_state(state)
-        if model.smoke is not None and ctx.cfg.deform.kind == "fourier" and MOTION_KEYS[0] not in model.smoke:
-            # A state trained with the network: zero Fourier coefficients (fresh moments) in its place,
+        smoke = state.get("smoke")
+        if smoke is not None and ctx.cfg.deform.kind == "fourier" and MOTION_KEYS[0] not in smoke:
+            # A state trained with the network: zero Fourier coefficients and a fresh smoke optimiser,
             # so the window pays for the motion as such a run does.
-            model.smoke = GaussianSet({**model.smoke.state_dict(), **motion_tensors(
-                model.smoke.n, ctx.cfg.deform.fourier_terms, ctx.cfg.deform.predict_rotation_scale, ctx.device)})
-            problem.smoke_optimizer = make_optimizer(model.smoke, smoke_lrs(ctx.cfg, ctx.extent, problem.colour_fixed))
+            n = smoke["means"].shape[0]
+            state = {**state, "smoke": {**smoke, **motion_tensors(n, ctx.cfg.deform, torch.device("cpu"))},
+                     "smoke_optimizer": None}
+        problem.load_state(state)
         loaded = (model.surface.n, model.smoke.n if model.smoke is not None else 0)
         match_count(model.surface, problem.surface_optimizer, counts.surface, split_rng)
         if model.smoke is not None:

@@ -24,6 +24,7 @@ from scipy import ndimage
 
 from smokeseer.cli import main
 from smokeseer.evaluation.figures import figure_path
+from smokeseer.config import DeformConfig
 from smokeseer.model.deform import fourier_bases, motion_offsets, motion_tensors
 from smokeseer.raster import read_ply
 from smokeseer.train.stage3 import Stage3Problem, smoke_free_centres, smoke_min_log_scale
@@ -735,7 +736,7 @@ def test_fourier_bases_and_offsets_match_their_closed_form() -> None:
     expected = torch.zeros_like(params["motion_means"])
     expected[2, :, 1] = phi
     assert torch.equal(params["motion_means"].grad, expected)
-    zero = motion_tensors(4, terms, False, torch.device("cpu"))
+    zero = motion_tensors(4, DeformConfig(fourier_terms=terms, predict_rotation_scale=False), torch.device("cpu"))
     assert set(zero) == {"motion_means"}
     assert motion_offsets(zero, 0.7)[0].abs().max() == 0 and motion_offsets(zero, 0.7)[1] is None
 

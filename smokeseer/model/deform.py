@@ -80,12 +80,12 @@ def fourier_bases(t: float, terms: int, like: Tensor) -> Tensor:
     return torch.cat([like.new_full((1,), float(t)), torch.sin(k), torch.cos(k)])
 
 
-def motion_tensors(n: int, terms: int, rotation_scale: bool, device: torch.device) -> dict[str, Tensor]:
+def motion_tensors(n: int, cfg: DeformConfig, device: torch.device) -> dict[str, Tensor]:
     """Zero coefficients for ``n`` Gaussians (no motion until trained): position offsets, and with
-    ``rotation_scale`` quaternion and log-scale offsets as the MLP's full head predicts."""
+    ``cfg.predict_rotation_scale`` quaternion and log-scale offsets as the MLP's full head predicts."""
     shapes = {"motion_means": 3, "motion_quats": 4, "motion_log_scales": 3}
-    keys = MOTION_KEYS if rotation_scale else MOTION_KEYS[:1]
-    return {k: torch.zeros((n, 1 + 2 * terms, shapes[k]), device=device) for k in keys}
+    keys = MOTION_KEYS if cfg.predict_rotation_scale else MOTION_KEYS[:1]
+    return {k: torch.zeros((n, 1 + 2 * cfg.fourier_terms, shapes[k]), device=device) for k in keys}
 
 
 def motion_offsets(params: Mapping[str, Tensor], t: float) -> tuple[Tensor, Tensor | None, Tensor | None]:

@@ -55,8 +55,7 @@ def build_scene_model(ctx: RunContext, s2: Stage2Result, plan: Stage3Plan,
         if plan.use_deform and cfg.deform.kind == "mlp":
             deform = DeformNetwork(cfg.deform, ctx.extent, ctx.device)
         elif plan.use_deform:
-            smoke = GaussianSet({**smoke.state_dict(), **motion_tensors(smoke.n, cfg.deform.fourier_terms,
-                                                                        cfg.deform.predict_rotation_scale, ctx.device)})
+            smoke = GaussianSet({**smoke.state_dict(), **motion_tensors(smoke.n, cfg.deform, ctx.device)})
     thermal_geometry = s2.color == "thermal"
     bg_rgb = (rgb_s2.background if rgb_s2 is not None else make_background(cfg, 3, ctx.device)) \
         if thermal_geometry else s2.background
@@ -79,13 +78,12 @@ def _surface_lrs(cfg: TrainConfig, g: GaussianSet, extent: float) -> dict[str, f
     return {k: table[k] for k in g.params}
 
 
-def smoke_lrs(cfg: TrainConfig, extent: float, colour_fixed: bool) -> dict[str, float]:
+def _smoke_lrs(cfg: TrainConfig, extent: float, colour_fixed: bool) -> dict[str, float]:
     lr = cfg.lr
-    return {"means": lr.means_init * extent, "quats": lr.quats, "log_scales": lr.scales,
-            "opacity_rgb": lr.opacity, "opacity_thermal": lr.opacity, "color": 0.0 if colour_fixed else lr.sh_dc * 4,
-            "thermal": lr.thermal, "t_lo": lr.temporal, "t_hi": lr.temporal, "t_log_sigma": lr.temporal,
-            **{f"motion_{k}": v * cfg.deform.fourier_lr_scale
-               for k, v in (("means", lr.means_init * extent), ("quats", lr.quats), ("log_scales", lr.scales))}}
+    table = {"means": lr.means_init * extent, "quats": lr.quats, "log_scales": lr.scales,
+             "opacity_rgb": lr.opacity, "opacity_thermal": lr.opacity, "color": 0.0 if colour_fixed else lr.sh_dc * 4,
+             "thermal": lr.thermal, "t_lo": lr.temporal, "t_hi": lr.temporal, "t_log_sigma": lr.temporal}
+    return {**table, **{f"motion_{k}": table[k] * cfg.deform.fourier_lr_scale for k in ("means", "quats", "log_scales")}}
 
 
 class Stage3Problem(StageProblem):
@@ -143,7 +141,7 @@ class Stage3Problem(StageProblem):
     def _make_optimizers(self) -> None:
         cfg, model = self.cfg, self.model
         self.surface_optimizer = make_optimizer(model.surface, _surface_lrs(cfg, model.surface, self.ctx.extent))
-        self.smoke_optimizer = (make_optimizer(model.smoke, smoke_lrs(cfg, self.ctx.extent, self.colour_fixed))
+        self.smoke_optimizer = (make_optimizer(model.smoke, _smoke_lrs(cfg, self.ctx.extent, self.colour_fixed))
                                 if model.smoke is not None else None)
         self.deform_optimizer = (Adam(model.deform.parameters(), lr=cfg.deform.lr_init)
                                  if model.deform else None)

@@ -45,12 +45,12 @@ def step_optimizers(it: int, total: int, cfg: TrainConfig, extent: float,
     Fourier position offsets' (``deform.fourier_lr_scale`` of it), every optimiser
     steps and clears its gradients, and the deformation network follows its own decay over the
     stage and only steps after its warm-up (an iteration of the stage)."""
+    decayed = exp_lr(it, total, cfg.lr.means_init * extent, cfg.lr.means_final * extent)
+    scale = {"means": 1.0, "motion_means": cfg.deform.fourier_lr_scale}
     for opt in gaussian_optimizers:
         for group in opt.param_groups if opt is not None else ():
-            if group["name"] in ("means", "motion_means") and group["lr"] > 0:
-                group["lr"] = exp_lr(it, total, cfg.lr.means_init * extent, cfg.lr.means_final * extent)
-                if group["name"] == "motion_means":
-                    group["lr"] *= cfg.deform.fourier_lr_scale
+            if group["name"] in scale and group["lr"] > 0:
+                group["lr"] = decayed * scale[group["name"]]
     for opt in (*gaussian_optimizers, *other_optimizers):
         if opt is not None:
             opt.step()
