@@ -26,6 +26,9 @@ TEXTURE_KINDS = ("none", "noise", "checker", "brick", "wave", "voronoi", "magic"
 SOURCE_KINDS = ("smoke", "fire", "both")
 MODALITY_PASSES = {"rgb": ("smoky", "clean", "depth", "smoke_alpha"),
                    "thermal": ("smoky", "clean", "depth", "smoke_alpha")}
+SMOKE_PASSES = ("smoky", "smoke_alpha")
+"""The passes that show the smoke. A job that asks for none of them (clean ground truth alone,
+depth) needs no smoke domain and so no bake."""
 
 
 def built_scene_path(blend_path: str) -> Path:

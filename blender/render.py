@@ -12,7 +12,7 @@ from typing import Sequence
 import bpy
 from mathutils import Matrix
 
-from blender.job import CameraJob, ImageSize
+from blender.job import SMOKE_PASSES, CameraJob, ImageSize
 from contracts.atomic import atomic_path
 from blender.materials import SMOKE_WEIGHT
 from blender.scene import BuiltScene
@@ -48,7 +48,7 @@ def pass_setup(modality: str, name: str, camera: CameraJob) -> PassSetup:
     bounces = 4 if modality == "rgb" else 0
     denoise = camera.denoise if name == "smoky" else "none"
     samples = camera.clean_samples if name == "clean" else samples
-    return PassSetup(name == "smoky", False, samples, bounces, False, fmt, denoise=denoise,
+    return PassSetup(name in SMOKE_PASSES, False, samples, bounces, False, fmt, denoise=denoise,
                      volume_step_rate=step_rate)
 
 

@@ -3,7 +3,8 @@
 Each scene goes to OUT/<scene>/ through `generator.api.generate`. A scene whose dataset is
 already there and was made from the same resolved spec is skipped (so an interrupted run
 resumes; an unfinished scene also resumes inside the generator's own staging folder); one
-made from a different spec is regenerated. Every scene prints one line (time, size, smoke
+that differs only in the clean passes' samples has just those re-rendered
+(`generator.clean_refresh`); one made from another spec is regenerated. Every scene prints one line (time, size, smoke
 statistics), and the run writes OUT/benchmark.json and OUT/benchmark.md.
 
 Besides the generator's statistics, each record has the mean RGB smoke opacity inside the
@@ -28,6 +29,7 @@ import numpy as np
 
 from generator.api import generate, resolve_spec
 from generator.assets import load_manifest
+from generator.clean_refresh import clean_refresh_needed, refresh_clean
 from contracts.dataset_format import PASS_FILES
 from contracts.errors import DatasetError
 from contracts.imageio import read_exr_channel
@@ -98,11 +100,15 @@ def run_scene(scene: str, profile: Profile, out_root: Path, force: bool, threads
     spec = _resolved(scene, profile, density_scale)
     out = out_root / scene
     reused = not force and _finished(out, spec)
+    refreshed = not reused and not force and clean_refresh_needed(out, spec)
     started = time.perf_counter()
-    if not reused:
+    if refreshed:
+        refresh_clean(out, spec, threads=threads, show_progress=show_progress)
+    elif not reused:
         generate(scene, out, force=True, show_progress=show_progress, threads=threads, bake_store=bake_store,
                  density_scale=density_scale, **profile.kwargs())
     wall = time.perf_counter() - started
+    status = "reused" if reused else "refreshed" if refreshed else "generated"  # refreshed: clean passes only
     meta = json.loads((out / "dataset.json").read_text())
     size, n_files = folder_size(out)
     frames = {m: len(json.loads((out / f"transforms_{m}.json").read_text())["frames"])
@@ -112,7 +118,7 @@ def run_scene(scene: str, profile: Profile, out_root: Path, force: bool, threads
     inside = alphas[alphas > threshold]
     target = OPACITY_PER_DENSITY * spec.smoke.density
     return {
-        "scene": scene, "paper_analogue": BENCHMARK_SCENES[scene], "status": "reused" if reused else "generated",
+        "scene": scene, "paper_analogue": BENCHMARK_SCENES[scene], "status": status,
         "density": spec.smoke.density, "density_scale": spec.smoke.density_scale, "fire": spec.has_fire,
         "strong_motion": strong_motion(spec),
         "frames": frames, "seconds": meta["timings_s"]["total"] if reused else wall,

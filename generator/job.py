@@ -9,8 +9,8 @@ from typing import Any
 import numpy as np
 
 from contracts.atomic import atomic_path
-from blender.job import (AssetJob, CameraJob, FireJob, FrameJob, ImageSize, MaterialJob, ObjectJob, RgbSmokeJob,
-                        SimJob, SourceJob, TextureJob, ThermalSmokeJob, WorkerJob, WorldJob)
+from blender.job import (SMOKE_PASSES, AssetJob, CameraJob, FireJob, FrameJob, ImageSize, MaterialJob, ObjectJob,
+                        RgbSmokeJob, SimJob, SourceJob, TextureJob, ThermalSmokeJob, WorkerJob, WorldJob)
 from generator.assets import Manifest, MeshArrays, load_mesh
 from generator.optics.blackbody import glow_table
 from generator.optics.mie import ORGANIC_SMOKE, SOOT, SmokeOptics, smoke_optics
@@ -168,13 +168,20 @@ def _objects(spec: SceneSpec, manifest: Manifest, source: str, meshes: dict[str,
     return tuple(out)
 
 
+def shows_smoke(plan: Plan) -> bool:
+    """Whether any requested pass shows the smoke; without one the worker builds no domain."""
+    return any(p in SMOKE_PASSES for passes in plan.render_passes.values() for p in passes)
+
+
 def make_job(spec: SceneSpec, plan: Plan, manifest: Manifest, source: str, work: Path, threads: int,
              meshes: dict[str, MeshArrays] | None = None) -> WorkerJob:
-    """The worker's job; `meshes` are the already loaded mesh files (loaded here when not given)."""
+    """The worker's job; `meshes` are the already loaded mesh files (loaded here when not given).
+    A job whose passes never show the smoke has no sources: no domain, no bake."""
     meshes = load_scene_meshes(spec, manifest, source) if meshes is None else meshes
     sky_k = spec.lights.sky_temperature_k
     coeffs = smoke_coefficients(spec, plan.optics)
     fire = _fire(spec)
+    sources = spec.sources if shows_smoke(plan) else ()
     materials = {
         name: MaterialJob(name=name, base_color=mat.base_color, roughness=mat.roughness, metallic=mat.metallic,
                           texture=TextureJob(**vars(mat.texture)),
@@ -188,7 +195,7 @@ def make_job(spec: SceneSpec, plan: Plan, manifest: Manifest, source: str, work:
         cache_dir=str(work / "cache"),
         raw_dir=str(work / "raw"),
         summary_path=str(work / "worker_summary.json"),
-        grids=("density", "flame") if fire else (("density",) if spec.has_smoke else ()),
+        grids=(("density", "flame") if fire else ("density",)) if sources else (),
         materials=materials,
         objects=_objects(spec, manifest, source, meshes, work / "meshes"),
         world=WorldJob(sky_color=lights.sky_color, sky_strength=lights.sky_strength,
@@ -200,7 +207,7 @@ def make_job(spec: SceneSpec, plan: Plan, manifest: Manifest, source: str, work:
                    frame_end=plan.last_frame),
         sources=tuple(SourceJob(kind=s.kind, position=s.position, radius=s.radius, rate=s.rate,
                                 heat=source_heat(s.temperature_k, lights.ambient_temperature_k), velocity=s.velocity)
-                      for s in spec.sources),
+                      for s in sources),
         smoke_rgb=RgbSmokeJob(scatter_density=coeffs["scatter_density"], scatter_color=tuple(coeffs["scatter_color"]),
                               absorb_density=coeffs["absorb_density"], absorb_color=tuple(coeffs["absorb_color"]),
                               anisotropy=coeffs["anisotropy"], fire=fire),

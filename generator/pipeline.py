@@ -187,8 +187,10 @@ def generate(spec: SceneSpec, out: Path, manifest: Manifest | None = None, sourc
     work = _staging(out, spec, code)
     threads = threads or max(1, os.cpu_count() or 1)
     job = make_job(spec, plan, manifest, source, work, threads, meshes)
-    bake: dict[str, Any] | None = None  # a smoke-free scene has no bake
-    if spec.has_smoke:
+    bake: dict[str, Any] | None = None  # a smoke-free scene, or passes that never show the smoke: no bake
+    if spec.has_smoke and not job.sources:
+        log.info("no requested pass shows the smoke: the scene renders without its smoke domain, no bake")
+    if job.sources:
         key = bake_key(job, code)
         if bake_store is not None:
             job = bake_in(job, bake_folder(Path(bake_store).resolve(), spec.name, key))
