@@ -121,7 +121,7 @@ def run_scene(scene: str, profile: Profile, out_root: Path, force: bool, threads
         "scene": scene, "paper_analogue": BENCHMARK_SCENES[scene], "status": status,
         "density": spec.smoke.density, "density_scale": spec.smoke.density_scale, "fire": spec.has_fire,
         "strong_motion": strong_motion(spec),
-        "frames": frames, "seconds": meta["timings_s"]["total"] if reused else wall,
+        "frames": frames, "seconds": wall if status == "generated" else meta["timings_s"]["total"],
         "size_bytes": size, "files": n_files, "stats": meta.get("stats", {}),
         "opacity_in_smoke": float(inside.mean()) if inside.size else None, "target_opacity": target,
         "extinction_scale": extinction_scale(alphas, threshold, target),
