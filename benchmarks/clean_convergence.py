@@ -9,8 +9,9 @@ scenes can be measured in separate runs (docs/generator.md gives the commands).
 
 Each scene renders only its clean passes (RGB clean, thermal clean radiance) at every rung of the
 ladder, with the same seed. The demo is rendered at its preset size, any other scene at the
-`standard` profile's size. The clean passes never show smoke, so the scenes are rendered without
-their smoke sources (no bake); the surfaces, lights and cameras are the preset's. RGB PSNR is
+`standard` profile's size. The clean passes never show smoke, so the generator builds no smoke
+domain and bakes nothing (`generator.job.shows_smoke`); the surfaces, lights and cameras are
+the preset's. RGB PSNR is
 taken on the 8-bit PNGs a dataset holds; thermal PSNR on the clean radiance at the sensor's
 resolution, with the sensor's radiance span (L_band(t_max) - L_band(t_min)) as the peak. Each
 rung is compared with the rung of 4x its samples (and with the top rung). Writes
@@ -58,9 +59,9 @@ def preset_spec(scene: str, frames: int) -> SceneSpec:
 
 
 def clean_only(spec: SceneSpec, samples: int) -> SceneSpec:
-    """`spec` without smoke sources, clean passes only, both cameras at `samples` clean samples."""
+    """`spec` with its clean passes only, both cameras at `samples` clean samples."""
     rig = spec.rig
-    return replace(spec, sources=(), passes=parse_passes("rgb.clean,thermal.clean", "benchmark"),
+    return replace(spec, passes=parse_passes("rgb.clean,thermal.clean", "benchmark"),
                    rig=replace(rig, rgb=replace(rig.rgb, clean_samples=samples),
                                thermal=replace(rig.thermal, clean_samples=samples)))
 

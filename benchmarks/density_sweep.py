@@ -1,0 +1,218 @@
+"""Where does thermal start to pay? Full against RGB-only as a function of the smoke's optical
+depth (issue 49), from the density sweep's finished runs.
+
+    python benchmarks/density_sweep.py [--datasets data/density_sweep] [--tables data/tables_density]
+                                       [--digest PREFIX] [--out benchmarks/results/density_sweep]
+
+Reads DATASETS/kK/SCENE (made by benchmarks/density_sweep_generate.sh) for each density's
+optical depth and smoky input, and TABLES_kK/runs (made by benchmarks/density_sweep_train.sh)
+for the runs of Full and RGB-only, one trainer version (the digest given, else the one with the
+most runs). Writes to OUT:
+
+- sweep.csv: per scene and k, the mean optical depth −ln(1 − ᾱ) of the RGB smoke in the test
+  views, each method's test PSNR (mean of views), pooled PSNR (of the views' mean squared error)
+  and SSIM, mean ± std over seeds, and Full − RGB-only paired by seed;
+- crossover.csv: per scene and metric, the optical depth where Full's lead turns positive;
+- lead.png: the lead against optical depth, one line per scene, a panel per metric;
+- strip.png: one test view per scene across k: smoky input, RGB-only, Full (seed 0), clean.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from contracts.atomic import write_rows_csv  # noqa: E402
+from contracts.dataset_format import PASS_FILES, file_path  # noqa: E402
+from contracts.imageio import read_exr_channel, read_png  # noqa: E402
+from eval.density_sweep import crossover, mean_optical_depth, paired_lead  # noqa: E402
+from eval.finished_runs import finished_runs  # noqa: E402
+from eval.per_view import pooled_over_views  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+METHODS = ("full", "rgb-only")
+METRICS = {"psnr": "test PSNR, mean of views (dB)", "pooled_psnr": "test PSNR pooled over views (dB)",
+           "ssim": "test SSIM"}
+
+
+def density_folders(parent: Path, prefix: str = "") -> dict[float, Path]:
+    """{k: PARENT/{prefix}kK} for every such folder, in order of k."""
+    found = {}
+    for p in parent.glob(f"{prefix}k*"):
+        m = re.fullmatch(re.escape(prefix) + r"k(\d+(?:\.\d+)?)", p.name)
+        if m and p.is_dir():
+            found[float(m.group(1))] = p
+    return dict(sorted(found.items()))
+
+
+def _table_folders(tables: Path) -> dict[float, Path]:
+    """The tables folders TABLES_kK (one regenerate-tables --out per density)."""
+    return density_folders(tables.parent, f"{tables.name}_")
+
+
+def test_stems(dataset: Path) -> list[str]:
+    frames = json.loads((dataset / "transforms_rgb.json").read_text())["frames"]
+    return [f["file_stem"] for f in frames if f["split"] == "test"]
+
+
+def scene_density(dataset: Path) -> dict[str, Any]:
+    """The test views' mean RGB optical depth and the smoky input's PSNR (mean of views)."""
+    stems = test_stems(dataset)
+    alpha_file = PASS_FILES[("rgb", "smoke_alpha")][0]
+    alphas = [read_exr_channel(file_path(dataset, alpha_file, s), "A") for s in stems]
+    psnrs = []
+    for s in stems:
+        smoky = read_png(dataset / "rgb" / "smoky" / f"{s}.png").astype(np.float64) / 255
+        clean = read_png(dataset / "rgb" / "clean" / f"{s}.png").astype(np.float64) / 255
+        psnrs.append(10 * np.log10(1.0 / max(float(np.mean((smoky - clean) ** 2)), 1e-10)))
+    return {"optical_depth": mean_optical_depth(alphas), "input_psnr": float(np.mean(psnrs)),
+            "input_pooled_psnr": pooled_over_views(psnrs)}
+
+
+def run_scores(tables: Path, digest: str | None) -> dict[tuple[str, str], dict[int, dict[str, Any]]]:
+    """{(scene, method): {seed: {metric: value, "run": folder}}} of one density's finished runs."""
+    try:
+        _, runs = finished_runs(tables, METHODS, digest)
+    except ValueError:  # nothing finished at this density yet
+        return {}
+    out: dict[tuple[str, str], dict[int, dict[str, Any]]] = {}
+    for run_dir, rec in runs:
+        metrics = json.loads((run_dir / "metrics.json").read_text())
+        views = [e["psnr"] for e in metrics["per_image"]]
+        out.setdefault((rec["scene"], rec["variant"]), {})[int(rec["seed"])] = {
+            "psnr": metrics["metrics"]["psnr"], "ssim": metrics["metrics"]["ssim"],
+            "pooled_psnr": pooled_over_views(views), "run": run_dir}
+    return out
+
+
+def _mean_std(values: list[float]) -> tuple[float, float | None]:
+    a = np.asarray(values, dtype=float)
+    return float(a.mean()), (float(a.std(ddof=1)) if a.size > 1 else None)
+
+
+def sweep_rows(datasets: Path, tables: Path, digest: str | None) -> list[dict[str, Any]]:
+    rows = []
+    table_dirs = _table_folders(tables)
+    for k, folder in density_folders(datasets).items():
+        scores = run_scores(table_dirs[k], digest) if k in table_dirs else {}
+        for dataset in sorted(p for p in folder.iterdir() if (p / "dataset.json").is_file()):
+            row: dict[str, Any] = {"scene": dataset.name, "k": k, **scene_density(dataset)}
+            for method in METHODS:
+                by_seed = scores.get((dataset.name, method), {})
+                row[f"{method}_seeds"] = " ".join(str(s) for s in sorted(by_seed))
+                for metric in METRICS:
+                    mean, std = _mean_std([v[metric] for v in by_seed.values()]) if by_seed else (None, None)
+                    row[f"{method}_{metric}"], row[f"{method}_{metric}_std"] = mean, std
+            for metric in METRICS:
+                lead = paired_lead({s: v[metric] for s, v in scores.get((dataset.name, "full"), {}).items()},
+                                   {s: v[metric] for s, v in scores.get((dataset.name, "rgb-only"), {}).items()})
+                row[f"lead_{metric}"] = lead.mean if lead else None
+                row[f"lead_{metric}_std"] = lead.std if lead else None
+            rows.append(row)
+    return rows
+
+
+def crossover_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    out = []
+    for scene in sorted({r["scene"] for r in rows}):
+        for metric in METRICS:
+            pts = [r for r in rows if r["scene"] == scene and r[f"lead_{metric}"] is not None]
+            if not pts:
+                continue
+            at, how = crossover([r["optical_depth"] for r in pts], [r[f"lead_{metric}"] for r in pts])
+            out.append({"scene": scene, "metric": metric, "densities": len(pts), "crossover_optical_depth": at,
+                        "finding": how})
+    return out
+
+
+def plot_lead(rows: list[dict[str, Any]], path: Path) -> None:
+    fig, axes = plt.subplots(1, len(METRICS), figsize=(5 * len(METRICS), 4.2))
+    for ax, (metric, label) in zip(axes, METRICS.items()):
+        for scene in sorted({r["scene"] for r in rows}):
+            pts = sorted((r for r in rows if r["scene"] == scene and r[f"lead_{metric}"] is not None),
+                         key=lambda r: r["optical_depth"])
+            if pts:
+                ax.errorbar([r["optical_depth"] for r in pts], [r[f"lead_{metric}"] for r in pts],
+                            yerr=[r[f"lead_{metric}_std"] or 0.0 for r in pts], marker="o", capsize=3, label=scene)
+        ax.axhline(0.0, color="k", lw=0.8)
+        ax.set_xscale("symlog", linthresh=0.05)
+        ax.set_xlabel("mean optical depth of the RGB smoke, test views")
+        ax.set_ylabel(f"Full − RGB-only, {label}")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle("Full (RGB + thermal) against RGB-only across smoke density (mean ± std over seeds)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_strip(rows: list[dict[str, Any]], datasets: Path, tables: Path, digest: str | None, path: Path) -> None:
+    """Per scene, its first test view at every k: smoky input, RGB-only, Full (seed 0), clean."""
+    scenes = sorted({r["scene"] for r in rows})
+    dens = density_folders(datasets)
+    table_dirs = _table_folders(tables)
+    ks = list(dens)
+    fig, axes = plt.subplots(4 * len(scenes), len(ks), figsize=(2.2 * len(ks), 1.7 * 4 * len(scenes)), squeeze=False)
+    for si, scene in enumerate(scenes):
+        for ki, k in enumerate(ks):
+            dataset = dens[k] / scene
+            scores = run_scores(table_dirs[k], digest) if k in table_dirs else {}
+            images: list[np.ndarray | None] = [None] * 4
+            if (dataset / "dataset.json").is_file():
+                stem = test_stems(dataset)[0]
+                images[0] = read_png(dataset / "rgb" / "smoky" / f"{stem}.png")
+                images[3] = read_png(dataset / "rgb" / "clean" / f"{stem}.png")
+                for j, method in ((1, "rgb-only"), (2, "full")):
+                    run = scores.get((scene, method), {}).get(0)
+                    if run is not None:
+                        images[j] = read_png(run["run"] / "renders" / "surface" / f"{stem}.png")
+            for j, (img, what) in enumerate(zip(images, ("smoky input", "RGB-only", "Full", "clean"))):
+                ax = axes[4 * si + j, ki]
+                ax.set_xticks([])
+                ax.set_yticks([])
+                if img is not None:
+                    ax.imshow(img)
+                if ki == 0:
+                    ax.set_ylabel(f"{scene}\n{what}", fontsize=7)
+                if si == 0 and j == 0:
+                    ax.set_title(f"k = {k:g}", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--datasets", type=Path, default=ROOT / "data" / "density_sweep")
+    parser.add_argument("--tables", type=Path, default=ROOT / "data" / "tables_density")
+    parser.add_argument("--digest", help="trainer digest prefix of the runs (default: the one with the most runs)")
+    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "density_sweep")
+    args = parser.parse_args()
+    rows = sweep_rows(args.datasets, args.tables, args.digest)
+    if not rows:
+        raise SystemExit(f"density_sweep: no dataset under {args.datasets}/k*/ (run "
+                         "benchmarks/density_sweep_generate.sh first)")
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_rows_csv(args.out / "sweep.csv", rows)
+    cross = crossover_rows(rows)
+    if cross:
+        write_rows_csv(args.out / "crossover.csv", cross)
+    plot_lead(rows, args.out / "lead.png")
+    plot_strip(rows, args.datasets, args.tables, args.digest, args.out / "strip.png")
+    for r in rows:
+        lead = r["lead_psnr"]
+        print(f"{r['scene']:<11} k {r['k']:<5g} optical depth {r['optical_depth']:.3f}  input {r['input_psnr']:.2f} dB  "
+              f"Full − RGB-only {'n/a' if lead is None else format(lead, '+.2f')}")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
