@@ -16,7 +16,8 @@ runs (their train_log.csv), one line per run, written as ``train_speed_curve.csv
 ``e2e``: ``train-and-evaluate`` on DATASET at ``--profile`` (quick by default), this checkout
 against an earlier commit (exported with ``git archive``), alternated, at ``--threads`` (default:
 each CLI's own); ``--current-set KEY=VALUE`` passes settings to this checkout's side only (for
-example ``deform.kind=fourier``, which an earlier commit may not know). Keeps the best wall time
+example ``deform.kind=fourier``, which an earlier commit may not know). Each side's kernel is
+compiled before the timed runs, so no wall time includes a build. Keeps the best wall time
 of each side, prints the ratio and the load, writes ``train_speed_e2e.csv``; the run folders stay
 under ``--keep`` for ``curve``.
 
@@ -254,6 +255,9 @@ def run_e2e(args: argparse.Namespace) -> None:
     with tempfile.TemporaryDirectory() as tmp_name:
         export_commit(args.baseline, Path(tmp_name) / "baseline")
         sides = (("baseline", args.baseline, Path(tmp_name) / "baseline"), ("current", head, ROOT))
+        for side, commit, root in sides:  # each side's compiled kernel is built before any timed run
+            subprocess.run([sys.executable, "-c", "from smokeseer.raster.extension import load_kernel; load_kernel()"],
+                           cwd=root, env={**os.environ, "PYTHONPATH": str(root)}, check=True)
         for repeat in range(args.repeats):
             for side, commit, root in sides:
                 out = args.keep / f"{side}_{repeat}"
