@@ -24,7 +24,7 @@ import yaml
 from contracts.atomic import write_json
 from contracts.dataset_format import PASS_FILES, file_path, transforms_name, validate_dataset
 from generator import postprocess
-from generator.errors import GeneratorError
+from generator.errors import GeneratorError, SpecError
 from generator.pipeline import generate, render_code_digest, versions
 from generator.spec import SceneSpec, load_spec_file
 
@@ -58,7 +58,11 @@ def clean_refresh_needed(dataset: Path, target: SceneSpec) -> bool:
     meta = json.loads(meta_path.read_text())
     if meta.get("spec_sha256") == target.sha256():
         return False
-    recorded = with_clean_samples(load_spec_file(spec_path), rendered_clean_samples(meta))
+    try:
+        recorded = with_clean_samples(load_spec_file(spec_path), rendered_clean_samples(meta))
+    except (SpecError, KeyError) as exc:  # a record from an older spec schema: regenerate instead
+        log.info("%s: its recorded spec does not read back (%s); it cannot be refreshed", dataset, exc)
+        return False
     if recorded == target or not _clean_modalities(target):
         return False
     return with_clean_samples(recorded, {m: getattr(target.rig, m).clean_samples for m in ("rgb", "thermal")}) == target

@@ -51,6 +51,11 @@ def test_refresh_rerenders_only_the_clean_passes(tmp_path: Path) -> None:
     with pytest.raises(GeneratorError, match="more than clean_samples"):
         refresh_clean(low, replace(target, seed=target.seed + 1), show_progress=False)
     before = _files(low)
+    stale = tmp_path / "stale"  # a record an older spec schema wrote: regenerated, never refreshed
+    stale.mkdir()
+    (stale / "dataset.json").write_text((low / "dataset.json").read_text())
+    (stale / "scene.yaml").write_text((low / "scene.yaml").read_text() + "retired_field: 1\n")
+    assert not clean_refresh_needed(stale, target)
 
     refresh_clean(low, target, show_progress=False)
     after = _files(low)
