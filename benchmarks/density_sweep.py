@@ -32,7 +32,8 @@ import numpy as np  # noqa: E402
 
 from contracts.atomic import write_rows_csv  # noqa: E402
 from contracts.dataset_format import PASS_FILES, file_path  # noqa: E402
-from contracts.imageio import read_exr_channel, read_png  # noqa: E402
+from contracts.imageio import image01, read_exr_channel, read_png  # noqa: E402
+from contracts.metrics import psnr  # noqa: E402
 from eval.density_sweep import crossover, mean_optical_depth, paired_lead  # noqa: E402
 from eval.finished_runs import finished_runs  # noqa: E402
 from eval.per_view import pooled_over_views  # noqa: E402
@@ -68,22 +69,23 @@ def scene_density(dataset: Path) -> dict[str, Any]:
     stems = test_stems(dataset)
     alpha_file = PASS_FILES[("rgb", "smoke_alpha")][0]
     alphas = [read_exr_channel(file_path(dataset, alpha_file, s), "A") for s in stems]
-    psnrs = []
-    for s in stems:
-        smoky = read_png(dataset / "rgb" / "smoky" / f"{s}.png").astype(np.float64) / 255
-        clean = read_png(dataset / "rgb" / "clean" / f"{s}.png").astype(np.float64) / 255
-        psnrs.append(10 * np.log10(1.0 / max(float(np.mean((smoky - clean) ** 2)), 1e-10)))
+    psnrs = [psnr(image01(read_png(dataset / "rgb" / "smoky" / f"{s}.png")),
+                  image01(read_png(dataset / "rgb" / "clean" / f"{s}.png"))) for s in stems]
     return {"optical_depth": mean_optical_depth(alphas), "input_psnr": float(np.mean(psnrs)),
             "input_pooled_psnr": pooled_over_views(psnrs)}
 
 
-def run_scores(tables: Path, digest: str | None) -> dict[tuple[str, str], dict[int, dict[str, Any]]]:
-    """{(scene, method): {seed: {metric: value, "run": folder}}} of one density's finished runs."""
+Scores = dict[tuple[str, str], dict[int, dict[str, Any]]]
+"""{(scene, method): {seed: {metric: value, "run": folder}}} of one density's finished runs."""
+
+
+def run_scores(tables: Path, digest: str | None) -> Scores:
+    """The scores of one density's finished runs of Full and RGB-only."""
     try:
         _, runs = finished_runs(tables, METHODS, digest)
     except ValueError:  # nothing finished at this density yet
         return {}
-    out: dict[tuple[str, str], dict[int, dict[str, Any]]] = {}
+    out: Scores = {}
     for run_dir, rec in runs:
         metrics = json.loads((run_dir / "metrics.json").read_text())
         views = [e["psnr"] for e in metrics["per_image"]]
@@ -98,11 +100,11 @@ def _mean_std(values: list[float]) -> tuple[float, float | None]:
     return float(a.mean()), (float(a.std(ddof=1)) if a.size > 1 else None)
 
 
-def sweep_rows(datasets: Path, tables: Path, digest: str | None) -> list[dict[str, Any]]:
+def sweep_rows(dens: dict[float, Path], scores_by_k: dict[float, Scores]) -> list[dict[str, Any]]:
+    """One row per finished dataset: its density and both methods' scores at it."""
     rows = []
-    table_dirs = _table_folders(tables)
-    for k, folder in density_folders(datasets).items():
-        scores = run_scores(table_dirs[k], digest) if k in table_dirs else {}
+    for k, folder in dens.items():
+        scores = scores_by_k[k]
         for dataset in sorted(p for p in folder.iterdir() if (p / "dataset.json").is_file()):
             row: dict[str, Any] = {"scene": dataset.name, "k": k, **scene_density(dataset)}
             for method in METHODS:
@@ -154,17 +156,15 @@ def plot_lead(rows: list[dict[str, Any]], path: Path) -> None:
     plt.close(fig)
 
 
-def plot_strip(rows: list[dict[str, Any]], datasets: Path, tables: Path, digest: str | None, path: Path) -> None:
+def plot_strip(rows: list[dict[str, Any]], dens: dict[float, Path], scores_by_k: dict[float, Scores],
+               path: Path) -> None:
     """Per scene, its first test view at every k: smoky input, RGB-only, Full (seed 0), clean."""
     scenes = sorted({r["scene"] for r in rows})
-    dens = density_folders(datasets)
-    table_dirs = _table_folders(tables)
     ks = list(dens)
     fig, axes = plt.subplots(4 * len(scenes), len(ks), figsize=(2.2 * len(ks), 1.7 * 4 * len(scenes)), squeeze=False)
     for si, scene in enumerate(scenes):
         for ki, k in enumerate(ks):
-            dataset = dens[k] / scene
-            scores = run_scores(table_dirs[k], digest) if k in table_dirs else {}
+            dataset, scores = dens[k] / scene, scores_by_k[k]
             images: list[np.ndarray | None] = [None] * 4
             if (dataset / "dataset.json").is_file():
                 stem = test_stems(dataset)[0]
@@ -196,7 +196,9 @@ def main() -> None:
     parser.add_argument("--digest", help="trainer digest prefix of the runs (default: the one with the most runs)")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "density_sweep")
     args = parser.parse_args()
-    rows = sweep_rows(args.datasets, args.tables, args.digest)
+    dens, table_dirs = density_folders(args.datasets), _table_folders(args.tables)
+    scores_by_k = {k: run_scores(table_dirs[k], args.digest) if k in table_dirs else {} for k in dens}
+    rows = sweep_rows(dens, scores_by_k)
     if not rows:
         raise SystemExit(f"density_sweep: no dataset under {args.datasets}/k*/ (run "
                          "benchmarks/density_sweep_generate.sh first)")
@@ -206,7 +208,7 @@ def main() -> None:
     if cross:
         write_rows_csv(args.out / "crossover.csv", cross)
     plot_lead(rows, args.out / "lead.png")
-    plot_strip(rows, args.datasets, args.tables, args.digest, args.out / "strip.png")
+    plot_strip(rows, dens, scores_by_k, args.out / "strip.png")
     for r in rows:
         lead = r["lead_psnr"]
         print(f"{r['scene']:<11} k {r['k']:<5g} optical depth {r['optical_depth']:.3f}  input {r['input_psnr']:.2f} dB  "

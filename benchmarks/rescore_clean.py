@@ -16,18 +16,18 @@ Writes benchmarks/results/standard/rescore_clean.{csv,md}.
 from __future__ import annotations
 
 import argparse
-import io
 import json
 import shutil
 import subprocess
 import tempfile
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from PIL import Image
 
 from contracts.atomic import write_rows_csv, write_text
+from contracts.imageio import image01, read_png
 from contracts.metrics import psnr, ssim_3dgs
 from eval.finished_runs import finished_runs
 from eval.runs import ABLATIONS, METHODS, variant_label
@@ -39,10 +39,6 @@ OUT = ROOT / "benchmarks" / "results" / "standard"
 TABLES = {"Table 1 (seeds 0-2)": ("data/tables_standard", tuple(METHODS)),
           "Table 2 (seed 0)": ("data/tables_standard", ("full", *ABLATIONS)),
           "twice the Stage-3 budget (seed 0)": ("data/tables_standard_2x", ("full", "rgb-only"))}
-
-
-def _png01(data: bytes) -> np.ndarray:
-    return np.asarray(Image.open(io.BytesIO(data)).convert("RGB"), dtype=np.float64) / 255.0
 
 
 def _old_dataset(scene: str, rev: str, work: Path) -> Path:
@@ -57,19 +53,38 @@ def _old_dataset(scene: str, rev: str, work: Path) -> Path:
     return dst
 
 
-def _scores(run_dir: Path, scene_data: Any, stems: list[str]) -> dict[str, float]:
-    index = {f.file_stem: i for i, f in enumerate(scene_data.rgb.frames)}
-    pred = [_png01((run_dir / "renders" / "surface" / f"{s}.png").read_bytes()) for s in stems]
-    gt = [scene_data.rgb.clean[index[s]].astype(np.float64) for s in stems]
-    smoky = [scene_data.rgb.images[index[s]] for s in stems]
+@dataclass
+class _GroundTruth:
+    """One side's dataset, loaded once at one width; the smoky input's score is the same for
+    every run on the same test views, so it is taken once per set of views."""
+
+    data: Any
+    inputs: dict[tuple[str, ...], float] = field(default_factory=dict)
+    index: dict[str, int] = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.index = {f.file_stem: i for i, f in enumerate(self.data.rgb.frames)}
+
+    def clean(self, stems: list[str]) -> list[np.ndarray]:
+        return [self.data.rgb.clean[self.index[s]].astype(np.float64) for s in stems]
+
+    def input_psnr(self, stems: list[str]) -> float:
+        if tuple(stems) not in self.inputs:
+            self.inputs[tuple(stems)] = float(np.mean([psnr(self.data.rgb.images[self.index[s]], g)
+                                                       for s, g in zip(stems, self.clean(stems))]))
+        return self.inputs[tuple(stems)]
+
+
+def _scores(pred: list[np.ndarray], truth: _GroundTruth, stems: list[str]) -> dict[str, float]:
+    gt = truth.clean(stems)
     return {"psnr": float(np.mean([psnr(p, g) for p, g in zip(pred, gt)])),
             "ssim": float(np.mean([ssim_3dgs(p, g) for p, g in zip(pred, gt)])),
-            "psnr_input": float(np.mean([psnr(x, g) for x, g in zip(smoky, gt)]))}
+            "psnr_input": truth.input_psnr(stems)}
 
 
 def rescore(rev: str, digest: str) -> list[dict[str, Any]]:
     rows: list[dict[str, Any]] = []
-    loaded: dict[tuple[str, str, int], Any] = {}
+    loaded: dict[tuple[str, str, int], _GroundTruth] = {}
     seen: set[Path] = set()
     with tempfile.TemporaryDirectory() as tmp:
         for tables, variants in dict.fromkeys(TABLES.values()):
@@ -80,7 +95,8 @@ def rescore(rev: str, digest: str) -> list[dict[str, Any]]:
                 seen.add(run_dir)
                 metrics = json.loads((run_dir / "metrics.json").read_text())
                 stems = [e["file_stem"] for e in metrics["per_image"]]
-                width = Image.open(run_dir / "renders" / "surface" / f"{stems[0]}.png").size[0]
+                pred = [image01(read_png(run_dir / "renders" / "surface" / f"{s}.png")) for s in stems]
+                width = pred[0].shape[1]
                 scene = rec["scene"]
                 row = {"tables": tables, "scene": scene, "variant": rec["variant"], "seed": rec["seed"],
                        "run": run_dir.relative_to(ROOT).as_posix(),
@@ -89,8 +105,8 @@ def rescore(rev: str, digest: str) -> list[dict[str, Any]]:
                                    ("after", lambda: ROOT / "data" / "standard" / scene)):
                     key = (scene, side, width)
                     if key not in loaded:
-                        loaded[key] = load_scene(path(), max_width=width, all_ground_truth=True)
-                    for name, value in _scores(run_dir, loaded[key], stems).items():
+                        loaded[key] = _GroundTruth(load_scene(path(), max_width=width, all_ground_truth=True))
+                    for name, value in _scores(pred, loaded[key], stems).items():
                         row[f"{name}_{side}"] = value
                 rows.append(row)
                 print(f"{row['run']}: PSNR {row['psnr_before']:.2f} -> {row['psnr_after']:.2f} "
