@@ -217,7 +217,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
         ctx.log_line("stage 3: skipped (deformable-3dgs baseline has one deformable set)")
     else:
         smoke_pts = _sample(scene.rgb, cfg.stage3.smoke_points, b, rng) if plan.use_smoke else None
-        two_surfaces = cfg.stage3.surface_init == "thermal+rgb" and plan.use_thermal
+        two_surfaces = cfg.stage3.surface_init != "thermal" and plan.use_thermal
         rgb_depth = (rendered_depth_prior(s2.gaussians, views_of(scene.rgb, scene.rgb.indices("train"), dev), "rgb")
                      if plan.smoke_colour == "haze-lines" or plan.mask_floor != "all" or two_surfaces else None)
         if two_surfaces:

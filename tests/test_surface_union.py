@@ -6,7 +6,7 @@ import torch
 
 from smokeseer.model.gaussians import GaussianSet
 from smokeseer.model.scene import add_rgb_sh, make_view
-from smokeseer.train.surface_union import carve_in_front, union_surface
+from smokeseer.train.surface_union import carve_in_front, in_holes, union_surface
 
 W, H, F = 40, 30, 20.0
 
@@ -55,6 +55,32 @@ def test_a_minority_of_views_in_front_does_not_carve() -> None:
     assert c.seen.tolist() == [3] and c.in_front.tolist() == [1] and c.keep.tolist() == [True]
     c = carve_in_front(means, *_wall(3, 2.0, valid_cols=W // 2), *cameras, 0.05)  # centre column is W/2: invalid
     assert c.seen.tolist() == [0] and c.keep.tolist() == [True]
+
+
+def test_thermal_gaussians_join_only_where_the_rgb_surface_has_holes() -> None:
+    """A point over an opaque RGB pixel in two of three views is covered (left out at share 0.5,
+    kept at 0.7); one over a hole in every view, and one no view sees, are kept."""
+    cameras = _cameras([0.0, 0.0, 0.0])
+    _, opaque = _wall(3, 2.0, valid_cols=W // 2 + 1)  # columns up to the centre one are opaque
+    opaque[2] = False
+    means = np.array([[0.0, 0.0, 1.0],     # centre column: opaque in views 0 and 1
+                      [0.5, 0.0, 1.0],     # right half: a hole everywhere
+                      [50.0, 0.0, 1.0]])   # outside every view
+    assert in_holes(means, opaque, *cameras, 0.5).tolist() == [False, True, True]
+    assert in_holes(means, opaque, *cameras, 0.7).tolist() == [True, True, True]
+    assert in_holes(means, opaque, *cameras, 1.0).all()
+
+
+def test_union_with_a_thermal_subset_takes_thermal_values_from_every_thermal_gaussian() -> None:
+    """The RGB Gaussians' thermal value comes from the nearest of all thermal Gaussians, even one
+    left out of the joined surface."""
+    thermal = _set([[0.0, 0, 0], [10.0, 0, 0]], {"thermal": torch.tensor([[-2.0], [3.0]])})
+    rgb_t: dict[str, torch.Tensor] = {"means": torch.tensor([[9.0, 0, 0]])}
+    add_rgb_sh(rgb_t, 1, torch.tensor([[0.1, 0.9, 0.1]]))
+    rgb = _set(rgb_t.pop("means").tolist(), rgb_t)
+    joined = union_surface(thermal, rgb, torch.tensor([True]), 1, thermal_keep=torch.tensor([True, False]))
+    assert joined.n == 2
+    assert torch.equal(joined["thermal"].flatten(), torch.tensor([-2.0, 3.0]))
 
 
 def _set(points: list[list[float]], extra: dict[str, torch.Tensor]) -> GaussianSet:

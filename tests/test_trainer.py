@@ -151,7 +151,7 @@ def test_two_surface_run_joins_both_stage2s_and_resumes(splat: Path, tmp_path: P
     assert main([str(splat), "--out", str(run)] + two) == 0
     doc = _assert_complete(run)
     union = doc["stages"]["surface_union"]
-    assert 0 < union["rgb_kept"] <= union["rgb"] and union["thermal"] > 0
+    assert 0 < union["rgb_kept"] <= union["rgb"] and union["thermal_kept"] == union["thermal"] > 0
     assert doc["stages"]["surface_gaussians"] == union["thermal"] + union["rgb_kept"]  # no surface densification here
     assert any(n.startswith("surface from both Stage 2s") for n in doc["stages"]["notes"])
     assert torch.load(run / "checkpoints" / "stage2_rgb.pt", weights_only=False)["done"]
@@ -161,6 +161,25 @@ def test_two_surface_run_joins_both_stage2s_and_resumes(splat: Path, tmp_path: P
     assert main([str(splat), "--out", str(run)] + two) == 0
     assert len(_log_rows(run)) == n_rows
     assert json.loads((run / "metrics.json").read_text())["metrics"] == doc["metrics"]
+
+
+def test_thermal_fill_joins_only_the_thermal_gaussians_in_the_rgb_holes(splat: Path, tmp_path: Path) -> None:
+    """stage3.surface_init=rgb+thermal-fill starts from the same carved RGB Stage 2 and records
+    which thermal Gaussians joined it: at share 1 every one (the thermal+rgb surface). Which ones
+    the RGB surface covers is tested in test_surface_union.py (this tiny RGB Stage 2 is nowhere
+    opaque)."""
+    counts = {}
+    for share in ("1", "0"):
+        run = tmp_path / f"run{share}"
+        fill = TINY + ["--set", "stage3.surface_init=rgb+thermal-fill", "--set", f"stage3.fill_opaque_share={share}"]
+        assert main([str(splat), "--out", str(run)] + fill) == 0
+        doc = _assert_complete(run)
+        union = doc["stages"]["surface_union"]
+        assert doc["stages"]["surface_gaussians"] == union["thermal_kept"] + union["rgb_kept"]
+        counts[share] = union
+    assert counts["1"]["thermal_kept"] == counts["1"]["thermal"]
+    assert counts["0"]["thermal_kept"] <= counts["0"]["thermal"] and counts["0"]["fill_opaque_share"] == 0
+    assert counts["0"]["rgb_kept"] == counts["1"]["rgb_kept"]
 
 
 class _Interrupted(Exception):

@@ -27,7 +27,7 @@ MODES: tuple[str, ...] = (
 )
 PROFILES: tuple[str, ...] = ("quick", "standard", "paper")
 SMOKE_COLOR_SOURCES: tuple[str, ...] = ("learned", "haze-lines")
-SURFACE_INITS: tuple[str, ...] = ("thermal", "thermal+rgb")
+SURFACE_INITS: tuple[str, ...] = ("thermal", "thermal+rgb", "rgb+thermal-fill")
 POSE_SOURCES: tuple[str, ...] = ("given", "sfm")
 MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "estimated")
 DEFORM_KINDS: tuple[str, ...] = ("mlp", "fourier")
@@ -200,10 +200,16 @@ class Stage3Config:
     surface_init: str = "thermal"
     """Where Stage 3's surface starts. "thermal": the thermal Stage 2 (the paper). "thermal+rgb":
     also a Stage 2 on the smoky RGB frames (RGB-only's), whose Gaussians join the thermal ones
-    unless they sit in front of the thermal surface (``smokeseer.train.surface_union``)."""
+    unless they sit in front of the thermal surface (``smokeseer.train.surface_union``).
+    "rgb+thermal-fill": the same carved RGB Stage 2, joined only by the thermal Gaussians that fall
+    where it leaves a hole, so where the RGB sees the surface Stage 3 starts as RGB-only does."""
     carve_tolerance: float = 0.05
-    """With surface_init=thermal+rgb: an RGB Gaussian nearer than (1 − this) × the thermal
+    """With two surfaces: an RGB Gaussian nearer than (1 − this) × the thermal
     surface's depth in most views that see it is smoke taken for surface, and is dropped."""
+    fill_opaque_share: float = 0.5
+    """With surface_init=rgb+thermal-fill: a thermal Gaussian is left out when the carved RGB
+    surface is opaque (alpha > 0.5) where its centre lands in more than this share of the RGB
+    training views that see it."""
     thermal_supersample: int = 1
     """Stage 3 renders each thermal training frame at this many times the sensor's resolution and
     averages each block back to one sensor pixel, as the sensor integrates over its pixel (and as
@@ -304,6 +310,8 @@ class TrainConfig:
                 raise ValueError(f"stage3.{name}: must be in (0, 1], got {getattr(self.stage3, name)}")
         if not 1 <= self.stage3.thermal_supersample <= 8:
             raise ValueError(f"stage3.thermal_supersample: must be 1 to 8, got {self.stage3.thermal_supersample}")
+        if not 0.0 <= self.stage3.fill_opaque_share <= 1.0:
+            raise ValueError(f"stage3.fill_opaque_share: must be in [0, 1], got {self.stage3.fill_opaque_share}")
         if not 0.0 <= self.stage3.carve_tolerance < 1.0:
             raise ValueError(f"stage3.carve_tolerance: must be in [0, 1), got {self.stage3.carve_tolerance}")
         if not 0.0 <= self.stage3.smoke_min_scale_px <= 50.0:

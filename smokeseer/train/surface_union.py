@@ -6,7 +6,10 @@ the smoke is thin, and bakes the smoke into floaters where it is not. The therma
 through the smoke but is as coarse as its 80×60 frames. An RGB Gaussian whose centre lies well
 in front of the thermal surface in most training views that see it is smoke taken for surface,
 and is carved away; the rest join the thermal Gaussians, each set taking the other's colour from
-its nearest neighbour in the other set.
+its nearest neighbour in the other set. With ``rgb+thermal-fill`` only the thermal Gaussians that
+fall in the carved RGB surface's holes join: where the RGB sees the surface, the coarse thermal
+Gaussians (their RGB colour borrowed from a neighbour) would otherwise blur it, and Stage 3 would
+start far below RGB-only's.
 """
 from __future__ import annotations
 
@@ -22,8 +25,8 @@ from scenes.scene import ModalityData
 from scenes.cameras import pixels_of
 from smokeseer.model.gaussians import GaussianSet
 from smokeseer.model.scene import add_rgb_sh
-from smokeseer.train.depth_prior import DepthPriorMaps
-from smokeseer.train.stage2 import Stage2Result, train_stage2
+from smokeseer.train.depth_prior import DepthPriorMaps, rendered_depth_prior
+from smokeseer.train.stage2 import Stage2Result, train_stage2, views_of
 from smokeseer.train.util import RunContext
 
 
@@ -54,16 +57,35 @@ def carve_in_front(means: np.ndarray, depths: np.ndarray, valid: np.ndarray, vie
     return CarveResult(~(2 * in_front > seen), seen, in_front)
 
 
+def in_holes(means: np.ndarray, opaque: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray,
+             share: float) -> np.ndarray:
+    """Which points to keep: those whose centre lands on a pixel where ``opaque`` (the carved RGB
+    surface's alpha > 0.5 at each training camera) holds in at most ``share`` of the views that see
+    the centre. Points no view sees are kept."""
+    seen = np.zeros(len(means), dtype=np.int64)
+    covered = np.zeros_like(seen)
+    n_frames, height, width = opaque.shape
+    for f in range(n_frames):
+        inside, iu, iv, _ = pixels_of(means, viewmats[f], Ks[f], width, height)
+        idx = np.nonzero(inside)[0]
+        seen[idx] += 1
+        covered[idx[opaque[f, iv, iu]]] += 1
+    return ~(covered > share * seen)
+
+
 def _nearest(source: Tensor, target: Tensor) -> Tensor:
     """Index into ``source`` of each ``target`` point's nearest neighbour."""
     _, idx = cKDTree(source.detach().cpu().numpy()).query(target.detach().cpu().numpy(), k=1)
     return torch.as_tensor(idx, dtype=torch.long, device=target.device)
 
 
-def union_surface(thermal: GaussianSet, rgb: GaussianSet, keep: Tensor, sh_degree: int) -> GaussianSet:
-    """The thermal Gaussians (RGB colour from the nearest kept RGB Gaussian) and the kept RGB
-    Gaussians (thermal value from the nearest thermal Gaussian), one shared opacity each."""
-    th = {k: v.detach().clone() for k, v in thermal.state_dict().items()}
+def union_surface(thermal: GaussianSet, rgb: GaussianSet, keep: Tensor, sh_degree: int,
+                  thermal_keep: Tensor | None = None) -> GaussianSet:
+    """The thermal Gaussians (all, or ``thermal_keep``; RGB colour from the nearest kept RGB
+    Gaussian) and the kept RGB Gaussians (thermal value from the nearest of all thermal
+    Gaussians), one shared opacity each."""
+    full = {k: v.detach() for k, v in thermal.state_dict().items()}
+    th = {k: (v if thermal_keep is None else v[thermal_keep]).clone() for k, v in full.items()}
     kept = {k: v.detach()[keep].clone() for k, v in rgb.state_dict().items()}
     if len(kept["means"]) == 0:
         add_rgb_sh(th, sh_degree)
@@ -71,7 +93,7 @@ def union_surface(thermal: GaussianSet, rgb: GaussianSet, keep: Tensor, sh_degre
     near_rgb = _nearest(kept["means"], th["means"])
     th["sh_dc"] = kept["sh_dc"][near_rgb].clone()
     th["sh_rest"] = torch.zeros_like(kept["sh_rest"][near_rgb])
-    kept["thermal"] = th["thermal"][_nearest(th["means"], kept["means"])].clone()
+    kept["thermal"] = full["thermal"][_nearest(full["means"], kept["means"])].clone()
     return GaussianSet({k: torch.cat([th[k], kept[k]]) for k in th})
 
 
@@ -85,23 +107,36 @@ class TwoSurfaces:
 
     def describe(self) -> str:
         r = self.record
-        return (f"surface from both Stage 2s: {r['thermal']} thermal + {r['rgb_kept']} of {r['rgb']} RGB Gaussians "
-                f"({r['rgb'] - r['rgb_kept']} in front of the thermal surface carved, tolerance {r['tolerance']:g}; "
-                f"{r['rgb_unchecked']} no view could check kept)")
+        fill = "" if r["thermal_kept"] == r["thermal"] else \
+            f" (the {r['thermal_kept']} of {r['thermal']} thermal Gaussians in the RGB surface's holes)"
+        return (f"surface from both Stage 2s: {r['thermal_kept']} thermal{fill} + {r['rgb_kept']} of {r['rgb']} "
+                f"RGB Gaussians ({r['rgb'] - r['rgb_kept']} in front of the thermal surface carved, tolerance "
+                f"{r['tolerance']:g}; {r['rgb_unchecked']} no view could check kept)")
 
 
 def join_surfaces(ctx: RunContext, rgb: ModalityData, init_points: np.ndarray, thermal: Stage2Result,
                   thermal_depth: DepthPriorMaps) -> TwoSurfaces:
     """Train RGB-only's Stage 2 (checkpoint ``stage2_rgb``, keyed as RGB-only's Stage 2 is), carve it
-    with the thermal surface's depth at the RGB training cameras (``thermal_depth``), join the sets."""
+    with the thermal surface's depth at the RGB training cameras (``thermal_depth``), join the sets
+    (with ``rgb+thermal-fill``, only the thermal Gaussians in the carved surface's holes)."""
     cfg = ctx.cfg
     rgb_s2 = train_stage2(ctx, rgb, init_points, deformable=False, checkpoint="stage2_rgb",
                           sha=replace(cfg, mode="rgb-only").stage2_sha256())
     carve = carve_in_front(rgb_s2.gaussians["means"].detach().cpu().numpy().astype(np.float64),
                            thermal_depth.maps.cpu().numpy(), thermal_depth.valid.cpu().numpy(), *rgb.cameras("train"),
                            cfg.stage3.carve_tolerance)
-    keep = torch.as_tensor(carve.keep, device=rgb_s2.gaussians["means"].device)
-    surface = union_surface(thermal.gaussians, rgb_s2.gaussians, keep, cfg.sh_degree)
+    dev = rgb_s2.gaussians["means"].device
+    keep = torch.as_tensor(carve.keep, device=dev)
+    thermal_keep = None
+    if cfg.stage3.surface_init == "rgb+thermal-fill":
+        carved = GaussianSet({k: v.detach()[keep] for k, v in rgb_s2.gaussians.state_dict().items()})
+        opaque = rendered_depth_prior(carved, views_of(rgb, rgb.indices("train"), dev), "rgb").valid.cpu().numpy()
+        holes = in_holes(thermal.gaussians["means"].detach().cpu().numpy().astype(np.float64), opaque,
+                         *rgb.cameras("train"), cfg.stage3.fill_opaque_share)
+        thermal_keep = torch.as_tensor(holes, device=dev)
+    surface = union_surface(thermal.gaussians, rgb_s2.gaussians, keep, cfg.sh_degree, thermal_keep)
     record = {"thermal": thermal.gaussians.n, "rgb": rgb_s2.gaussians.n, "rgb_kept": int(carve.keep.sum()),
-              "rgb_unchecked": int((carve.seen == 0).sum()), "tolerance": cfg.stage3.carve_tolerance}
+              "rgb_unchecked": int((carve.seen == 0).sum()), "tolerance": cfg.stage3.carve_tolerance,
+              "thermal_kept": thermal.gaussians.n if thermal_keep is None else int(thermal_keep.sum()),
+              "fill_opaque_share": cfg.stage3.fill_opaque_share if thermal_keep is not None else None}
     return TwoSurfaces(surface, rgb_s2, record)
