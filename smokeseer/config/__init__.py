@@ -170,6 +170,10 @@ class Stage3Config:
     smoke_init_scale: float = 0.5
     smoke_densify: DensifyConfig = field(default_factory=lambda: DensifyConfig(opacity_reset_every=0.0))
     train_surface_geometry: bool = True
+    surface_geometry_lr: float = 1.0
+    """Stage 3's learning rates of the surface's means, rotations, scales and opacity as a share of
+    Stage 2's (its means decaying over Stage 3). The official code carries Stage 2's decayed
+    schedule on into Stage 3, about a tenth of a restart."""
     surface_densify: DensifyConfig = field(default_factory=lambda: DensifyConfig(every=0, opacity_reset_every=0.0))
     """3DGS density control of the surface from the RGB views' gradients ("refining geometry": the
     thermal-only Stage 2 surface is as coarse as the thermal images); ``every`` 0 is off. Needs
@@ -310,6 +314,8 @@ class TrainConfig:
                 raise ValueError(f"stage3.{name}: must be in (0, 1], got {getattr(self.stage3, name)}")
         if not 1 <= self.stage3.thermal_supersample <= 8:
             raise ValueError(f"stage3.thermal_supersample: must be 1 to 8, got {self.stage3.thermal_supersample}")
+        if not 0.0 < self.stage3.surface_geometry_lr <= 10.0:
+            raise ValueError(f"stage3.surface_geometry_lr: must be in (0, 10], got {self.stage3.surface_geometry_lr}")
         if not 0.0 <= self.stage3.fill_opaque_share <= 1.0:
             raise ValueError(f"stage3.fill_opaque_share: must be in [0, 1], got {self.stage3.fill_opaque_share}")
         if not 0.0 <= self.stage3.carve_tolerance < 1.0:

@@ -71,9 +71,9 @@ def _backgrounds(model: SceneModel) -> dict[str, torch.nn.Module]:
 
 def _surface_lrs(cfg: TrainConfig, g: GaussianSet, extent: float) -> dict[str, float]:
     lr = cfg.lr
-    geo = cfg.stage3.train_surface_geometry
-    table = {"means": lr.means_init * extent if geo else 0.0, "quats": lr.quats if geo else 0.0,
-             "log_scales": lr.scales if geo else 0.0, "opacity": lr.opacity if geo else 0.0,
+    geo = cfg.stage3.surface_geometry_lr if cfg.stage3.train_surface_geometry else 0.0
+    table = {"means": lr.means_init * extent * geo, "quats": lr.quats * geo,
+             "log_scales": lr.scales * geo, "opacity": lr.opacity * geo,
              "thermal": lr.thermal, "sh_dc": lr.sh_dc, "sh_rest": lr.sh_rest}
     return {k: table[k] for k in g.params}
 
@@ -141,6 +141,9 @@ class Stage3Problem(StageProblem):
     def _make_optimizers(self) -> None:
         cfg, model = self.cfg, self.model
         self.surface_optimizer = make_optimizer(model.surface, _surface_lrs(cfg, model.surface, self.ctx.extent))
+        for group in self.surface_optimizer.param_groups:
+            if group["name"] == "means":
+                group["lr_scale"] = cfg.stage3.surface_geometry_lr
         self.smoke_optimizer = (make_optimizer(model.smoke, _smoke_lrs(cfg, self.ctx.extent, self.colour_fixed))
                                 if model.smoke is not None else None)
         self.deform_optimizer = (Adam(model.deform.parameters(), lr=cfg.deform.lr_init)
