@@ -40,6 +40,8 @@ class LossWeights:
     penalty on mean smoke thermal opacity (weight is ours: the paper does not state it)."""
 
     render: float = 1.0
+    thermal: float = 1.0
+    """The thermal render term's weight as a share of ``render`` (the paper weighs both alike)."""
     smoke_alpha: float = 0.1
     smoke_color: float = 0.05
     mono: float = 0.1
@@ -340,6 +342,8 @@ class TrainConfig:
         if self.loss.mask_floor_where not in MASK_FLOOR_WHERE:
             raise ValueError(f"loss.mask_floor_where: {self.loss.mask_floor_where!r} is not one of "
                              f"{', '.join(MASK_FLOOR_WHERE)}")
+        if not 0.0 <= self.loss.thermal <= 10.0:
+            raise ValueError(f"loss.thermal: must be in [0, 10], got {self.loss.thermal}")
         if not 0.0 < self.loss.mask_alpha_floor <= 1.0:
             raise ValueError(f"loss.mask_alpha_floor: must be in (0, 1], got {self.loss.mask_alpha_floor}")
         if self.validation_every < 0 or self.validation_every == 1:

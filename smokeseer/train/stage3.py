@@ -186,7 +186,8 @@ class Stage3Problem(StageProblem):
                 terms["thermal_smoke_opacity"] = torch.sigmoid(model.smoke["opacity_thermal"]).mean()
         if self.depth_on:
             terms["depth"] = self._depth_term(*depth_source)
-        loss = sum(weights["render"] * v if n.startswith("render") else weights[n] * v for n, v in terms.items())
+        share = {"render_rgb": 1.0, "render_thermal": cfg.loss.thermal}
+        loss = sum(weights["render"] * share[n] * v if n in share else weights[n] * v for n, v in terms.items())
         return IterationOutput(loss, terms, {"raster": out, "view": view, "index": k, "deform_on": deform_on})
 
     def _depth_term(self, raster: RasterOutput, k: int) -> torch.Tensor:
