@@ -146,3 +146,27 @@ def test_a_finer_thermal_render_keeps_a_small_gaussians_footprint() -> None:
     big = 0.5 * 2 * np.pi * 4.0**2
     assert abs(_one_gaussian_alpha_sum(4.0, 1) - big) < 0.12 * big
     assert abs(_one_gaussian_alpha_sum(4.0, 3) - big) < 0.05 * big
+
+
+def test_the_thermal_gate_stops_the_thermal_gradient_at_the_rgb_gaussians() -> None:
+    """With the gate, the thermal render's gradient reaches the geometry and opacity of the
+    thermal Gaussians only; the RGB ones still get it on their thermal value. Without it, both."""
+    from smokeseer.model.scene import SceneModel
+
+    thermal = _set([[-0.2, 0.0, 2.0]], {"thermal": torch.tensor([[0.5]]), "opacity": torch.zeros(1)})
+    rgb_t: dict[str, torch.Tensor] = {"means": torch.tensor([[0.2, 0.0, 2.0]])}
+    add_rgb_sh(rgb_t, 1, torch.tensor([[0.5, 0.5, 0.5]]))
+    rgb = _set(rgb_t.pop("means").tolist(), {**rgb_t, "opacity": torch.zeros(1)})
+    view = make_view(_camera(0.0), _cameras([0.0])[1][0], W, H, 0.0, torch.device("cpu"))
+    grads = {}
+    for gate in (False, True):
+        joined = union_surface(thermal, rgb, torch.tensor([True]), 1, gate=gate)
+        with torch.no_grad():
+            joined["log_scales"].fill_(-2.0)
+        model = SceneModel(joined, None, None, True, torch.zeros(3), 1)
+        model.render_thermal(view).colors.sum().backward()
+        grads[gate] = {k: joined[k].grad.clone() for k in ("means", "opacity", "log_scales", "thermal")}
+    for k in ("means", "opacity", "log_scales"):
+        assert grads[False][k][1].abs().sum() > 0 and torch.equal(grads[True][k][1], torch.zeros_like(grads[True][k][1]))
+        assert torch.equal(grads[True][k][0], grads[False][k][0])
+    assert torch.equal(grads[True]["thermal"], grads[False]["thermal"]) and grads[True]["thermal"][1].abs() > 0

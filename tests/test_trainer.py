@@ -167,11 +167,12 @@ def test_thermal_fill_joins_only_the_thermal_gaussians_in_the_rgb_holes(splat: P
     """stage3.surface_init=rgb+thermal-fill starts from the same carved RGB Stage 2 and records
     which thermal Gaussians joined it: at share 1 every one (the thermal+rgb surface). Which ones
     the RGB surface covers is tested in test_surface_union.py (this tiny RGB Stage 2 is nowhere
-    opaque)."""
+    opaque). The share-0 run also keeps the thermal loss off the RGB Gaussians' geometry."""
     counts = {}
     for share in ("1", "0"):
         run = tmp_path / f"run{share}"
-        fill = TINY + ["--set", "stage3.surface_init=rgb+thermal-fill", "--set", f"stage3.fill_opaque_share={share}"]
+        fill = TINY + ["--set", "stage3.surface_init=rgb+thermal-fill", "--set", f"stage3.fill_opaque_share={share}",
+                       "--set", f"stage3.thermal_moves={'thermal-stage2' if share == '0' else 'all'}"]
         assert main([str(splat), "--out", str(run)] + fill) == 0
         doc = _assert_complete(run)
         union = doc["stages"]["surface_union"]

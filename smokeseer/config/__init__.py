@@ -28,6 +28,7 @@ MODES: tuple[str, ...] = (
 PROFILES: tuple[str, ...] = ("quick", "standard", "paper")
 SMOKE_COLOR_SOURCES: tuple[str, ...] = ("learned", "haze-lines")
 SURFACE_INITS: tuple[str, ...] = ("thermal", "thermal+rgb", "rgb+thermal-fill")
+THERMAL_MOVES: tuple[str, ...] = ("all", "thermal-stage2")
 POSE_SOURCES: tuple[str, ...] = ("given", "sfm")
 MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "estimated")
 DEFORM_KINDS: tuple[str, ...] = ("mlp", "fourier")
@@ -212,6 +213,11 @@ class Stage3Config:
     carve_tolerance: float = 0.05
     """With two surfaces: an RGB Gaussian nearer than (1 − this) × the thermal
     surface's depth in most views that see it is smoke taken for surface, and is dropped."""
+    thermal_moves: str = "all"
+    """With two surfaces: which surface Gaussians the thermal render loss may move (means, rotation,
+    scales, opacity). "all"; or "thermal-stage2", only those from the thermal Stage 2 and their
+    clones: the RGB Gaussians keep the geometry the RGB gives them and learn only their thermal
+    value from the thermal frames."""
     fill_opaque_share: float = 0.5
     """With surface_init=rgb+thermal-fill: a thermal Gaussian is left out when the carved RGB
     surface is opaque (alpha > 0.5) where its centre lands in more than this share of the RGB
@@ -316,6 +322,10 @@ class TrainConfig:
                 raise ValueError(f"stage3.{name}: must be in (0, 1], got {getattr(self.stage3, name)}")
         if not 1 <= self.stage3.thermal_supersample <= 8:
             raise ValueError(f"stage3.thermal_supersample: must be 1 to 8, got {self.stage3.thermal_supersample}")
+        if self.stage3.thermal_moves not in THERMAL_MOVES:
+            raise ValueError(f"stage3.thermal_moves: {self.stage3.thermal_moves!r} is not one of {', '.join(THERMAL_MOVES)}")
+        if self.stage3.thermal_moves != "all" and self.stage3.surface_init == "thermal":
+            raise ValueError("stage3.thermal_moves: needs two surfaces (stage3.surface_init other than thermal)")
         if not 0.0 < self.stage3.surface_geometry_lr <= 10.0:
             raise ValueError(f"stage3.surface_geometry_lr: must be in (0, 10], got {self.stage3.surface_geometry_lr}")
         if not 0.0 <= self.stage3.fill_opaque_share <= 1.0:

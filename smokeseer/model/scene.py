@@ -118,6 +118,16 @@ class Placed:
     log_scales: Tensor
 
 
+THERMAL_GATE = "thermal_gate"
+"""A surface tensor (one 0/1 value per Gaussian, never trained) that lets the thermal render loss
+move a Gaussian's geometry and opacity (1) or only its thermal value (0)."""
+
+
+def _gated(x: Tensor, gate: Tensor) -> Tensor:
+    """``x`` itself, whose gradient reaches it only where ``gate`` is 1."""
+    return gate * x + (1.0 - gate) * x.detach()
+
+
 def place_static(g: GaussianSet) -> Placed:
     return Placed(g["means"], g.quats, g["log_scales"])
 
@@ -274,8 +284,12 @@ class SceneModel:
             raise ValueError("render_thermal: surface_depth needs the surface in the render")
         parts = []
         if surface:
-            parts.append((self.surface_at(view.time), torch.sigmoid(self.surface["opacity"]),
-                          torch.sigmoid(self.surface["thermal"])))
+            placed, logits = self.surface_at(view.time), self.surface["opacity"]
+            if THERMAL_GATE in self.surface:
+                gate = self.surface[THERMAL_GATE].detach()
+                placed = Placed(*(_gated(x, gate) for x in (placed.means, placed.quats, placed.log_scales)))
+                logits = _gated(logits, gate.reshape(logits.shape))
+            parts.append((placed, torch.sigmoid(logits), torch.sigmoid(self.surface["thermal"])))
         use_smoke = smoke and self.smoke is not None
         if use_smoke:
             placed, _, o_th = self.smoke_at(view.time, deform_active)

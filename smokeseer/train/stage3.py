@@ -20,7 +20,7 @@ from smokeseer.config import TrainConfig, at_iteration
 from smokeseer.model.deform import DeformNetwork, motion_tensors
 from smokeseer.model.gaussians import DensifyStrategy, GaussianSet, make_optimizer
 from smokeseer.model.optim import Adam
-from smokeseer.model.scene import SceneModel, add_rgb_sh, box_filter, finer_view, make_smoke
+from smokeseer.model.scene import THERMAL_GATE, SceneModel, add_rgb_sh, box_filter, finer_view, make_smoke
 from smokeseer.raster.output import RasterOutput
 from smokeseer.train.depth_prior import DepthPriorMaps
 from smokeseer.train.loop import IterationOutput, StageProblem, StageSchedule, run_stage
@@ -74,7 +74,7 @@ def _surface_lrs(cfg: TrainConfig, g: GaussianSet, extent: float) -> dict[str, f
     geo = cfg.stage3.surface_geometry_lr if cfg.stage3.train_surface_geometry else 0.0
     table = {"means": lr.means_init * extent * geo, "quats": lr.quats * geo,
              "log_scales": lr.scales * geo, "opacity": lr.opacity * geo,
-             "thermal": lr.thermal, "sh_dc": lr.sh_dc, "sh_rest": lr.sh_rest}
+             "thermal": lr.thermal, "sh_dc": lr.sh_dc, "sh_rest": lr.sh_rest, THERMAL_GATE: 0.0}
     return {k: table[k] for k in g.params}
 
 

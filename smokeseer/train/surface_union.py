@@ -24,7 +24,7 @@ from torch import Tensor
 from scenes.scene import ModalityData
 from scenes.cameras import pixels_of
 from smokeseer.model.gaussians import GaussianSet
-from smokeseer.model.scene import add_rgb_sh
+from smokeseer.model.scene import THERMAL_GATE, add_rgb_sh
 from smokeseer.train.depth_prior import DepthPriorMaps, rendered_depth_prior
 from smokeseer.train.stage2 import Stage2Result, train_stage2, views_of
 from smokeseer.train.util import RunContext
@@ -80,10 +80,11 @@ def _nearest(source: Tensor, target: Tensor) -> Tensor:
 
 
 def union_surface(thermal: GaussianSet, rgb: GaussianSet, keep: Tensor, sh_degree: int,
-                  thermal_keep: Tensor | None = None) -> GaussianSet:
+                  thermal_keep: Tensor | None = None, gate: bool = False) -> GaussianSet:
     """The thermal Gaussians (all, or ``thermal_keep``; RGB colour from the nearest kept RGB
     Gaussian) and the kept RGB Gaussians (thermal value from the nearest of all thermal
-    Gaussians), one shared opacity each."""
+    Gaussians), one shared opacity each. With ``gate`` the set carries ``THERMAL_GATE``: 1 on
+    the thermal rows, 0 on the RGB ones."""
     full = {k: v.detach() for k, v in thermal.state_dict().items()}
     th = {k: (v if thermal_keep is None else v[thermal_keep]).clone() for k, v in full.items()}
     kept = {k: v.detach()[keep].clone() for k, v in rgb.state_dict().items()}
@@ -94,6 +95,9 @@ def union_surface(thermal: GaussianSet, rgb: GaussianSet, keep: Tensor, sh_degre
     th["sh_dc"] = kept["sh_dc"][near_rgb].clone()
     th["sh_rest"] = torch.zeros_like(kept["sh_rest"][near_rgb])
     kept["thermal"] = full["thermal"][_nearest(full["means"], kept["means"])].clone()
+    if gate:
+        th[THERMAL_GATE] = torch.ones_like(th["thermal"])
+        kept[THERMAL_GATE] = torch.zeros_like(kept["thermal"])
     return GaussianSet({k: torch.cat([th[k], kept[k]]) for k in th})
 
 
@@ -134,9 +138,11 @@ def join_surfaces(ctx: RunContext, rgb: ModalityData, init_points: np.ndarray, t
         holes = in_holes(thermal.gaussians["means"].detach().cpu().numpy().astype(np.float64), opaque,
                          *rgb.cameras("train"), cfg.stage3.fill_opaque_share)
         thermal_keep = torch.as_tensor(holes, device=dev)
-    surface = union_surface(thermal.gaussians, rgb_s2.gaussians, keep, cfg.sh_degree, thermal_keep)
+    surface = union_surface(thermal.gaussians, rgb_s2.gaussians, keep, cfg.sh_degree, thermal_keep,
+                            gate=cfg.stage3.thermal_moves == "thermal-stage2")
     record = {"thermal": thermal.gaussians.n, "rgb": rgb_s2.gaussians.n, "rgb_kept": int(carve.keep.sum()),
               "rgb_unchecked": int((carve.seen == 0).sum()), "tolerance": cfg.stage3.carve_tolerance,
               "thermal_kept": thermal.gaussians.n if thermal_keep is None else int(thermal_keep.sum()),
-              "fill_opaque_share": cfg.stage3.fill_opaque_share if thermal_keep is not None else None}
+              "fill_opaque_share": cfg.stage3.fill_opaque_share if thermal_keep is not None else None,
+              "thermal_moves": cfg.stage3.thermal_moves}
     return TwoSurfaces(surface, rgb_s2, record)
