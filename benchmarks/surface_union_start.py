@@ -51,47 +51,45 @@ def _check_finished(path: Path, sha: str) -> None:
 
 
 def measure(dataset: Path, run: Path, seed: int, shares: list[float]) -> list[dict[str, object]]:
+    """The dataset, both Stage 2s and the thermal depth are read once; each surface is a join."""
     rows: list[dict[str, object]] = []
+    prep = prepare(dataset, "full", "standard", seed, {"stage3.surface_init": "thermal+rgb"})
+    cfg, scene, b = prep.cfg, prep.scene, prep.report.bounds
+    dev = torch.device("cpu")
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         (work / "checkpoints").mkdir()
         for name in ("stage2.pt", "stage2_rgb.pt"):
             shutil.copy(run / "checkpoints" / name, work / "checkpoints" / name)
-        for init, share in [("thermal+rgb", 1.0)] + [("rgb+thermal-fill", s) for s in shares]:
-            prep = prepare(dataset, "full", "standard", seed,
-                           {"stage3.surface_init": init, "stage3.fill_opaque_share": share})
-            cfg, scene, b = prep.cfg, prep.scene, prep.report.bounds
-            dev = torch.device("cpu")
-            ctx = RunContext(cfg, work, RunLog(work / "log.csv"), torch.as_tensor(b.center, dtype=torch.float32),
-                             b.extent)
-            _check_finished(work / "checkpoints" / "stage2.pt", ctx.stage2_sha)
-            _check_finished(work / "checkpoints" / "stage2_rgb.pt", replace(cfg, mode="rgb-only").stage2_sha256())
-            init_pts = _init_points(scene, scene.thermal, cfg.stage2.init_points, b, np.random.default_rng(seed))
-            s2 = train_stage2(ctx, scene.thermal, init_pts, deformable=False)
-            depth = rendered_depth_prior(s2.gaussians, views_of(scene.rgb, scene.rgb.indices("train"), dev), "rgb")
-            rgb_init = _init_points(scene, scene.rgb, cfg.stage2.init_points, b, np.random.default_rng(seed))
-            joined = join_surfaces(ctx, scene.rgb, rgb_init, s2, depth)
-            rec = joined.record
+        log = RunLog(work / "log.csv")
+        center = torch.as_tensor(b.center, dtype=torch.float32)
+        ctx = RunContext(cfg, work, log, center, b.extent)
+        _check_finished(work / "checkpoints" / "stage2.pt", ctx.stage2_sha)
+        _check_finished(work / "checkpoints" / "stage2_rgb.pt", replace(cfg, mode="rgb-only").stage2_sha256())
+        s2 = train_stage2(ctx, scene.thermal, _init_points(scene, scene.thermal, cfg.stage2.init_points, b,
+                                                           np.random.default_rng(seed)), deformable=False)
+        depth = rendered_depth_prior(s2.gaussians, views_of(scene.rgb, scene.rgb.indices("train"), dev), "rgb")
+        rgb_init = _init_points(scene, scene.rgb, cfg.stage2.init_points, b, np.random.default_rng(seed))
 
-            def val(g: GaussianSet) -> float:
-                m = SceneModel(g, None, None, True, ctx.center, cfg.sh_degree, background_rgb=joined.rgb.background)
-                return float(split_psnr(m, scene, dev, "val"))
+        def row(surface: str, g: GaussianSet, n_thermal: int, share: float | None, background: object) -> None:
+            m = SceneModel(g, None, None, True, ctx.center, cfg.sh_degree, background_rgb=background)
+            rows.append({"scene": scene.name, "seed": seed, "surface": surface, "fill_opaque_share": share,
+                         "thermal_gaussians": n_thermal, "rgb_gaussians": g.n - n_thermal,
+                         "val_psnr": round(float(split_psnr(m, scene, dev, "val")), 3)})
 
-            def row(surface: str, g: GaussianSet, n_thermal: int, share_: float | None) -> None:
-                rows.append({"scene": scene.name, "seed": seed, "surface": surface, "fill_opaque_share": share_,
-                             "thermal_gaussians": n_thermal, "rgb_gaussians": g.n - n_thermal,
-                             "val_psnr": round(val(g), 3)})
-
-            n_th = rec["thermal_kept"]
+        for init, share in [("thermal+rgb", None)] + [("rgb+thermal-fill", s) for s in shares]:
+            stage3 = replace(cfg.stage3, surface_init=init,
+                             fill_opaque_share=cfg.stage3.fill_opaque_share if share is None else share)
+            joined = join_surfaces(RunContext(replace(cfg, stage3=stage3), work, log, center, b.extent),
+                                   scene.rgb, rgb_init, s2, depth)
+            n_th, bg = joined.record["thermal_kept"], joined.rgb.background
             if init == "thermal+rgb":
                 rgb_rows = torch.zeros(joined.surface.n, dtype=torch.bool)
                 rgb_rows[n_th:] = True
-                row("rgb stage 2", joined.rgb.gaussians, 0, None)
-                row("rgb stage 2, carved", _subset(joined.surface, rgb_rows), 0, None)
-                row("thermal stage 2, borrowed colours", _subset(joined.surface, ~rgb_rows), n_th, None)
-                row("thermal+rgb", joined.surface, n_th, None)
-            else:
-                row("rgb+thermal-fill", joined.surface, n_th, share)
+                row("rgb stage 2", joined.rgb.gaussians, 0, None, bg)
+                row("rgb stage 2, carved", _subset(joined.surface, rgb_rows), 0, None, bg)
+                row("thermal stage 2, borrowed colours", _subset(joined.surface, ~rgb_rows), n_th, None, bg)
+            row(init, joined.surface, n_th, share, bg)
     return rows
 
 

@@ -13,6 +13,7 @@ start far below RGB-only's.
 """
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -39,6 +40,17 @@ class CarveResult:
     in_front: np.ndarray
 
 
+def _landings(means: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray, shape: tuple[int, ...]
+              ) -> Iterator[tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """Per training view ``f`` of maps shaped ``shape`` (views, height, width): the indices of the
+    points whose centre lands in the image, their pixel columns and rows, and their depths."""
+    n_frames, height, width = shape
+    for f in range(n_frames):
+        inside, iu, iv, z = pixels_of(means, viewmats[f], Ks[f], width, height)
+        idx = np.nonzero(inside)[0]
+        yield f, idx, iu, iv, z[idx]
+
+
 def carve_in_front(means: np.ndarray, depths: np.ndarray, valid: np.ndarray, viewmats: np.ndarray,
                    Ks: np.ndarray, tolerance: float) -> CarveResult:
     """A Gaussian is carved when, in more than half of the training views where its centre lands on
@@ -47,13 +59,10 @@ def carve_in_front(means: np.ndarray, depths: np.ndarray, valid: np.ndarray, vie
     no view checks (sky, outside the thermal model's cover) stay."""
     seen = np.zeros(len(means), dtype=np.int64)
     in_front = np.zeros_like(seen)
-    n_frames, height, width = depths.shape
-    for f in range(n_frames):
-        inside, iu, iv, z = pixels_of(means, viewmats[f], Ks[f], width, height)
+    for f, idx, iu, iv, z in _landings(means, viewmats, Ks, depths.shape):
         checked = valid[f, iv, iu]
-        idx = np.nonzero(inside)[0][checked]
-        seen[idx] += 1
-        in_front[idx[z[idx] < (1.0 - tolerance) * depths[f, iv[checked], iu[checked]]]] += 1
+        seen[idx[checked]] += 1
+        in_front[idx[checked][z[checked] < (1.0 - tolerance) * depths[f, iv[checked], iu[checked]]]] += 1
     return CarveResult(~(2 * in_front > seen), seen, in_front)
 
 
@@ -64,10 +73,7 @@ def in_holes(means: np.ndarray, opaque: np.ndarray, viewmats: np.ndarray, Ks: np
     the centre. Points no view sees are kept."""
     seen = np.zeros(len(means), dtype=np.int64)
     covered = np.zeros_like(seen)
-    n_frames, height, width = opaque.shape
-    for f in range(n_frames):
-        inside, iu, iv, _ = pixels_of(means, viewmats[f], Ks[f], width, height)
-        idx = np.nonzero(inside)[0]
+    for f, idx, iu, iv, _ in _landings(means, viewmats, Ks, opaque.shape):
         seen[idx] += 1
         covered[idx[opaque[f, iv, iu]]] += 1
     return ~(covered > share * seen)
