@@ -235,11 +235,18 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
                 plan.notes.append(note)
                 ctx.log_line(f"stage 3: {note}")
         if plan.mask_floor != "all":
-            plan.floor_pixels = mask_floor_pixels(plan, scene.rgb, rgb_depth, cfg.loss.mask_alpha_floor)
+            plan.floor_pixels = mask_floor_pixels(plan, scene.rgb, rgb_depth, cfg.loss.mask_alpha_floor, smoke_colour)
             masked = scene.rgb.masks[scene.rgb.indices("train")] > 0.5
+            meeting = None if smoke_colour is None else smoke_colour.meeting
             rest = {"never-clear": "the rest are seen smoke-free from another training view",
                     "estimated": "the rest are thinner smoke by the images (a clear view, or too far from "
-                                 "the smoke colour)"}[plan.mask_floor]
+                                 "the smoke colour)",
+                    "estimated-meeting": "the rest are thinner smoke by the images (a clear view, or too far "
+                                         f"from where the haze lines meet, {np.round(meeting, 3).tolist()})"
+                                         if meeting is not None else
+                                         "the haze lines do not meet, so the smoke reads thin: only points seen "
+                                         "clear elsewhere and dense there, or the geometry does not cover them"
+                    }[plan.mask_floor]
             note = (f"mask floor on {100 * int(plan.floor_pixels.sum()) / max(int(masked.sum()), 1):.0f} % "
                     f"of the masked training pixels: {rest} (loss.mask_floor_where={plan.mask_floor})")
             plan.notes.append(note)
@@ -297,14 +304,19 @@ def haze_line_smoke_colour(cfg: TrainConfig, depth: DepthPriorMaps, rgb: Modalit
                                  settings)
 
 
-def mask_floor_pixels(plan: Stage3Plan, rgb: ModalityData, depth: DepthPriorMaps, floor: float) -> np.ndarray:
+def mask_floor_pixels(plan: Stage3Plan, rgb: ModalityData, depth: DepthPriorMaps, floor: float,
+                      estimate: SmokeColourEstimate | None) -> np.ndarray:
     """The training frames' pixels where the mask floor acts (``smokeseer.train.mask_floor``), with
-    Stage 2's geometry rendered as depth at the same cameras and the smoke colour Stage 3 holds."""
+    Stage 2's geometry rendered as depth at the same cameras and the smoke colour Stage 3 holds
+    (with ``estimated-meeting``, wherever the haze lines ``estimate`` meet)."""
     train = rgb.indices("train")
     maps, valid = depth.maps.cpu().numpy(), depth.valid.cpu().numpy()
     if plan.mask_floor == "never-clear":
         return never_seen_clear(rgb.masks[train], maps, valid, *rgb.cameras("train"))
-    return estimated_dense(rgb.masks[train], rgb.images[train], maps, valid, *rgb.cameras("train"), plan.colour, floor)
+    meeting = plan.mask_floor == "estimated-meeting"
+    colour = estimate.meeting if meeting and estimate is not None else plan.colour
+    return estimated_dense(rgb.masks[train], rgb.images[train], maps, valid, *rgb.cameras("train"), colour, floor,
+                           unpinned_floor=not meeting)
 
 
 def smoke_colour_record(plan: Stage3Plan, estimate: SmokeColourEstimate | None) -> dict[str, Any] | None:

@@ -89,6 +89,7 @@ def test_a_bright_estimate_is_refused_above_the_brightness_bound_only() -> None:
     above = estimate_smoke_colour(images, depths, valid, vms, ks, np.random.default_rng(0),
                                   HazeLineSettings(max_brightness=mean + 0.02))
     np.testing.assert_allclose(above.colour, SMOKE, atol=0.01)
+    np.testing.assert_array_equal(below.meeting, above.colour)   # refused for its brightness, still met
 
 
 def test_estimate_refuses_smoke_that_never_changes() -> None:
@@ -107,7 +108,7 @@ def test_estimate_refuses_lines_that_do_not_meet() -> None:
     images = base + rng.uniform(-0.2, 0.2, (20, H, W, 1)) * direction
     est = estimate_smoke_colour(images, np.full((20, H, W), 2.0), np.ones((20, H, W), bool),
                                 np.stack([_viewmat(0.0)] * 20), np.stack([K] * 20), np.random.default_rng(0))
-    assert est.colour is None and est.lines >= 100 and "do not meet" in est.reason
+    assert est.colour is None and est.lines >= 100 and "do not meet" in est.reason and est.meeting is None
 
 
 @pytest.mark.parametrize("spread", [0.0, 1e-4])

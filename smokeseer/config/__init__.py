@@ -30,7 +30,7 @@ SMOKE_COLOR_SOURCES: tuple[str, ...] = ("learned", "haze-lines")
 SURFACE_INITS: tuple[str, ...] = ("thermal", "thermal+rgb", "rgb+thermal-fill")
 THERMAL_MOVES: tuple[str, ...] = ("all", "thermal-stage2")
 POSE_SOURCES: tuple[str, ...] = ("given", "sfm")
-MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "estimated")
+MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "estimated", "estimated-meeting")
 DEFORM_KINDS: tuple[str, ...] = ("mlp", "fourier")
 LPIPS_NETS: tuple[str, ...] = ("alex", "vgg")
 
@@ -60,7 +60,9 @@ class LossWeights:
     "never-clear", those whose surface point no other training view sees smoke-free, so that
     thin smoke over a surface seen clear elsewhere is not forced up to the floor; or "estimated",
     those whose smoke alpha, read off the smoky frames by the image formation with the smoke
-    colour Stage 3 holds, may reach the floor."""
+    colour Stage 3 holds, may reach the floor; or "estimated-meeting", the same with the colour
+    wherever the haze lines meet (held or too bright to hold), and no floor on points never seen
+    clear where they do not (thin smoke)."""
 
 
 @dataclass
@@ -352,6 +354,9 @@ class TrainConfig:
         if self.loss.mask_floor_where not in MASK_FLOOR_WHERE:
             raise ValueError(f"loss.mask_floor_where: {self.loss.mask_floor_where!r} is not one of "
                              f"{', '.join(MASK_FLOOR_WHERE)}")
+        if self.loss.mask_floor_where == "estimated-meeting" and self.stage3.smoke_color != "haze-lines":
+            raise ValueError("loss.mask_floor_where: estimated-meeting reads the haze lines; it needs "
+                             "stage3.smoke_color=haze-lines")
         if not 0.0 <= self.loss.thermal <= 10.0:
             raise ValueError(f"loss.thermal: must be in [0, 10], got {self.loss.thermal}")
         if not 0.0 < self.loss.mask_alpha_floor <= 1.0:

@@ -48,11 +48,19 @@ class SmokeColourEstimate:
     points: int
     meeting_fraction: float | None = None
     reason: str = ""
+    meeting: np.ndarray | None = None
+    """Where the lines meet when they do (inside the colour cube), held or not: a bright smoke's
+    colour too view-dependent to hold still places its density (``loss.mask_floor_where``)."""
 
     def describe(self) -> str:
         met = "" if self.meeting_fraction is None else f", {self.meeting_fraction:.2f} of them meeting"
         found = (f"{np.round(self.colour, 3).tolist()}" if self.colour is not None else f"none: {self.reason}")
         return f"{found} ({self.lines} observation lines from {self.points} points{met})"
+
+
+def lines_meet(colour: np.ndarray, met: float, settings: HazeLineSettings) -> bool:
+    """The lines meet: at fraction ``met`` of at least the trust threshold, inside the colour cube."""
+    return met >= settings.min_meeting_fraction and not (np.any(colour < -0.05) or np.any(colour > 1.05))
 
 
 def refusal(colour: np.ndarray, met: float, settings: HazeLineSettings) -> str:
@@ -61,7 +69,7 @@ def refusal(colour: np.ndarray, met: float, settings: HazeLineSettings) -> str:
     if met < settings.min_meeting_fraction:
         return (f"the lines do not meet: under {settings.min_meeting_fraction} of them pass within "
                 f"{settings.meet_tolerance} of their nearest point {np.round(colour, 3).tolist()}")
-    if np.any(colour < -0.05) or np.any(colour > 1.05):
+    if not lines_meet(colour, met, settings):
         return f"the lines meet outside the colour cube, at {np.round(colour, 3).tolist()}"
     if float(np.mean(colour)) > settings.max_brightness:
         return (f"a bright smoke colour {np.round(colour, 3).tolist()} (channel mean {float(np.mean(colour)):.2f}, "
@@ -155,6 +163,5 @@ def estimate_smoke_colour(images: np.ndarray, depths: np.ndarray, valid: np.ndar
         return SmokeColourEstimate(None, lines, n_points, reason="the observation lines are parallel")
     met = float((line_distances(colour, means, dirs) <= settings.meet_tolerance).mean())
     reason = refusal(colour, met, settings)
-    if reason:
-        return SmokeColourEstimate(None, lines, n_points, met, reason)
-    return SmokeColourEstimate(np.clip(colour, 0.01, 0.99), lines, n_points, met)
+    meeting = np.clip(colour, 0.01, 0.99) if lines_meet(colour, met, settings) else None
+    return SmokeColourEstimate(None if reason else meeting, lines, n_points, met, reason, meeting)
