@@ -33,7 +33,7 @@ from smokeseer.train.mask_floor import estimated_dense, never_seen_clear
 from smokeseer.train.plan import Stage3Plan, plan_stage3
 from smokeseer.train.stage2 import train_stage2, views_of
 from smokeseer.train.stage3 import build_scene_model, train_stage3
-from smokeseer.train.surface_union import TwoSurfaces, join_surfaces
+from smokeseer.train.surface_union import TwoSurfaces, join_surfaces, surface_start
 from smokeseer.train.util import RunContext, RunLog
 
 
@@ -220,13 +220,6 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
         two_surfaces = cfg.stage3.surface_init != "thermal" and plan.use_thermal
         rgb_depth = (rendered_depth_prior(s2.gaussians, views_of(scene.rgb, scene.rgb.indices("train"), dev), "rgb")
                      if plan.smoke_colour == "haze-lines" or plan.mask_floor != "all" or two_surfaces else None)
-        if two_surfaces:
-            t_rgb = time.perf_counter()
-            rgb_init = _init_points(scene, scene.rgb, cfg.stage2.init_points, b, np.random.default_rng(cfg.seed))
-            joined = join_surfaces(ctx, scene.rgb, rgb_init, s2, rgb_depth)
-            wall["stage2_rgb"] = time.perf_counter() - t_rgb
-            plan.notes.append(joined.describe())
-            ctx.log_line(f"stage 3: {joined.describe()} (RGB Stage 2 in {wall['stage2_rgb']:.1f} s)")
         if plan.smoke_colour == "haze-lines":
             smoke_colour = haze_line_smoke_colour(cfg, rgb_depth, scene.rgb)
             ctx.log_line(f"stage 3: smoke colour from haze lines: {smoke_colour.describe()}")
@@ -234,6 +227,18 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
             if note:
                 plan.notes.append(note)
                 ctx.log_line(f"stage 3: {note}")
+        if two_surfaces:
+            two_surfaces, note = surface_start(cfg.stage3.surface_init, smoke_colour)
+            if note:
+                plan.notes.append(note)
+                ctx.log_line(f"stage 3: {note}")
+        if two_surfaces:
+            t_rgb = time.perf_counter()
+            rgb_init = _init_points(scene, scene.rgb, cfg.stage2.init_points, b, np.random.default_rng(cfg.seed))
+            joined = join_surfaces(ctx, scene.rgb, rgb_init, s2, rgb_depth)
+            wall["stage2_rgb"] = time.perf_counter() - t_rgb
+            plan.notes.append(joined.describe())
+            ctx.log_line(f"stage 3: {joined.describe()} (RGB Stage 2 in {wall['stage2_rgb']:.1f} s)")
         if plan.mask_floor != "all":
             plan.floor_pixels = mask_floor_pixels(plan, scene.rgb, rgb_depth, cfg.loss.mask_alpha_floor, smoke_colour)
             masked = scene.rgb.masks[scene.rgb.indices("train")] > 0.5

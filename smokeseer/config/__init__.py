@@ -27,7 +27,7 @@ MODES: tuple[str, ...] = (
 )
 PROFILES: tuple[str, ...] = ("quick", "standard", "paper")
 SMOKE_COLOR_SOURCES: tuple[str, ...] = ("learned", "haze-lines")
-SURFACE_INITS: tuple[str, ...] = ("thermal", "thermal+rgb", "rgb+thermal-fill")
+SURFACE_INITS: tuple[str, ...] = ("thermal", "thermal+rgb", "rgb+thermal-fill", "by-smoke-colour")
 THERMAL_MOVES: tuple[str, ...] = ("all", "thermal-stage2")
 POSE_SOURCES: tuple[str, ...] = ("given", "sfm")
 MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "estimated", "estimated-meeting")
@@ -211,7 +211,11 @@ class Stage3Config:
     also a Stage 2 on the smoky RGB frames (RGB-only's), whose Gaussians join the thermal ones
     unless they sit in front of the thermal surface (``smokeseer.train.surface_union``).
     "rgb+thermal-fill": the same carved RGB Stage 2, joined only by the thermal Gaussians that fall
-    where it leaves a hole, so where the RGB sees the surface Stage 3 starts as RGB-only does."""
+    where it leaves a hole, so where the RGB sees the surface Stage 3 starts as RGB-only does.
+    "by-smoke-colour": "thermal" where the haze lines hold a smoke colour (a dark, absorbing smoke
+    whose lines meet: dense smoke, under which the RGB Stage 2 takes smoke for surface; room and
+    the excavator), "rgb+thermal-fill" where they do not (thin or scattering smoke the RGB sees
+    through)."""
     carve_tolerance: float = 0.05
     """With two surfaces: an RGB Gaussian nearer than (1 − this) × the thermal
     surface's depth in most views that see it is smoke taken for surface, and is dropped."""
@@ -326,6 +330,9 @@ class TrainConfig:
             raise ValueError(f"stage3.thermal_supersample: must be 1 to 8, got {self.stage3.thermal_supersample}")
         if self.stage3.thermal_moves not in THERMAL_MOVES:
             raise ValueError(f"stage3.thermal_moves: {self.stage3.thermal_moves!r} is not one of {', '.join(THERMAL_MOVES)}")
+        if self.stage3.surface_init == "by-smoke-colour" and self.stage3.smoke_color != "haze-lines":
+            raise ValueError("stage3.surface_init: by-smoke-colour reads the haze lines; it needs "
+                             "stage3.smoke_color=haze-lines")
         if self.stage3.thermal_moves != "all" and self.stage3.surface_init == "thermal":
             raise ValueError("stage3.thermal_moves: needs two surfaces (stage3.surface_init other than thermal)")
         if not 0.0 < self.stage3.surface_geometry_lr <= 10.0:

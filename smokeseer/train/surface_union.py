@@ -26,9 +26,27 @@ from scenes.scene import ModalityData
 from scenes.cameras import pixels_of
 from smokeseer.model.gaussians import GaussianSet
 from smokeseer.model.scene import THERMAL_GATE, add_rgb_sh
+from smokeseer.stage1.haze_lines import SmokeColourEstimate
 from smokeseer.train.depth_prior import DepthPriorMaps, rendered_depth_prior
 from smokeseer.train.stage2 import Stage2Result, train_stage2, views_of
 from smokeseer.train.util import RunContext
+
+
+FILLS = ("rgb+thermal-fill", "by-smoke-colour")
+"""The ``stage3.surface_init`` values whose two-surface start keeps only the thermal Gaussians in the holes."""
+
+
+def surface_start(surface_init: str, colour: SmokeColourEstimate | None) -> tuple[bool, str | None]:
+    """Whether Stage 3 starts from two surfaces, and with ``by-smoke-colour`` the note saying why:
+    a held haze-line colour (``colour``) means dense absorbing smoke, and the thermal Stage 2 alone."""
+    if surface_init != "by-smoke-colour":
+        return surface_init != "thermal", None
+    if colour is not None and colour.colour is not None:
+        return False, ("surface from the thermal Stage 2 alone (stage3.surface_init=by-smoke-colour): the haze "
+                       "lines hold a dark smoke colour, so the smoke is dense and the RGB Stage 2 takes it for surface")
+    return True, ("surface from the RGB Stage 2 and the thermal Gaussians in its holes (stage3.surface_init="
+                  "by-smoke-colour): the haze lines hold no smoke colour, so the smoke is thin or scattering "
+                  "and the RGB sees the surface through it")
 
 
 @dataclass
@@ -138,7 +156,7 @@ def join_surfaces(ctx: RunContext, rgb: ModalityData, init_points: np.ndarray, t
     dev = rgb_s2.gaussians["means"].device
     keep = torch.as_tensor(carve.keep, device=dev)
     thermal_keep = None
-    if cfg.stage3.surface_init == "rgb+thermal-fill":
+    if cfg.stage3.surface_init in FILLS:
         carved = GaussianSet({k: v.detach()[keep] for k, v in rgb_s2.gaussians.state_dict().items()})
         opaque = rendered_depth_prior(carved, views_of(rgb, rgb.indices("train"), dev), "rgb").valid.cpu().numpy()
         holes = in_holes(thermal.gaussians["means"].detach().cpu().numpy().astype(np.float64), opaque,
