@@ -240,7 +240,11 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
             plan.notes.append(joined.describe())
             ctx.log_line(f"stage 3: {joined.describe()} (RGB Stage 2 in {wall['stage2_rgb']:.1f} s)")
         if plan.mask_floor != "all":
-            plan.floor_pixels = mask_floor_pixels(plan, scene.rgb, rgb_depth, cfg.loss.mask_alpha_floor, smoke_colour)
+            # The floor reads the geometry Stage 3 starts from: with two surfaces, the joined one.
+            floor_depth = (rendered_depth_prior(joined.surface, views_of(scene.rgb, scene.rgb.indices("train"), dev),
+                                                "rgb") if joined else rgb_depth)
+            plan.floor_pixels = mask_floor_pixels(plan, scene.rgb, floor_depth, cfg.loss.mask_alpha_floor,
+                                                  smoke_colour)
             masked = scene.rgb.masks[scene.rgb.indices("train")] > 0.5
             meeting = None if smoke_colour is None else smoke_colour.meeting
             rest = {"never-clear": "the rest are seen smoke-free from another training view",
@@ -312,7 +316,7 @@ def haze_line_smoke_colour(cfg: TrainConfig, depth: DepthPriorMaps, rgb: Modalit
 def mask_floor_pixels(plan: Stage3Plan, rgb: ModalityData, depth: DepthPriorMaps, floor: float,
                       estimate: SmokeColourEstimate | None) -> np.ndarray:
     """The training frames' pixels where the mask floor acts (``smokeseer.train.mask_floor``), with
-    Stage 2's geometry rendered as depth at the same cameras and the smoke colour Stage 3 holds
+    Stage 3's starting geometry rendered as depth at the same cameras and the smoke colour Stage 3 holds
     (with ``estimated-meeting``, wherever the haze lines ``estimate`` meet)."""
     train = rgb.indices("train")
     maps, valid = depth.maps.cpu().numpy(), depth.valid.cpu().numpy()

@@ -187,16 +187,20 @@ def test_by_smoke_colour_starts_from_the_thermal_surface_only_under_a_held_colou
         splat: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """stage3.surface_init=by-smoke-colour: this tiny scene's haze lines hold no colour, so Stage 3
     starts from the RGB Stage 2 with the thermal Gaussians in its holes; with a held (dark) colour it
-    starts from the thermal Stage 2 alone and never trains the RGB one. Each says so in its notes."""
+    starts from the thermal Stage 2 alone and never trains the RGB one. Each says so in its notes.
+    The mask floor then reads the surface Stage 3 starts from (the joined one, for the fill)."""
     from smokeseer import api
     from smokeseer.stage1.haze_lines import SmokeColourEstimate
 
-    rule = TINY + ["--set", "stage3.smoke_color=haze-lines", "--set", "stage3.surface_init=by-smoke-colour"]
+    rule = TINY + ["--set", "stage3.smoke_color=haze-lines", "--set", "stage3.surface_init=by-smoke-colour",
+                   "--set", "loss.mask_floor_where=estimated-meeting"]
     thin = tmp_path / "thin"
     assert main([str(splat), "--out", str(thin)] + rule) == 0
     stages = _assert_complete(thin)["stages"]
     assert stages["surface_union"]["fill_opaque_share"] == 0.5 and (thin / "checkpoints" / "stage2_rgb.pt").exists()
     assert any("the haze lines hold no smoke colour" in n for n in stages["notes"])
+    assert stages["stage3_plan"]["mask_floor"] == "estimated-meeting"
+    assert any(n.startswith("mask floor on") for n in stages["notes"])
     colour = np.array([0.21, 0.2, 0.23])
     monkeypatch.setattr(api, "estimate_smoke_colour",
                         lambda *a, **k: SmokeColourEstimate(colour, 500, 900, 0.8, meeting=colour))
