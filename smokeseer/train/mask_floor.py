@@ -9,8 +9,8 @@ thin plume: validation +2.4 and +1.2 dB with the floor at 0.02, but room and for
 The floor is only needed where the images cannot separate surface from smoke: a surface point
 that some other training view sees smoke-free has its colour pinned there, and the render loss
 can set the smoke over it. So with ``never-clear`` the floor acts only on masked pixels whose
-surface point (the geometry Stage 3 starts from, rendered as depth at the RGB training cameras) no other
-training frame sees outside its mask; pixels the geometry does not cover keep the floor.
+surface point (the geometry Stage 3 starts from, rendered as depth at the RGB training cameras)
+no other training frame sees outside its mask; pixels the geometry does not cover keep the floor.
 
 ``estimated`` goes one step further and reads how dense the smoke is off the images themselves,
 with the image formation I = A + T (J - A) (smoke colour A, surface colour J, transmittance T):

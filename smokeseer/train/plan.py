@@ -79,7 +79,8 @@ class Stage3Plan:
     """"none" (no smoke Gaussians), "learned", or "haze-lines": held at ``colour``, the estimate
     made once Stage 2 has given the geometry (``settle_colour``)."""
     mask_floor: str
-    """Where the mask term's floor acts: "all", "never-clear", "estimated" or "estimated-meeting" (``loss.mask_floor_where``)."""
+    """Where the mask term's floor acts: "all", "never-clear", "estimated" or "estimated-meeting"
+    (``loss.mask_floor_where``)."""
     depth_prior: str | None
     """The prior the depth term compares with; None: the run has no depth term."""
     depth_camera: str | None
