@@ -218,7 +218,8 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
     else:
         smoke_pts = _sample(scene.rgb, cfg.stage3.smoke_points, b, rng) if plan.use_smoke else None
         two_surfaces = cfg.stage3.surface_init != "thermal" and plan.use_thermal
-        rgb_depth = (rendered_depth_prior(s2.gaussians, views_of(scene.rgb, scene.rgb.indices("train"), dev), "rgb")
+        rgb_views = views_of(scene.rgb, scene.rgb.indices("train"), dev)
+        rgb_depth = (rendered_depth_prior(s2.gaussians, rgb_views, "rgb")
                      if plan.smoke_colour == "haze-lines" or plan.mask_floor != "all" or two_surfaces else None)
         if plan.smoke_colour == "haze-lines":
             smoke_colour = haze_line_smoke_colour(cfg, rgb_depth, scene.rgb)
@@ -241,8 +242,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
             ctx.log_line(f"stage 3: {joined.describe()} (RGB Stage 2 in {wall['stage2_rgb']:.1f} s)")
         if plan.mask_floor != "all":
             # The floor reads the geometry Stage 3 starts from: with two surfaces, the joined one.
-            floor_depth = (rendered_depth_prior(joined.surface, views_of(scene.rgb, scene.rgb.indices("train"), dev),
-                                                "rgb") if joined else rgb_depth)
+            floor_depth = rendered_depth_prior(joined.surface, rgb_views, "rgb") if joined else rgb_depth
             plan.floor_pixels = mask_floor_pixels(plan, scene.rgb, floor_depth, cfg.loss.mask_alpha_floor,
                                                   smoke_colour)
             masked = scene.rgb.masks[scene.rgb.indices("train")] > 0.5
