@@ -3,11 +3,11 @@
     python benchmarks/mask_floor_agreement.py data/standard/house data/standard/room ... [--every 3]
 
 The standard profile's mask floor acts on masked training pixels whose smoke may be dense
-(``loss.mask_floor_where=estimated``, ``smokeseer/train/mask_floor.py``), read off the smoky
+(``loss.mask_floor_where=estimated-meeting``, ``smokeseer/train/mask_floor.py``), read off the smoky
 frames. Its target is where the true smoke alpha reaches the floor (0.4), which training cannot
 read. For each dataset this computes both on the RGB training frames of the standard split, with
-the dataset's own depth as the geometry (a trained Stage 2 renders a rougher one) and the smoke
-colour the haze lines give on it, and reports the share of masked pixels each marks, and the
+the dataset's own depth as the geometry (a trained Stage 2 renders a rougher one) and the point
+where the haze lines meet on it (the profile's settings), and reports the share of masked pixels each marks, and the
 estimate's precision and recall against the truth. ``never-clear`` (a point no other view sees
 smoke-free) is reported beside it. Every ``--every``-th training frame is a reference.
 
@@ -26,7 +26,7 @@ from contracts.imageio import read_exr_channel
 from scenes.images import box_downscale
 from scenes.load import load_scene
 from smokeseer.config import make_config
-from smokeseer.stage1.haze_lines import estimate_smoke_colour
+from smokeseer.stage1.haze_lines import HazeLineSettings, estimate_smoke_colour
 from smokeseer.train.mask_floor import estimated_dense, never_seen_clear
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -49,9 +49,10 @@ def measure(path: Path, every: int) -> dict[str, object]:
     images, masks, depth = rgb.images[train], rgb.masks[train], rgb.depth[train].astype(np.float64)
     valid = depth > 0
     viewmats, Ks = rgb.cameras("train")
-    colour = estimate_smoke_colour(images, depth, valid, viewmats, Ks, np.random.default_rng(cfg.seed + 2))
+    colour = estimate_smoke_colour(images, depth, valid, viewmats, Ks, np.random.default_rng(cfg.seed + 2),
+                                   HazeLineSettings.of(cfg.stage3))
     floor = cfg.loss.mask_alpha_floor
-    estimated = estimated_dense(masks, images, depth, valid, viewmats, Ks, colour.colour, floor)
+    estimated = estimated_dense(masks, images, depth, valid, viewmats, Ks, colour.meeting, floor)
     never = never_seen_clear(masks, depth, valid, viewmats, Ks)
     truth = true_alpha(path, [rgb.frames[i].file_stem for i in train], images.shape[1:3]) >= floor
     refs = np.arange(len(train)) % every == 0
@@ -69,6 +70,7 @@ def measure(path: Path, every: int) -> dict[str, object]:
         "never_clear_precision": round((truth & never).sum() / max(int(never.sum()), 1), 4),
         "never_clear_recall": round((truth & never).sum() / max(int(truth.sum()), 1), 4),
         "smoke_colour": "" if colour.colour is None else " ".join(f"{c:.3f}" for c in colour.colour),
+        "meeting_point": "" if colour.meeting is None else " ".join(f"{c:.3f}" for c in colour.meeting),
         "seconds": round(time.perf_counter() - t0, 1),
     }
 

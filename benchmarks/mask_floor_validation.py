@@ -4,7 +4,7 @@ runs whose floor read the generator's true smoke alpha.
     python benchmarks/mask_floor_validation.py RUN_DIR ... [--tables data/tables_standard]
 
 Each RUN_DIR is a finished ``train-and-evaluate DATASET --profile standard --seed 0`` run
-(``loss.mask_floor_where=estimated``). Its last logged validation and test PSNR are set beside
+whose mask floor is read off the images. Its last logged validation and test PSNR are set beside
 the Full and RGB-only runs of the same scene and seed at trainer 6663d970, the last tables
 trained with the true-alpha floor. Writes ``benchmarks/results/mask_floor_validation.csv``.
 """

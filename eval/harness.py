@@ -37,8 +37,8 @@ from contracts.train_log import read_train_log
 from eval.dehaze import dehaze_dataset, get_dehazer
 from eval.runs import VARIANTS, RunResult, RunSpec, config_hash
 from eval.settings import DatasetOutcome, HarnessConfig
-from eval.shared_stage2 import (leaders_first, stage2_done, stage2_donors, stage2_groups, stage2_leaders, stage2_sha,
-                                take_finished_stage2)
+from eval.shared_stage2 import (leaders_first, rgb_stage2_sha, stage2_done, stage2_donors, stage2_groups,
+                                stage2_leaders, stage2_sha, take_finished_stage2)
 from eval.sources import sources_sha256
 from eval.twins import full_twins
 
@@ -188,7 +188,8 @@ def run_task(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int, prep_
             if waited > 1.0:
                 log.info("%s/%s/seed %d waited %.0f s for the Stage 2 of %s", spec.scene, spec.variant, spec.seed,
                          waited, stage2_leader)
-        donor = take_finished_stage2(Path(run_dir), list(stage2_donors), stage2_sha(spec)) if stage2_donors else ""
+        donor = (take_finished_stage2(Path(run_dir), list(stage2_donors), stage2_sha(spec), rgb_stage2_sha(spec))
+                 if stage2_donors else "")
         res = _train_run(spec, run_dir, train_fn, threads, device)
         res.prep_time_s = prep_time_s
         res.stage2_from = donor

@@ -3,6 +3,11 @@
 and trainer code) take the finished Stage-2 checkpoint of the first of them instead of training
 the same Stage 2 again.
 
+A run whose Stage 3 starts from two surfaces also trains an RGB Stage 2 after the thermal one
+(``stage2_rgb.pt``, ``stage3.surface_init=by-smoke-colour``); a taker gets that one too when the
+donor has finished it, or trains it itself (the same bytes: it continues from the thermal
+Stage 2's stored RNG state).
+
 The trainer keys its Stage-2 checkpoint by the settings Stage 2 depends on
 (``TrainConfig.stage2_sha256``) and stores the run's RNG state in it, so a run that resumes from
 a finished Stage 2 ends with the bytes of one that trained it (tests/test_trainer.py). The
@@ -29,6 +34,12 @@ from smokeseer.config import make_config
 def stage2_sha(spec: RunSpec) -> str:
     """The trainer's key of the run's Stage-2 checkpoint."""
     return make_config(spec.mode, spec.profile, spec.seed, dict(spec.overrides)).stage2_sha256()
+
+
+def rgb_stage2_sha(spec: RunSpec) -> str:
+    """The trainer's key of the run's RGB Stage 2 (``stage2_rgb``, trained where Stage 3 starts
+    from two surfaces): RGB-only's Stage-2 key under the run's settings."""
+    return make_config("rgb-only", spec.profile, spec.seed, dict(spec.overrides)).stage2_sha256()
 
 
 def stage2_key(spec: RunSpec) -> tuple[str, ...]:
@@ -66,11 +77,11 @@ def leaders_first(specs: list[RunSpec], out: Path, groups: dict[str, list[str]])
     return sorted(specs, key=lambda s: str(s.run_dir(out).resolve()) in leaders)
 
 
-def stage2_done(run_dir: Path, stage2_sha: str) -> bool:
-    """Whether the folder holds a finished Stage-2 checkpoint of these settings."""
+def stage2_done(run_dir: Path, stage2_sha: str, checkpoint: str = "stage2") -> bool:
+    """Whether the folder holds a finished Stage-2 checkpoint (``checkpoint``.pt) of these settings."""
     import torch
 
-    source = run_dir / "checkpoints" / "stage2.pt"
+    source = run_dir / "checkpoints" / f"{checkpoint}.pt"
     if not source.is_file():
         return False
     try:
@@ -80,9 +91,10 @@ def stage2_done(run_dir: Path, stage2_sha: str) -> bool:
     return bool(payload.get("done")) and payload.get("config_sha256") == stage2_sha
 
 
-def take_finished_stage2(run_dir: Path, donors: list[str], stage2_sha: str) -> str:
+def take_finished_stage2(run_dir: Path, donors: list[str], stage2_sha: str, rgb_sha: str = "") -> str:
     """Copy the first donor's finished Stage-2 checkpoint (and its Stage-2 log rows) into a run
-    folder that has not started; returns the donor's folder, or "" when none has one yet."""
+    folder that has not started, with the donor's finished RGB Stage 2 (``rgb_sha``) where it has
+    one (it writes no log rows); returns the donor's folder, or "" when none has one yet."""
     checkpoint = run_dir / "checkpoints" / "stage2.pt"
     if checkpoint.exists() or (run_dir / "train_log.csv").exists():
         return ""
@@ -97,6 +109,9 @@ def take_finished_stage2(run_dir: Path, donors: list[str], stage2_sha: str) -> s
             continue
         with atomic_path(checkpoint) as tmp:
             shutil.copyfile(donor / "checkpoints" / "stage2.pt", tmp)
+        if rgb_sha and stage2_done(donor, rgb_sha, "stage2_rgb"):
+            with atomic_path(run_dir / "checkpoints" / "stage2_rgb.pt") as tmp:
+                shutil.copyfile(donor / "checkpoints" / "stage2_rgb.pt", tmp)
         write_rows_csv(run_dir / "train_log.csv", rows)
         return str(donor)
     return ""

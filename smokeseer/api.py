@@ -217,10 +217,9 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
         ctx.log_line("stage 3: skipped (deformable-3dgs baseline has one deformable set)")
     else:
         smoke_pts = _sample(scene.rgb, cfg.stage3.smoke_points, b, rng) if plan.use_smoke else None
-        two_surfaces = cfg.stage3.surface_init != "thermal" and plan.use_thermal
         rgb_views = views_of(scene.rgb, scene.rgb.indices("train"), dev)
         rgb_depth = (rendered_depth_prior(s2.gaussians, rgb_views, "rgb")
-                     if plan.smoke_colour == "haze-lines" or plan.mask_floor != "all" or two_surfaces else None)
+                     if plan.smoke_colour == "haze-lines" or plan.mask_floor != "all" else None)
         if plan.smoke_colour == "haze-lines":
             smoke_colour = haze_line_smoke_colour(cfg, rgb_depth, scene.rgb)
             ctx.log_line(f"stage 3: smoke colour from haze lines: {smoke_colour.describe()}")
@@ -228,11 +227,11 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
             if note:
                 plan.notes.append(note)
                 ctx.log_line(f"stage 3: {note}")
-        if two_surfaces:
-            two_surfaces, note = surface_start(cfg.stage3.surface_init, smoke_colour)
-            if note:
-                plan.notes.append(note)
-                ctx.log_line(f"stage 3: {note}")
+        two_surfaces = False
+        if cfg.stage3.surface_init == "by-smoke-colour" and plan.use_thermal:
+            two_surfaces, note = surface_start(smoke_colour)
+            plan.notes.append(note)
+            ctx.log_line(f"stage 3: {note}")
         if two_surfaces:
             t_rgb = time.perf_counter()
             rgb_init = _init_points(scene, scene.rgb, cfg.stage2.init_points, b, np.random.default_rng(cfg.seed))
@@ -248,8 +247,6 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
             masked = scene.rgb.masks[scene.rgb.indices("train")] > 0.5
             meeting = None if smoke_colour is None else smoke_colour.meeting
             rest = {"never-clear": "the rest are seen smoke-free from another training view",
-                    "estimated": "the rest are thinner smoke by the images (a clear view, or too far from "
-                                 "the smoke colour)",
                     "estimated-meeting": "the rest are thinner smoke by the images (a clear view, or too far "
                                          f"from where the haze lines meet, {np.round(meeting, 3).tolist()})"
                                          if meeting is not None else
@@ -306,26 +303,22 @@ def haze_line_smoke_colour(cfg: TrainConfig, depth: DepthPriorMaps, rgb: Modalit
     """The smoke colour where the training RGB frames' observation lines meet, with Stage 2's
     geometry rendered as depth at each of those frames (``depth``) saying which pixels see the
     same point."""
-    settings = HazeLineSettings(min_meeting_fraction=cfg.stage3.smoke_color_min_meeting,
-                                max_brightness=cfg.stage3.smoke_color_max_brightness)
     return estimate_smoke_colour(rgb.images[rgb.indices("train")], depth.maps.cpu().numpy(),
                                  depth.valid.cpu().numpy(), *rgb.cameras("train"), np.random.default_rng(cfg.seed + 2),
-                                 settings)
+                                 HazeLineSettings.of(cfg.stage3))
 
 
 def mask_floor_pixels(plan: Stage3Plan, rgb: ModalityData, depth: DepthPriorMaps, floor: float,
                       estimate: SmokeColourEstimate | None) -> np.ndarray:
     """The training frames' pixels where the mask floor acts (``smokeseer.train.mask_floor``), with
-    Stage 3's starting geometry rendered as depth at the same cameras and the smoke colour Stage 3 holds
-    (with ``estimated-meeting``, wherever the haze lines ``estimate`` meet)."""
+    Stage 3's starting geometry rendered as depth at the same cameras and, for ``estimated-meeting``,
+    the point where the haze lines ``estimate`` meet."""
     train = rgb.indices("train")
     maps, valid = depth.maps.cpu().numpy(), depth.valid.cpu().numpy()
     if plan.mask_floor == "never-clear":
         return never_seen_clear(rgb.masks[train], maps, valid, *rgb.cameras("train"))
-    meeting = plan.mask_floor == "estimated-meeting"
-    colour = estimate.meeting if meeting and estimate is not None else plan.colour
-    return estimated_dense(rgb.masks[train], rgb.images[train], maps, valid, *rgb.cameras("train"), colour, floor,
-                           unpinned_floor=not meeting)
+    colour = estimate.meeting if estimate is not None else None
+    return estimated_dense(rgb.masks[train], rgb.images[train], maps, valid, *rgb.cameras("train"), colour, floor)
 
 
 def smoke_colour_record(plan: Stage3Plan, estimate: SmokeColourEstimate | None) -> dict[str, Any] | None:

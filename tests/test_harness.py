@@ -436,13 +436,15 @@ def test_table2_depth_row_differs_from_full() -> None:
 def test_ablations_take_fulls_finished_stage2_and_end_as_if_they_trained_it(tmp_path: Path) -> None:
     """The real trainer at a tiny budget: no-mask differs from Full in Stage 3 only, so it takes
     Full's finished Stage 2 (one worker: Full first), and its model and scores are those of a
-    no-mask run that trained its own Stage 2; its wall time counts the Stage 2 it took."""
+    no-mask run that trained its own Stage 2; its wall time counts the Stage 2 it took. Stage 3
+    starts from two surfaces here (the haze lines hold no colour), so the RGB Stage 2 comes too."""
     from tests.test_smokeseer_data import write_splat_dataset
 
     ds = write_splat_dataset(tmp_path / "splat", n_rgb=8, n_thermal=6)
     tiny = {"stage2.iterations": 12, "stage3.iterations": 12, "stage2.init_points": 300,
             "stage3.smoke_points": 120, "log_every": 3, "stage3.test_every": 6, "checkpoint_every": 6,
-            "stage2.deform_warmup": 0.25, "stage3.deform_warmup": 0.25, "progress": False}
+            "stage2.deform_warmup": 0.25, "stage3.deform_warmup": 0.25, "progress": False,
+            "stage3.smoke_color": "haze-lines", "stage3.surface_init": "by-smoke-colour"}
 
     def run(out: Path, methods: list[str], ablations: list[str]) -> dict[str, RunResult]:
         cfg = HarnessConfig(out=out, scenes=["splat"], methods=methods, ablations=ablations, seeds=[0], workers=1,
@@ -463,9 +465,30 @@ def test_ablations_take_fulls_finished_stage2_and_end_as_if_they_trained_it(tmp_
     assert (Path(taker.run_dir) / ply).read_bytes() == (Path(alone.run_dir) / ply).read_bytes()
     assert (Path(taker.run_dir) / ply).read_bytes() != (Path(full.run_dir) / ply).read_bytes()
     assert taker.metrics["psnr"] == alone.metrics["psnr"]
+    rgb_stage2 = lambda r: (Path(r.run_dir) / "checkpoints" / "stage2_rgb.pt").read_bytes()
+    assert rgb_stage2(taker) == rgb_stage2(full) == rgb_stage2(alone)
     stage2_rows = lambda r: [(x["iteration"], x["loss"]) for x in csv.DictReader(open(Path(r.run_dir) / "train_log.csv"))
                              if x["stage"] == "2"]
     assert stage2_rows(taker) == stage2_rows(full) == stage2_rows(alone)
+
+
+def test_a_taker_gets_the_donors_rgb_stage2_only_when_finished_with_its_key(tmp_path: Path) -> None:
+    """take_finished_stage2 copies stage2_rgb.pt beside stage2.pt when the donor's is finished
+    under the RGB key asked for, and leaves it for the run to train otherwise."""
+    import torch
+
+    from eval.shared_stage2 import take_finished_stage2
+
+    donor = tmp_path / "donor"
+    (donor / "checkpoints").mkdir(parents=True)
+    (donor / "train_log.csv").write_text("stage,iteration,loss\n2,3,0.5\n")
+    torch.save({"done": True, "config_sha256": "thermal"}, donor / "checkpoints" / "stage2.pt")
+    for rgb_done, rgb_key, expected in ((True, "rgb", True), (False, "rgb", False), (True, "other", False)):
+        torch.save({"done": rgb_done, "config_sha256": "rgb"}, donor / "checkpoints" / "stage2_rgb.pt")
+        taker = tmp_path / f"taker-{rgb_done}-{rgb_key}"
+        assert take_finished_stage2(taker, [str(donor)], "thermal", rgb_key) == str(donor)
+        assert (taker / "checkpoints" / "stage2.pt").is_file()
+        assert (taker / "checkpoints" / "stage2_rgb.pt").is_file() == expected
 
 
 def test_two_workers_train_one_stage2_for_full_and_its_ablations(tmp_path: Path) -> None:

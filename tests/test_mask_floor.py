@@ -100,8 +100,7 @@ def test_estimated_floor_on_unpinned_points_takes_the_middle_of_the_bounds() -> 
       provably thin, dropped;
     - column 4, surface 0.6 under alpha 0.05: I0 = 0.61, I1 = 0.66; bounds 0 and 0.763, the
       middle 0.381 is under the floor, dropped (the upper bound alone could not rule it out).
-    Without a smoke colour every unpinned pixel keeps the floor (``estimated``) or none does
-    (``estimated-meeting``, where the lines do not meet), which only ever removes floor."""
+    Without a smoke colour (the lines do not meet) no unpinned pixel keeps the floor."""
     viewmats, Ks, depths, valid = _two_cameras()
     smoke = np.array([0.8, 0.8, 0.8])
     surface = np.full((N, N, 3), 0.1)
@@ -115,10 +114,8 @@ def test_estimated_floor_on_unpinned_points_takes_the_middle_of_the_bounds() -> 
     np.testing.assert_allclose(frames[1, 0, 0:3, 0], [0.31, 0.31, 0.66])
     got = estimated_dense(masks, frames, depths, valid, viewmats, Ks, smoke, 0.4)
     assert got[0, :, 2].all() and not got[0, :, 3].any() and not got[0, :, 4].any()
-    kept = estimated_dense(masks, frames, depths, valid, viewmats, Ks, None, 0.4)
-    thin = estimated_dense(masks, frames, depths, valid, viewmats, Ks, None, 0.4, unpinned_floor=False)
-    assert kept[0, :, 2:5].all() and not thin[0, :, 2:5].any()
-    assert not (thin & ~kept).any()
+    thin = estimated_dense(masks, frames, depths, valid, viewmats, Ks, None, 0.4)
+    assert not thin[0, :, 2:5].any() and not (thin & ~got).any()
 
 
 def test_mask_term_without_floor_keeps_only_the_push_to_zero() -> None:
@@ -134,7 +131,7 @@ def test_mask_term_without_floor_keeps_only_the_push_to_zero() -> None:
 
 
 def test_bad_setting_names_the_field() -> None:
-    with pytest.raises(ValueError, match="loss.mask_floor_where: 'sometimes' is not one of all, never-clear, estimated"):
+    with pytest.raises(ValueError, match="loss.mask_floor_where: 'sometimes' is not one of all, never-clear, estimated-meeting"):
         make_config("full", "quick", overrides={"loss.mask_floor_where": "sometimes"})
     with pytest.raises(ValueError, match="loss.mask_floor_where: estimated-meeting .* stage3.smoke_color=haze-lines"):
         make_config("full", "quick", overrides={"loss.mask_floor_where": "estimated-meeting",
@@ -146,7 +143,7 @@ def test_floor_rule_follows_the_setting_and_needs_masks_and_smoke(tmp_path) -> N
     and "all" (nothing to gate) by default."""
     ds = write_splat_dataset(tmp_path / "ds", n_rgb=4, n_thermal=3)
     for stage1 in ("ground-truth", "estimate"):
-        for where in ("never-clear", "estimated", "estimated-meeting"):
+        for where in ("never-clear", "estimated-meeting"):
             cfg = make_config("full", "quick", overrides={"loss.mask_floor_where": where, "stage1": stage1,
                                                           "stage3.smoke_color": "haze-lines"})
             scene = load_scene(ds, cfg.max_width)

@@ -27,7 +27,7 @@ from smokeseer.evaluation.figures import figure_path
 from smokeseer.config import DeformConfig
 from smokeseer.model.deform import fourier_bases, motion_offsets, motion_tensors
 from smokeseer.raster import read_ply
-from smokeseer.train.stage3 import Stage3Problem, smoke_free_centres, smoke_min_log_scale
+from smokeseer.train.stage3 import Stage3Problem, smoke_free_centres
 from contracts.results_format import validate_run_dir
 from tests.test_smokeseer_data import write_splat_dataset
 
@@ -141,46 +141,30 @@ def test_full_run_outputs_and_resume(splat: Path, tmp_path: Path) -> None:
     assert {r["stage"] for r in new_rows} == {"3"} and int(new_rows[0]["iteration"]) == 3
 
 
+BY_SMOKE_COLOUR = TINY + ["--set", "stage3.smoke_color=haze-lines", "--set", "stage3.surface_init=by-smoke-colour",
+                          "--set", "loss.mask_floor_where=estimated-meeting"]
+
+
 def test_two_surface_run_joins_both_stage2s_and_resumes(splat: Path, tmp_path: Path) -> None:
-    """stage3.surface_init=thermal+rgb: a second Stage 2 on the RGB frames, with its own checkpoint
-    and no rows of its own in train_log.csv; Stage 3 starts from the thermal Gaussians plus the
-    kept RGB ones, as metrics.json records; a rerun trains nothing again. The thermal loss is
-    taken on a render twice as fine, box-filtered."""
+    """stage3.surface_init=by-smoke-colour without a held colour (this tiny scene's haze lines hold
+    none): a second Stage 2 on the RGB frames, with its own checkpoint and no rows of its own in
+    train_log.csv; Stage 3 starts from the kept RGB Gaussians plus the thermal ones in their holes
+    (which ones: tests/test_surface_union.py), as metrics.json records; a rerun trains nothing again."""
     run = tmp_path / "run"
-    two = TINY + ["--set", "stage3.surface_init=thermal+rgb", "--set", "stage3.thermal_supersample=2"]
-    assert main([str(splat), "--out", str(run)] + two) == 0
+    assert main([str(splat), "--out", str(run)] + BY_SMOKE_COLOUR) == 0
     doc = _assert_complete(run)
     union = doc["stages"]["surface_union"]
-    assert 0 < union["rgb_kept"] <= union["rgb"] and union["thermal_kept"] == union["thermal"] > 0
-    assert doc["stages"]["surface_gaussians"] == union["thermal"] + union["rgb_kept"]  # no surface densification here
+    assert 0 < union["rgb_kept"] <= union["rgb"] and 0 < union["thermal_kept"] <= union["thermal"]
+    assert union["fill_opaque_share"] == 0.5
+    assert doc["stages"]["surface_gaussians"] == union["thermal_kept"] + union["rgb_kept"]  # no surface densification
     assert any(n.startswith("surface from both Stage 2s") for n in doc["stages"]["notes"])
     assert torch.load(run / "checkpoints" / "stage2_rgb.pt", weights_only=False)["done"]
     keys = [(r["stage"], r["iteration"]) for r in _log_rows(run)]
     assert len(keys) == len(set(keys))
     n_rows = len(keys)
-    assert main([str(splat), "--out", str(run)] + two) == 0
+    assert main([str(splat), "--out", str(run)] + BY_SMOKE_COLOUR) == 0
     assert len(_log_rows(run)) == n_rows
     assert json.loads((run / "metrics.json").read_text())["metrics"] == doc["metrics"]
-
-
-def test_thermal_fill_joins_only_the_thermal_gaussians_in_the_rgb_holes(splat: Path, tmp_path: Path) -> None:
-    """stage3.surface_init=rgb+thermal-fill starts from the same carved RGB Stage 2 and records
-    which thermal Gaussians joined it: at share 1 every one (the thermal+rgb surface). Which ones
-    the RGB surface covers is tested in test_surface_union.py (this tiny RGB Stage 2 is nowhere
-    opaque). The share-0 run also keeps the thermal loss off the RGB Gaussians' geometry."""
-    counts = {}
-    for share in ("1", "0"):
-        run = tmp_path / f"run{share}"
-        fill = TINY + ["--set", "stage3.surface_init=rgb+thermal-fill", "--set", f"stage3.fill_opaque_share={share}",
-                       "--set", f"stage3.thermal_moves={'thermal-stage2' if share == '0' else 'all'}"]
-        assert main([str(splat), "--out", str(run)] + fill) == 0
-        doc = _assert_complete(run)
-        union = doc["stages"]["surface_union"]
-        assert doc["stages"]["surface_gaussians"] == union["thermal_kept"] + union["rgb_kept"]
-        counts[share] = union
-    assert counts["1"]["thermal_kept"] == counts["1"]["thermal"]
-    assert counts["0"]["thermal_kept"] <= counts["0"]["thermal"] and counts["0"]["fill_opaque_share"] == 0
-    assert counts["0"]["rgb_kept"] == counts["1"]["rgb_kept"]
 
 
 def test_by_smoke_colour_starts_from_the_thermal_surface_only_under_a_held_colour(
@@ -192,8 +176,7 @@ def test_by_smoke_colour_starts_from_the_thermal_surface_only_under_a_held_colou
     from smokeseer import api
     from smokeseer.stage1.haze_lines import SmokeColourEstimate
 
-    rule = TINY + ["--set", "stage3.smoke_color=haze-lines", "--set", "stage3.surface_init=by-smoke-colour",
-                   "--set", "loss.mask_floor_where=estimated-meeting"]
+    rule = BY_SMOKE_COLOUR
     thin = tmp_path / "thin"
     assert main([str(splat), "--out", str(thin)] + rule) == 0
     stages = _assert_complete(thin)["stages"]
@@ -286,41 +269,6 @@ def test_surface_refinement_densifies_the_surface_only_when_asked(splat: Path, t
     assert counts["on"][0] == counts["off"][0] and counts["on"][1] > counts["on"][0]
 
 
-def test_smoke_min_scale_is_pixels_at_the_median_camera_distance() -> None:
-    """Three cameras 2, 4 and 10 units from the centre, focal lengths 100, 200 and 100 px: one
-    pixel there is 0.02, 0.02 and 0.1 units, so 3 pixels at the median is 0.06."""
-    viewmats, Ks = [], []
-    for distance, focal in ((2.0, 100.0), (4.0, 200.0), (10.0, 100.0)):
-        viewmat = np.eye(4)
-        viewmat[2, 3] = distance  # camera at (0, 0, -distance), looking along +z at the origin
-        viewmats.append(viewmat)
-        Ks.append(np.array([[focal, 0.0, 32.0], [0.0, focal, 24.0], [0.0, 0.0, 1.0]]))
-    assert math.exp(smoke_min_log_scale(np.stack(viewmats), np.stack(Ks), np.zeros(3), 3.0)) == pytest.approx(0.06, rel=1e-6)
-
-
-def test_smoke_min_scale_bounds_every_placed_smoke_gaussian(splat: Path, tmp_path: Path,
-                                                          capsys: pytest.CaptureFixture) -> None:
-    """With stage3.smoke_min_scale_px, no smoke Gaussian is finer than the bound the log states,
-    neither the trained parameters nor the Gaussians placed at any time (the deformation network
-    predicts scale offsets); the same run without it has finer smoke, so the check can fail."""
-    finest = {}
-    for name, extra in (("free", []), ("bounded", ["--set", "stage3.smoke_min_scale_px=6"])):
-        run = tmp_path / name
-        capsys.readouterr()
-        assert main([str(splat), "--out", str(run)] + TINY + extra) == 0
-        _assert_complete(run)
-        state = torch.load(run / "checkpoints" / "stage3.pt", map_location="cpu", weights_only=False)
-        placed = min(float(read_ply(p).log_scales.min()) for p in (run / "ply").glob("smoke_t*.ply"))
-        finest[name] = (float(state["smoke"]["log_scales"].min()), placed)
-        stated = re.search(r"smoke Gaussians kept at least 6 RGB pixels wide \(([0-9.e+-]+) scene units",
-                           capsys.readouterr().err)
-        assert (stated is None) == (name == "free")
-    bound = math.log(float(stated.group(1)))
-    assert finest["bounded"][0] == pytest.approx(bound, abs=1e-3)  # some parameters sit on the bound
-    assert finest["bounded"][1] >= bound - 1e-3
-    assert min(finest["free"]) < bound - 0.1
-
-
 def test_smoke_free_centres_gate_on_the_centre_pixel() -> None:
     """Analytic case: smoke covers the left half of a 4x2 image; a centre at pixel x in [0, 2) is
     smoky, in [2, 4) clear, outside the image not counted, and no smoke model means all clear."""
@@ -361,14 +309,14 @@ def test_training_opens_no_ground_truth_of_its_training_frames(splat: Path, tmp_
     smoke alpha (every ground-truth folder, ``GROUND_TRUTH_FOLDERS``; for thermal, every frame)
     are overwritten with bytes no reader accepts trains to the same bytes as the original, at
     the standard profile's rules: the mask floor estimated from the images, held-out
-    validation frames, the haze-line smoke colour."""
+    validation frames, the haze-line smoke colour and Stage 3's surface chosen by it."""
     import shutil
 
     from contracts.dataset_format import GROUND_TRUTH_FOLDERS
     from scenes.load import load_scene
 
-    standard_rules = ["--set", "loss.mask_floor_where=estimated", "--set", "validation_every=4",
-                      "--set", "stage3.smoke_color=haze-lines"]
+    standard_rules = BY_SMOKE_COLOUR + ["--set", "validation_every=4", "--set", "stage3.smoke_color_min_meeting=0.2",
+                                        "--set", "stage3.smoke_color_max_brightness=0.5"]
     scored = {f.file_stem for f in load_scene(splat, validation_every=4).rgb.frames if f.split != "train"}
     spoiled = tmp_path / "spoiled"
     shutil.copytree(splat, spoiled)
@@ -380,18 +328,18 @@ def test_training_opens_no_ground_truth_of_its_training_frames(splat: Path, tmp_
                 broken += 1
     assert broken > 0
     for name, data in (("original", splat), ("spoiled", spoiled)):
-        assert main([str(data), "--out", str(tmp_path / name)] + TINY + standard_rules) == 0
+        assert main([str(data), "--out", str(tmp_path / name)] + standard_rules) == 0
     a, b = tmp_path / "original", tmp_path / "spoiled"
     assert (a / "ply" / "surface.ply").read_bytes() == (b / "ply" / "surface.ply").read_bytes()
     ma, mb = (json.loads((d / "metrics.json").read_text()) for d in (a, b))
     assert ma["metrics"] == mb["metrics"] and ma["validation"] == mb["validation"]
-    assert any("loss.mask_floor_where=estimated" in n for n in ma["stages"]["notes"])
+    assert any("loss.mask_floor_where=estimated-meeting" in n for n in ma["stages"]["notes"])
 
 
 def test_mask_alpha_floor_reaches_the_mask_term(splat: Path, tmp_path: Path,
                                                monkeypatch: pytest.MonkeyPatch) -> None:
     """loss.mask_alpha_floor is the floor Stage 3's mask term uses (default 0.4, the public code's),
-    and loss.mask_floor_where=never-clear or estimated hands it a per-pixel map of the mask's shape
+    and loss.mask_floor_where=never-clear or estimated-meeting hands it a per-pixel map of the mask's shape
     (said in stages.notes); by default it acts on every masked pixel."""
     import smokeseer.train.stage3 as stage3
 
@@ -407,7 +355,8 @@ def test_mask_alpha_floor_reaches_the_mask_term(splat: Path, tmp_path: Path,
     monkeypatch.setattr(stage3, "mask_alignment", recording)
     for name, extra, expected in (("default", [], 0.4), ("floor", ["--set", "loss.mask_alpha_floor=0.9"], 0.9),
                                   ("gated", ["--set", "loss.mask_floor_where=never-clear"], 0.4),
-                                  ("estimated", ["--set", "loss.mask_floor_where=estimated"], 0.4)):
+                                  ("estimated", ["--set", "loss.mask_floor_where=estimated-meeting",
+                                                 "--set", "stage3.smoke_color=haze-lines"], 0.4)):
         seen.clear()
         assert main([str(splat), "--out", str(tmp_path / name)] + TINY + extra) == 0
         assert seen and {f for f, _ in seen} == {expected}
@@ -415,7 +364,7 @@ def test_mask_alpha_floor_reaches_the_mask_term(splat: Path, tmp_path: Path,
         assert gated == {name in ("gated", "estimated")}
         notes = json.loads((tmp_path / name / "metrics.json").read_text())["stages"]["notes"]
         assert any("mask floor on" in n for n in notes) == (name in ("gated", "estimated"))
-        assert any("loss.mask_floor_where=estimated)" in n for n in notes) == (name == "estimated")
+        assert any("loss.mask_floor_where=estimated-meeting)" in n for n in notes) == (name == "estimated")
 
 
 @pytest.mark.parametrize("smoke", ["none", "opaque"])

@@ -27,10 +27,9 @@ MODES: tuple[str, ...] = (
 )
 PROFILES: tuple[str, ...] = ("quick", "standard", "paper")
 SMOKE_COLOR_SOURCES: tuple[str, ...] = ("learned", "haze-lines")
-SURFACE_INITS: tuple[str, ...] = ("thermal", "thermal+rgb", "rgb+thermal-fill", "by-smoke-colour")
-THERMAL_MOVES: tuple[str, ...] = ("all", "thermal-stage2")
+SURFACE_INITS: tuple[str, ...] = ("thermal", "by-smoke-colour")
 POSE_SOURCES: tuple[str, ...] = ("given", "sfm")
-MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "estimated", "estimated-meeting")
+MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "estimated-meeting")
 DEFORM_KINDS: tuple[str, ...] = ("mlp", "fourier")
 LPIPS_NETS: tuple[str, ...] = ("alex", "vgg")
 
@@ -58,11 +57,10 @@ class LossWeights:
     mask_floor_where: str = "all"
     """Which masked pixels the floor acts on (``smokeseer/train/mask_floor.py``): "all";
     "never-clear", those whose surface point no other training view sees smoke-free, so that
-    thin smoke over a surface seen clear elsewhere is not forced up to the floor; or "estimated",
-    those whose smoke alpha, read off the smoky frames by the image formation with the smoke
-    colour Stage 3 holds, may reach the floor; or "estimated-meeting", the same with the colour
-    wherever the haze lines meet (held or too bright to hold), and no floor on points never seen
-    clear where they do not (thin smoke)."""
+    thin smoke over a surface seen clear elsewhere is not forced up to the floor; or
+    "estimated-meeting", those whose smoke alpha, read off the smoky frames by the image formation
+    with the colour where the haze lines meet (held, or too bright to hold), may reach the floor,
+    and where the lines do not meet (thin smoke) none that no other view sees clear."""
 
 
 @dataclass
@@ -175,10 +173,6 @@ class Stage3Config:
     smoke_init_scale: float = 0.5
     smoke_densify: DensifyConfig = field(default_factory=lambda: DensifyConfig(opacity_reset_every=0.0))
     train_surface_geometry: bool = True
-    surface_geometry_lr: float = 1.0
-    """Stage 3's learning rates of the surface's means, rotations, scales and opacity as a share of
-    Stage 2's (its means decaying over Stage 3). The official code carries Stage 2's decayed
-    schedule on into Stage 3, about a tenth of a restart."""
     surface_densify: DensifyConfig = field(default_factory=lambda: DensifyConfig(every=0, opacity_reset_every=0.0))
     """3DGS density control of the surface from the RGB views' gradients ("refining geometry": the
     thermal-only Stage 2 surface is as coarse as the thermal images); ``every`` 0 is off. Needs
@@ -197,47 +191,26 @@ class Stage3Config:
     alone let a brighter, denser smoke stand in for a darker surface (docs/method.md)."""
     smoke_color_min_meeting: float = 0.5
     """With smoke_color=haze-lines: the estimate is held when at least this fraction of the
-    observation lines pass near it. Set on the four standard datasets trained first: the lines
-    meet under dense smoke (room 0.76, the dense excavator 0.91; estimates within 0.02 and 0.05 of
-    the smoke colour the truth passes imply) and not under thin smoke (house 0.07, forest 0.10),
-    where shading and misregistration, not smoke, spread a point's colours."""
+    observation lines pass near it. 0.5 was set on the first four standard datasets: the lines
+    meet under dense smoke (room 0.76, the dense excavator 0.91) and not under thin smoke (house
+    0.07, forest 0.10). The standard profile holds a dark colour from 0.2: at 0.5 machine's was
+    held at one seed of three (docs/method.md, "Smoke colour")."""
     smoke_color_max_brightness: float = 1.0
     """With smoke_color=haze-lines: an estimate whose channel mean exceeds this is learned, not
     held. A scattering (bright) smoke's radiance follows the light and the viewing angle, so no
     single colour fits it from every view, while an absorbing (dark) one adds little light of its
     own. 1.0 holds every colour."""
     surface_init: str = "thermal"
-    """Where Stage 3's surface starts. "thermal": the thermal Stage 2 (the paper). "thermal+rgb":
-    also a Stage 2 on the smoky RGB frames (RGB-only's), whose Gaussians join the thermal ones
-    unless they sit in front of the thermal surface (``smokeseer.train.surface_union``).
-    "rgb+thermal-fill": the same carved RGB Stage 2, joined only by the thermal Gaussians that fall
-    where it leaves a hole, so where the RGB sees the surface Stage 3 starts as RGB-only does.
-    "by-smoke-colour": "thermal" where the haze lines hold a smoke colour (a dark, absorbing smoke
-    whose lines meet: dense smoke, under which the RGB Stage 2 takes smoke for surface; room and
-    the excavator), "rgb+thermal-fill" where they do not (thin or scattering smoke the RGB sees
-    through)."""
+    """Where Stage 3's surface starts. "thermal": the thermal Stage 2 (the paper).
+    "by-smoke-colour": the thermal Stage 2 where the haze lines hold a (dark) smoke colour: dense
+    absorbing smoke, which a Stage 2 on the RGB frames takes for surface. Where they hold none
+    (thin or scattering smoke the RGB sees through): a Stage 2 on the smoky RGB frames
+    (RGB-only's), carved where it lies in front of the thermal surface and joined by the thermal
+    Gaussians in its holes (``smokeseer.train.surface_union``), so that where the RGB sees the
+    surface Stage 3 starts as RGB-only does. Needs smoke_color=haze-lines."""
     carve_tolerance: float = 0.05
     """With two surfaces: an RGB Gaussian nearer than (1 − this) × the thermal
     surface's depth in most views that see it is smoke taken for surface, and is dropped."""
-    thermal_moves: str = "all"
-    """With two surfaces: which surface Gaussians the thermal render loss may move (means, rotation,
-    scales, opacity). "all"; or "thermal-stage2", only those from the thermal Stage 2 and their
-    clones: the RGB Gaussians keep the geometry the RGB gives them and learn only their thermal
-    value from the thermal frames."""
-    fill_opaque_share: float = 0.5
-    """With surface_init=rgb+thermal-fill: a thermal Gaussian is left out when the carved RGB
-    surface is opaque (alpha > 0.5) where its centre lands in more than this share of the RGB
-    training views that see it."""
-    thermal_supersample: int = 1
-    """Stage 3 renders each thermal training frame at this many times the sensor's resolution and
-    averages each block back to one sensor pixel, as the sensor integrates over its pixel (and as
-    the generator renders thermal). At 1 the Gaussians are drawn at the sensor's pixels with the
-    rasterizer's 0.3 px² dilation, which draws a surface grown for the RGB too fat in thermal."""
-    smoke_min_scale_px: float = 0.0
-    """Smoke Gaussians are kept at least this wide (standard deviation along every axis) in RGB
-    pixels at the median distance from the training cameras to the scene centre. Smoke is a smooth
-    medium; smoke Gaussians a pixel or two wide can carry the surface's texture, which the surface
-    should hold. 0: no bound."""
     test_every: int = 1000
 
 
@@ -326,23 +299,11 @@ class TrainConfig:
         for name in ("smoke_color_min_meeting", "smoke_color_max_brightness"):
             if not 0.0 < getattr(self.stage3, name) <= 1.0:
                 raise ValueError(f"stage3.{name}: must be in (0, 1], got {getattr(self.stage3, name)}")
-        if not 1 <= self.stage3.thermal_supersample <= 8:
-            raise ValueError(f"stage3.thermal_supersample: must be 1 to 8, got {self.stage3.thermal_supersample}")
-        if self.stage3.thermal_moves not in THERMAL_MOVES:
-            raise ValueError(f"stage3.thermal_moves: {self.stage3.thermal_moves!r} is not one of {', '.join(THERMAL_MOVES)}")
         if self.stage3.surface_init == "by-smoke-colour" and self.stage3.smoke_color != "haze-lines":
             raise ValueError("stage3.surface_init: by-smoke-colour reads the haze lines; it needs "
                              "stage3.smoke_color=haze-lines")
-        if self.stage3.thermal_moves != "all" and self.stage3.surface_init == "thermal":
-            raise ValueError("stage3.thermal_moves: needs two surfaces (stage3.surface_init other than thermal)")
-        if not 0.0 < self.stage3.surface_geometry_lr <= 10.0:
-            raise ValueError(f"stage3.surface_geometry_lr: must be in (0, 10], got {self.stage3.surface_geometry_lr}")
-        if not 0.0 <= self.stage3.fill_opaque_share <= 1.0:
-            raise ValueError(f"stage3.fill_opaque_share: must be in [0, 1], got {self.stage3.fill_opaque_share}")
         if not 0.0 <= self.stage3.carve_tolerance < 1.0:
             raise ValueError(f"stage3.carve_tolerance: must be in [0, 1), got {self.stage3.carve_tolerance}")
-        if not 0.0 <= self.stage3.smoke_min_scale_px <= 50.0:
-            raise ValueError(f"stage3.smoke_min_scale_px: must be in [0, 50] pixels, got {self.stage3.smoke_min_scale_px}")
         if not 0.0 < self.stage3.surface_densify_max_smoke <= 1.0:
             raise ValueError("stage3.surface_densify_max_smoke: must be in (0, 1], "
                              f"got {self.stage3.surface_densify_max_smoke}")
@@ -442,10 +403,11 @@ def _standard() -> TrainConfig:
     """The benchmark's scale on one CPU core with the compiled rasterizer (a `standard` dataset:
     60 frames, 200x150 RGB, 80x60 thermal): full resolution, 3000 + 3000 iterations with the
     3DGS schedules scaled to them (densification 300-2400, warm-up 500), and a validation split
-    for every choice. No opacity reset, a
-    gated surface refinement, no depth term, the haze-line smoke colour where trusted, a
-    half-equalised thermal curve and the mask floor where the images say the smoke may be dense: each chosen on the
-    validation views, with its measurements in docs/method.md, "Profiles"."""
+    for every choice. No opacity reset, a gated surface refinement, no depth term, a
+    half-equalised thermal curve, the haze-line smoke colour where it is dark and the lines meet,
+    Stage 3's surface chosen by that colour, and the mask floor where the images say the smoke may
+    be dense: each chosen on the validation views, with its measurements in docs/method.md,
+    "Profiles"."""
     s2 = Stage2Config(
         iterations=3000,
         init_points=5000,
@@ -462,12 +424,15 @@ def _standard() -> TrainConfig:
         surface_densify=DensifyConfig(start=0.1, stop=0.8, every=100, opacity_reset_every=0.0,
                                       max_gaussians=80_000),
         smoke_color="haze-lines",
+        smoke_color_min_meeting=0.2,
+        smoke_color_max_brightness=0.5,
+        surface_init="by-smoke-colour",
         test_every=250,
     )
     deform = DeformConfig(depth=6, width=128, skip_layer=3, predict_rotation_scale=True)
     return TrainConfig(profile="standard", max_width=0, thermal_scale="equalised", thermal_equalised_share=0.5,
                        sh_degree=2, sh_increase_every=800, stage2=s2, stage3=s3, deform=deform,
-                       loss=LossWeights(mask_floor_where="estimated"), checkpoint_every=500, depth_prior="none")
+                       loss=LossWeights(mask_floor_where="estimated-meeting"), checkpoint_every=500, depth_prior="none")
 
 
 def _paper() -> TrainConfig:

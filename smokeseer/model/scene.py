@@ -51,18 +51,6 @@ def make_view(viewmat: np.ndarray, K: np.ndarray, width: int, height: int, time:
                 torch.as_tensor(K, dtype=torch.float32, device=device)[None], width, height, time)
 
 
-def finer_view(view: View, factor: int) -> View:
-    """The same camera with ``factor``² pixels per pixel: pixel centres sit at +0.5, so scaling
-    the intrinsics makes each block of fine pixels tile exactly one pixel of ``view``."""
-    scale = torch.tensor([factor, factor, 1.0], dtype=view.K.dtype, device=view.K.device)
-    return View(view.viewmat, view.K * scale[None, :, None], view.width * factor, view.height * factor, view.time)
-
-
-def box_filter(image: Tensor, factor: int) -> Tensor:
-    """[1, H·f, W·f, C] → [1, H, W, C], the mean of each f × f block (a sensor pixel's area)."""
-    return torch.nn.functional.avg_pool2d(image.permute(0, 3, 1, 2), factor).permute(0, 2, 3, 1)
-
-
 def init_gaussians(points: np.ndarray, opacity: float, max_scale: float, device: torch.device) -> dict[str, Tensor]:
     """3DGS initialisation: identity rotation, kNN isotropic scale capped at ``max_scale``
     (sparse random clouds otherwise start with Gaussians covering whole images, which costs
@@ -116,16 +104,6 @@ class Placed:
     means: Tensor
     quats: Tensor
     log_scales: Tensor
-
-
-THERMAL_GATE = "thermal_gate"
-"""A surface tensor (one 0/1 value per Gaussian, never trained) that lets the thermal render loss
-move a Gaussian's geometry and opacity (1) or only its thermal value (0)."""
-
-
-def _gated(x: Tensor, gate: Tensor) -> Tensor:
-    """``x`` itself, whose gradient reaches it only where ``gate`` is 1."""
-    return gate * x + (1.0 - gate) * x.detach()
 
 
 def place_static(g: GaussianSet) -> Placed:
@@ -231,9 +209,6 @@ class SceneModel:
     surface_deform: DeformNetwork | None = None
     background_rgb: EnvironmentBackground | None = None
     background_thermal: EnvironmentBackground | None = None
-    smoke_min_log_scale: float | None = None
-    """No placed smoke Gaussian is finer than this (``stage3.smoke_min_scale_px``), whatever the
-    deformation network's scale offsets; None: no bound."""
 
     def surface_at(self, t: float) -> Placed:
         """Surface Gaussians are static, except in the deformable-3dgs baseline."""
@@ -246,8 +221,6 @@ class SceneModel:
         if self.smoke is None:
             raise ValueError("smoke_at: this model has no smoke Gaussians")
         placed = place_deformed(self.smoke, self.deform, t, self.center, deform_active and not self.smoke_static)
-        if self.smoke_min_log_scale is not None:
-            placed = replace(placed, log_scales=placed.log_scales.clamp_min(self.smoke_min_log_scale))
         tw = smoke_time_opacity(self.smoke, t, self.smoke_static)
         return (placed, torch.sigmoid(self.smoke["opacity_rgb"]) * tw,
                 torch.sigmoid(self.smoke["opacity_thermal"]) * tw)
@@ -285,10 +258,6 @@ class SceneModel:
         parts = []
         if surface:
             placed, logits = self.surface_at(view.time), self.surface["opacity"]
-            if THERMAL_GATE in self.surface:
-                gate = self.surface[THERMAL_GATE].detach()
-                placed = Placed(*(_gated(x, gate) for x in (placed.means, placed.quats, placed.log_scales)))
-                logits = _gated(logits, gate.reshape(logits.shape))
             parts.append((placed, torch.sigmoid(logits), torch.sigmoid(self.surface["thermal"])))
         use_smoke = smoke and self.smoke is not None
         if use_smoke:

@@ -38,6 +38,11 @@ class HazeLineSettings:
     max_brightness: float = Stage3Config.smoke_color_max_brightness
     """The brightest channel mean that is held (why: ``Stage3Config``)."""
 
+    @classmethod
+    def of(cls, stage3: Stage3Config) -> "HazeLineSettings":
+        """The settings a run's Stage 3 uses (its meeting fraction and brightness bound)."""
+        return cls(min_meeting_fraction=stage3.smoke_color_min_meeting, max_brightness=stage3.smoke_color_max_brightness)
+
 
 @dataclass
 class SmokeColourEstimate:

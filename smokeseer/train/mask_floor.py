@@ -12,29 +12,27 @@ can set the smoke over it. So with ``never-clear`` the floor acts only on masked
 surface point (the geometry Stage 3 starts from, rendered as depth at the RGB training cameras)
 no other training frame sees outside its mask; pixels the geometry does not cover keep the floor.
 
-``estimated`` goes one step further and reads how dense the smoke is off the images themselves,
-with the image formation I = A + T (J - A) (smoke colour A, surface colour J, transmittance T):
-the frames that see one surface point give colours on a line through A.
+``estimated-meeting`` goes one step further and reads how dense the smoke is off the images
+themselves, with the image formation I = A + T (J - A) (smoke colour A, surface colour J,
+transmittance T): the frames that see one surface point give colours on a line through A. A is
+the point where the haze lines meet (``smokeseer.stage1.haze_lines``), also when it is too bright
+for Stage 3 to hold: a scattering smoke's colour varies with the view, but the meeting point
+still places its density.
 
 - A point seen smoke-free elsewhere has its surface colour J there (the mean of those views). With
-  A known (the haze-line estimate), the pixel's smoke alpha 1 - T is the projection of I - J on
-  A - J; without it, |I - J| over the longest step from J towards I inside the colour cube is a
-  lower bound. The floor acts where that reaches the floor: such a point's colour is pinned by
-  the clear view, so a floor missed costs little, and one forced on thin smoke costs much.
-- A point never seen clear has nothing to pin it. With A known its alpha lies between two
-  bounds: 1 - |I - A| / max_i |I_i - A| over the views that see it (as if its clearest view
-  were clear), and 1 - |I - A| over the longest step from A towards I inside the cube (as if
-  the surface were at the cube's edge). The floor acts where their midpoint reaches it. On the
-  standard datasets the upper bound alone kept the floor on 83 % of the excavator's masked
-  pixels (19 % are that dense) and the lower bound alone on 54 % of room's (97 %); the midpoint
-  keeps 55 % and 91 % (``benchmarks/mask_floor_agreement.py``). Without A the point keeps the
-  floor.
-
-``estimated-meeting`` reads A wherever the observation lines meet, also when the colour is too
-bright for Stage 3 to hold (a scattering smoke's colour varies with the view, but the meeting
-point still places its density), and where they do not meet, the smoke reads thin: a point never
-seen clear gets no floor. On house, whose lines do not meet, the truth is dense on 7 % of the
-masked pixels and ``estimated`` floors 45-59 % of them.
+  A, the pixel's smoke alpha 1 - T is the projection of I - J on A - J; without it,
+  |I - J| over the longest step from J towards I inside the colour cube is a lower bound. The
+  floor acts where that reaches the floor: such a point's colour is pinned by the clear view, so
+  a floor missed costs little, and one forced on thin smoke costs much.
+- A point never seen clear has nothing to pin it. With A its alpha lies between two bounds:
+  1 - |I - A| / max_i |I_i - A| over the views that see it (as if its clearest view were clear),
+  and 1 - |I - A| over the longest step from A towards I inside the cube (as if the surface were
+  at the cube's edge). The floor acts where their midpoint reaches it. On the standard datasets
+  the upper bound alone kept the floor on 83 % of the excavator's masked pixels (19 % are that
+  dense) and the lower bound alone on 54 % of room's (97 %); the midpoint keeps 55 % and 91 %
+  (``benchmarks/mask_floor_agreement.py``). Where the lines do not meet there is no A, the smoke
+  reads thin, and such a point gets no floor: on house, whose lines do not meet, the truth is
+  dense on 7 % of the masked pixels, and keeping the floor on every such point marked 45-59 %.
 
 It needs nothing a real capture lacks: Stage 1's masks, the smoky frames, Stage 2's geometry
 and the smoke colour Stage 3 holds.
@@ -92,11 +90,11 @@ def cube_reach(origin: np.ndarray, direction: np.ndarray) -> np.ndarray:
 
 def estimated_dense(masks: np.ndarray, images: np.ndarray, depths: np.ndarray, valid: np.ndarray,
                     viewmats: np.ndarray, Ks: np.ndarray, smoke_colour: np.ndarray | None, floor: float,
-                    tolerance: float = DEPTH_TOLERANCE, unpinned_floor: bool = True) -> np.ndarray:
+                    tolerance: float = DEPTH_TOLERANCE) -> np.ndarray:
     """(frames, H, W) bool: masked pixels whose smoke, read off the images, may reach ``floor``
     (the module docstring gives the rule). ``images`` (frames, H, W, 3) are the smoky training
-    frames in [0, 1]; ``unpinned_floor``: without a smoke colour a point never seen clear keeps the
-    floor (``estimated``) or not (``estimated-meeting``); the rest as for ``never_seen_clear``."""
+    frames in [0, 1]; ``smoke_colour`` where the haze lines meet, None where they do not; the rest
+    as for ``never_seen_clear``."""
     out = (masks > 0.5) & ~valid
     stacked = np.concatenate([images.astype(np.float64), masks[..., None].astype(np.float64)], axis=-1)
     a = None if smoke_colour is None else np.asarray(smoke_colour, dtype=np.float64)[None]
@@ -108,7 +106,7 @@ def estimated_dense(masks: np.ndarray, images: np.ndarray, depths: np.ndarray, v
         step = own - surface
         if a is None:
             alpha_clear = 1.0 / np.maximum(cube_reach(surface, step), 1e-12)
-            dense_unpinned = np.full(len(vs), unpinned_floor)
+            dense_unpinned = np.zeros(len(vs), dtype=bool)
         else:
             towards = a - surface
             span = (towards * towards).sum(axis=1)

@@ -79,7 +79,7 @@ class Stage3Plan:
     """"none" (no smoke Gaussians), "learned", or "haze-lines": held at ``colour``, the estimate
     made once Stage 2 has given the geometry (``settle_colour``)."""
     mask_floor: str
-    """Where the mask term's floor acts: "all", "never-clear", "estimated" or "estimated-meeting"
+    """Where the mask term's floor acts: "all", "never-clear" or "estimated-meeting"
     (``loss.mask_floor_where``)."""
     depth_prior: str | None
     """The prior the depth term compares with; None: the run has no depth term."""
@@ -92,7 +92,7 @@ class Stage3Plan:
     colour: np.ndarray | None = None
     """The fixed RGB smoke colour, or None when the smoke Gaussians learn their colours."""
     floor_pixels: np.ndarray | None = None
-    """(training RGB frames, H, W) bool: where the mask floor acts (never-clear or estimated, set
+    """(training RGB frames, H, W) bool: where the mask floor acts (never-clear or estimated-meeting, set
     once Stage 2 has given the geometry and the smoke colour is settled); None: everywhere."""
 
     def drop(self, term: str, why: str) -> None:
@@ -199,7 +199,7 @@ def _depth_file_notes(cfg: TrainConfig, scene: SceneData, plan: Stage3Plan) -> l
 
 
 def _mask_floor(cfg: TrainConfig, plan: Stage3Plan) -> str:
-    """The pixels the mask floor acts on: "all", "never-clear", "estimated" or "estimated-meeting"; "all" without
+    """The pixels the mask floor acts on: "all", "never-clear" or "estimated-meeting"; "all" without
     masks or smoke, where there is nothing to gate."""
     where = cfg.loss.mask_floor_where
     if where == "all" or not (plan.use_smoke and plan.use_masks):

@@ -14,13 +14,12 @@ from typing import Any, Callable
 import numpy as np
 import torch
 
-from scenes.cameras import camera_center
 from scenes.scene import ModalityData
 from smokeseer.config import TrainConfig, at_iteration
 from smokeseer.model.deform import DeformNetwork, motion_tensors
 from smokeseer.model.gaussians import DensifyStrategy, GaussianSet, make_optimizer
 from smokeseer.model.optim import Adam
-from smokeseer.model.scene import THERMAL_GATE, SceneModel, add_rgb_sh, box_filter, finer_view, make_smoke
+from smokeseer.model.scene import SceneModel, add_rgb_sh, make_smoke
 from smokeseer.raster.output import RasterOutput
 from smokeseer.train.depth_prior import DepthPriorMaps
 from smokeseer.train.loop import IterationOutput, StageProblem, StageSchedule, run_stage
@@ -71,10 +70,10 @@ def _backgrounds(model: SceneModel) -> dict[str, torch.nn.Module]:
 
 def _surface_lrs(cfg: TrainConfig, g: GaussianSet, extent: float) -> dict[str, float]:
     lr = cfg.lr
-    geo = cfg.stage3.surface_geometry_lr if cfg.stage3.train_surface_geometry else 0.0
+    geo = 1.0 if cfg.stage3.train_surface_geometry else 0.0
     table = {"means": lr.means_init * extent * geo, "quats": lr.quats * geo,
              "log_scales": lr.scales * geo, "opacity": lr.opacity * geo,
-             "thermal": lr.thermal, "sh_dc": lr.sh_dc, "sh_rest": lr.sh_rest, THERMAL_GATE: 0.0}
+             "thermal": lr.thermal, "sh_dc": lr.sh_dc, "sh_rest": lr.sh_rest}
     return {k: table[k] for k in g.params}
 
 
@@ -116,34 +115,18 @@ class Stage3Problem(StageProblem):
                            if self.masks is not None and plan.floor_pixels is not None else None)
         self.th_views: list = []
         self.th_imgs = None
-        self.th_factor = 1
         if plan.use_thermal and thermal is not None:
             th_idx = thermal.indices("train")
             self.th_views = views_of(thermal, th_idx, dev)
-            self.th_factor = cfg.stage3.thermal_supersample
-            if self.th_factor > 1:
-                self.th_views = [finer_view(v, self.th_factor) for v in self.th_views]
             self.th_imgs = torch.as_tensor(thermal.images[th_idx], device=dev)
-        if model.smoke is not None and cfg.stage3.smoke_min_scale_px > 0:
-            model.smoke_min_log_scale = smoke_min_log_scale(*rgb.cameras("train"), ctx.center.cpu().numpy(),
-                                                            cfg.stage3.smoke_min_scale_px)
-            ctx.log_line(f"stage 3: smoke Gaussians kept at least {cfg.stage3.smoke_min_scale_px:g} RGB pixels wide "
-                         f"({np.exp(model.smoke_min_log_scale):.4g} scene units at the cameras' median distance)")
-        self._hold_smoke_scale()
         self.depth_on = prior is not None and self.weights["depth"] > 0
         self.depth_on_thermal = self.depth_on and prior.camera == "thermal"
         if self.depth_on_thermal and self.th_imgs is None:
             raise ValueError("stage 3: the depth prior is on the thermal camera but this run has no thermal images")
-        if self.depth_on_thermal and self.th_factor > 1:
-            raise ValueError("stage3.thermal_supersample: the depth term at the thermal camera compares at the "
-                             "sensor's pixels; use 1 with it")
 
     def _make_optimizers(self) -> None:
         cfg, model = self.cfg, self.model
         self.surface_optimizer = make_optimizer(model.surface, _surface_lrs(cfg, model.surface, self.ctx.extent))
-        for group in self.surface_optimizer.param_groups:
-            if group["name"] == "means":
-                group["lr_scale"] = cfg.stage3.surface_geometry_lr
         self.smoke_optimizer = (make_optimizer(model.smoke, _smoke_lrs(cfg, self.ctx.extent, self.colour_fixed))
                                 if model.smoke is not None else None)
         self.deform_optimizer = (Adam(model.deform.parameters(), lr=cfg.deform.lr_init)
@@ -165,8 +148,7 @@ class Stage3Problem(StageProblem):
             j = draw_index(self.ctx, len(self.th_views))
             tout = model.render_thermal(self.th_views[j], deform_active=deform_on,
                                         surface_depth=self.depth_on_thermal, depth=False)
-            thermal = tout.colors if self.th_factor == 1 else box_filter(tout.colors, self.th_factor)
-            terms["render_thermal"] = render_loss(thermal[0], self.th_imgs[j], cfg.loss.dssim)
+            terms["render_thermal"] = render_loss(tout.colors[0], self.th_imgs[j], cfg.loss.dssim)
             if self.depth_on_thermal:
                 depth_source = (tout, j)
         if model.smoke is not None:
@@ -240,15 +222,6 @@ class Stage3Problem(StageProblem):
             self.surface_strategy.step(it, model.surface, self.surface_optimizer, self.ctx.generator)
         if smoke:
             self.strategy.step(it, model.smoke, self.smoke_optimizer, self.ctx.generator)
-        self._hold_smoke_scale()
-
-    def _hold_smoke_scale(self) -> None:
-        """Raise every smoke scale below ``stage3.smoke_min_scale_px`` to it (after each step and
-        split, so no parameter sits where the bound at placement leaves it without a gradient)."""
-        floor = self.model.smoke_min_log_scale
-        if floor is not None and self.model.smoke is not None:
-            with torch.no_grad():
-                self.model.smoke["log_scales"].clamp_(min=floor)
 
     def _smoke_cover(self, raster: RasterOutput, k: int) -> torch.Tensor | None:
         """Where this RGB view has smoke: the smoke alpha of the same render pass, and the Stage 1
@@ -293,14 +266,6 @@ class Stage3Problem(StageProblem):
 
     def heldout_psnr(self, it: int) -> dict[str, float | None] | None:
         return None if self.heldout_fn is None else self.heldout_fn(self.model, it)
-
-
-def smoke_min_log_scale(viewmats: np.ndarray, Ks: np.ndarray, center: np.ndarray, pixels: float) -> float:
-    """The log of the world size of ``pixels`` pixels at the median distance from the cameras
-    (world-to-camera ``viewmats``, intrinsics ``Ks``) to ``center``, each camera's pixel being its
-    distance over its focal length."""
-    sizes = [np.linalg.norm(camera_center(v) - center) / K[0, 0] for v, K in zip(viewmats, Ks)]
-    return float(np.log(pixels * float(np.median(sizes))))
 
 
 def _rendered_smoke_alpha(raster: RasterOutput) -> torch.Tensor | None:

@@ -1,15 +1,13 @@
-"""Stage 3's surface from both Stage 2s: the thermal geometry plus the RGB Gaussians it does not
-contradict.
+"""Stage 3's surface from both Stage 2s where the smoke is thin (``stage3.surface_init=by-smoke-colour``).
 
 A Stage 2 on the smoky RGB frames (RGB-only's) holds the surface at the RGB's resolution where
 the smoke is thin, and bakes the smoke into floaters where it is not. The thermal Stage 2 sees
 through the smoke but is as coarse as its 80×60 frames. An RGB Gaussian whose centre lies well
 in front of the thermal surface in most training views that see it is smoke taken for surface,
-and is carved away; the rest join the thermal Gaussians, each set taking the other's colour from
-its nearest neighbour in the other set. With ``rgb+thermal-fill`` only the thermal Gaussians that
-fall in the carved RGB surface's holes join: where the RGB sees the surface, the coarse thermal
-Gaussians (their RGB colour borrowed from a neighbour) would otherwise blur it, and Stage 3 would
-start far below RGB-only's.
+and is carved away. Only the thermal Gaussians that fall in the carved RGB surface's holes join
+it: where the RGB sees the surface, the coarse thermal Gaussians (their RGB colour borrowed from
+a neighbour) would blur it, and Stage 3 would start far below RGB-only's. Each set takes the
+other's colour from its nearest neighbour in the other set.
 """
 from __future__ import annotations
 
@@ -25,22 +23,21 @@ from torch import Tensor
 from scenes.scene import ModalityData
 from scenes.cameras import pixels_of
 from smokeseer.model.gaussians import GaussianSet
-from smokeseer.model.scene import THERMAL_GATE, add_rgb_sh
+from smokeseer.model.scene import add_rgb_sh
 from smokeseer.stage1.haze_lines import SmokeColourEstimate
 from smokeseer.train.depth_prior import DepthPriorMaps, rendered_depth_prior
 from smokeseer.train.stage2 import Stage2Result, train_stage2, views_of
 from smokeseer.train.util import RunContext
 
 
-FILLS = ("rgb+thermal-fill", "by-smoke-colour")
-"""The ``stage3.surface_init`` values whose two-surface start keeps only the thermal Gaussians in the holes."""
+FILL_OPAQUE_SHARE = 0.5
+"""A thermal Gaussian is left out when the carved RGB surface is opaque (alpha > 0.5) where its
+centre lands in more than this share of the RGB training views that see it."""
 
 
-def surface_start(surface_init: str, colour: SmokeColourEstimate | None) -> tuple[bool, str | None]:
-    """Whether Stage 3 starts from two surfaces, and with ``by-smoke-colour`` the note saying why:
-    a held haze-line colour (``colour``) means dense absorbing smoke, and the thermal Stage 2 alone."""
-    if surface_init != "by-smoke-colour":
-        return surface_init != "thermal", None
+def surface_start(colour: SmokeColourEstimate | None) -> tuple[bool, str]:
+    """Whether Stage 3 starts from two surfaces, and the note saying why: a held haze-line colour
+    (``colour``) means dense absorbing smoke, and the thermal Stage 2 alone."""
     if colour is not None and colour.colour is not None:
         return False, ("surface from the thermal Stage 2 alone (stage3.surface_init=by-smoke-colour): the haze "
                        "lines hold a dark smoke colour, so the smoke is dense and the RGB Stage 2 takes it for surface")
@@ -103,14 +100,13 @@ def _nearest(source: Tensor, target: Tensor) -> Tensor:
     return torch.as_tensor(idx, dtype=torch.long, device=target.device)
 
 
-def union_surface(thermal: GaussianSet, rgb: GaussianSet, keep: Tensor, sh_degree: int,
-                  thermal_keep: Tensor | None = None, gate: bool = False) -> GaussianSet:
-    """The thermal Gaussians (all, or ``thermal_keep``; RGB colour from the nearest kept RGB
-    Gaussian) and the kept RGB Gaussians (thermal value from the nearest of all thermal
-    Gaussians), one shared opacity each. With ``gate`` the set carries ``THERMAL_GATE``: 1 on
-    the thermal rows, 0 on the RGB ones."""
+def union_surface(thermal: GaussianSet, rgb: GaussianSet, keep: Tensor, thermal_keep: Tensor,
+                  sh_degree: int) -> GaussianSet:
+    """The thermal Gaussians ``thermal_keep`` (RGB colour from the nearest kept RGB Gaussian) and the
+    kept RGB Gaussians ``keep`` (thermal value from the nearest of all thermal Gaussians), one
+    shared opacity each."""
     full = {k: v.detach() for k, v in thermal.state_dict().items()}
-    th = {k: (v if thermal_keep is None else v[thermal_keep]).clone() for k, v in full.items()}
+    th = {k: v[thermal_keep].clone() for k, v in full.items()}
     kept = {k: v.detach()[keep].clone() for k, v in rgb.state_dict().items()}
     if len(kept["means"]) == 0:
         add_rgb_sh(th, sh_degree)
@@ -119,9 +115,6 @@ def union_surface(thermal: GaussianSet, rgb: GaussianSet, keep: Tensor, sh_degre
     th["sh_dc"] = kept["sh_dc"][near_rgb].clone()
     th["sh_rest"] = torch.zeros_like(kept["sh_rest"][near_rgb])
     kept["thermal"] = full["thermal"][_nearest(full["means"], kept["means"])].clone()
-    if gate:
-        th[THERMAL_GATE] = torch.ones_like(th["thermal"])
-        kept[THERMAL_GATE] = torch.zeros_like(kept["thermal"])
     return GaussianSet({k: torch.cat([th[k], kept[k]]) for k in th})
 
 
@@ -135,9 +128,8 @@ class TwoSurfaces:
 
     def describe(self) -> str:
         r = self.record
-        fill = "" if r["thermal_kept"] == r["thermal"] else \
-            f" (the {r['thermal_kept']} of {r['thermal']} thermal Gaussians in the RGB surface's holes)"
-        return (f"surface from both Stage 2s: {r['thermal_kept']} thermal{fill} + {r['rgb_kept']} of {r['rgb']} "
+        return (f"surface from both Stage 2s: the {r['thermal_kept']} of {r['thermal']} thermal Gaussians in the RGB "
+                f"surface's holes + {r['rgb_kept']} of {r['rgb']} "
                 f"RGB Gaussians ({r['rgb'] - r['rgb_kept']} in front of the thermal surface carved, tolerance "
                 f"{r['tolerance']:g}; {r['rgb_unchecked']} no view could check kept)")
 
@@ -145,8 +137,8 @@ class TwoSurfaces:
 def join_surfaces(ctx: RunContext, rgb: ModalityData, init_points: np.ndarray, thermal: Stage2Result,
                   thermal_depth: DepthPriorMaps) -> TwoSurfaces:
     """Train RGB-only's Stage 2 (checkpoint ``stage2_rgb``, keyed as RGB-only's Stage 2 is), carve it
-    with the thermal surface's depth at the RGB training cameras (``thermal_depth``), join the sets
-    (with ``rgb+thermal-fill``, only the thermal Gaussians in the carved surface's holes)."""
+    with the thermal surface's depth at the RGB training cameras (``thermal_depth``), and join it
+    with the thermal Gaussians in the carved surface's holes."""
     cfg = ctx.cfg
     rgb_s2 = train_stage2(ctx, rgb, init_points, deformable=False, checkpoint="stage2_rgb",
                           sha=replace(cfg, mode="rgb-only").stage2_sha256())
@@ -155,18 +147,13 @@ def join_surfaces(ctx: RunContext, rgb: ModalityData, init_points: np.ndarray, t
                            cfg.stage3.carve_tolerance)
     dev = rgb_s2.gaussians["means"].device
     keep = torch.as_tensor(carve.keep, device=dev)
-    thermal_keep = None
-    if cfg.stage3.surface_init in FILLS:
-        carved = GaussianSet({k: v.detach()[keep] for k, v in rgb_s2.gaussians.state_dict().items()})
-        opaque = rendered_depth_prior(carved, views_of(rgb, rgb.indices("train"), dev), "rgb").valid.cpu().numpy()
-        holes = in_holes(thermal.gaussians["means"].detach().cpu().numpy().astype(np.float64), opaque,
-                         *rgb.cameras("train"), cfg.stage3.fill_opaque_share)
-        thermal_keep = torch.as_tensor(holes, device=dev)
-    surface = union_surface(thermal.gaussians, rgb_s2.gaussians, keep, cfg.sh_degree, thermal_keep,
-                            gate=cfg.stage3.thermal_moves == "thermal-stage2")
+    carved = GaussianSet({k: v.detach()[keep] for k, v in rgb_s2.gaussians.state_dict().items()})
+    opaque = rendered_depth_prior(carved, views_of(rgb, rgb.indices("train"), dev), "rgb").valid.cpu().numpy()
+    holes = in_holes(thermal.gaussians["means"].detach().cpu().numpy().astype(np.float64), opaque,
+                     *rgb.cameras("train"), FILL_OPAQUE_SHARE)
+    thermal_keep = torch.as_tensor(holes, device=dev)
+    surface = union_surface(thermal.gaussians, rgb_s2.gaussians, keep, thermal_keep, cfg.sh_degree)
     record = {"thermal": thermal.gaussians.n, "rgb": rgb_s2.gaussians.n, "rgb_kept": int(carve.keep.sum()),
               "rgb_unchecked": int((carve.seen == 0).sum()), "tolerance": cfg.stage3.carve_tolerance,
-              "thermal_kept": thermal.gaussians.n if thermal_keep is None else int(thermal_keep.sum()),
-              "fill_opaque_share": cfg.stage3.fill_opaque_share if thermal_keep is not None else None,
-              "thermal_moves": cfg.stage3.thermal_moves}
+              "thermal_kept": int(holes.sum()), "fill_opaque_share": FILL_OPAQUE_SHARE}
     return TwoSurfaces(surface, rgb_s2, record)

@@ -41,8 +41,7 @@ def step_optimizers(it: int, total: int, cfg: TrainConfig, extent: float,
                     other_optimizers: Sequence[Adam | None],
                     deform_optimizer: Adam | None, deform_warmup: int) -> None:
     """One optimiser step of a stage of ``total`` iterations: the Gaussian sets' ``means`` learning
-    rate decays over the stage as in 3DGS (a group frozen at lr 0 stays frozen; a group's
-    ``lr_scale`` scales it), and so does the
+    rate decays over the stage as in 3DGS (a group frozen at lr 0 stays frozen), and so does the
     Fourier position offsets' (``deform.fourier_lr_scale`` of it), every optimiser
     steps and clears its gradients, and the deformation network follows its own decay over the
     stage and only steps after its warm-up (an iteration of the stage)."""
@@ -51,7 +50,7 @@ def step_optimizers(it: int, total: int, cfg: TrainConfig, extent: float,
     for opt in gaussian_optimizers:
         for group in opt.param_groups if opt is not None else ():
             if group["name"] in scale and group["lr"] > 0:
-                group["lr"] = decayed * scale[group["name"]] * group.get("lr_scale", 1.0)
+                group["lr"] = decayed * scale[group["name"]]
     for opt in (*gaussian_optimizers, *other_optimizers):
         if opt is not None:
             opt.step()
