@@ -23,8 +23,9 @@ out=data/tables_standard
 mkdir -p "$claims"
 source benchmarks/standard_scenes.sh
 mapfile -t scenes < <(standard_scenes "$root")
-mapfile -t ablations < <(.venv/bin/python -c \
-    "from eval.harness import default_ablations; print(*default_ablations('standard', {}), sep='\n')")
+ablations=$(.venv/bin/python -c \
+    "from eval.settings import default_ablations; print(*default_ablations('standard', {}), sep='\n')")
+mapfile -t ablations <<< "$ablations"
 steps=()
 add_steps() {  # add_steps METHODS SEED [ABLATION]: one step per scene
     local s
