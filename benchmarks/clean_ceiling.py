@@ -1,17 +1,20 @@
 """Usage: python benchmarks/clean_ceiling.py --out runs/clean_ceiling DATASET [DATASET ...]
-          [--profile standard] [--seed 0] [--threads 1] [--csv FILE]
+          [--modes full,rgb-only] [--profile standard] [--seed 0] [--threads 1] [--csv FILE]
 
-The smoke-free ceiling of a scene: the RGB-only trainer, at the same profile and budget as the
-tables, fed the clean renders instead of the smoky ones. No de-smoking method can be expected
-to beat this number on the scene's test views, so where it is under the smoky input's PSNR
-(thin smoke), "Full above the input" is out of reach at that budget whatever the method does.
+The smoke-free ceiling of a scene: each method (Full and RGB-only), at the same profile and
+budget as the tables, fed the clean renders instead of the smoky ones, RGB and thermal. No
+de-smoking method can be expected to beat this number on the scene's test views, so where it is
+under the smoky input's PSNR (thin smoke), "Full above the input" is out of reach at that budget
+whatever the method does. With no smoke, thermal must cost nothing: Full's ceiling should match
+RGB-only's.
 
 Each scene gets a derived dataset (eval/clean_ceiling.py: links into the original, the clean
-frames in place of the smoky ones, no smoke passes) and a `train-and-evaluate --mode rgb-only`
-run beside it; both resume. One CSV row per scene: ceiling test/validation PSNR against the
-smoky input's, and the test views split by the original dataset's smoke mask
-(eval/regions.py), so the smoky pixels' ceiling can be set beside what the table methods
-reach there (per_scene_regions.md).
+frames in place of the smoky ones, no smoke passes) and a `train-and-evaluate --mode MODE` run
+beside it; both resume. One CSV row per scene and method: ceiling test/validation PSNR against
+the smoky input's; the same method's Table 1 run on the smoky scene (same seed and trainer
+digest, where the tables have it) and the share of the input-to-ceiling gap it closes; and the
+test views split by the original dataset's smoke mask (eval/regions.py), so the smoky pixels'
+ceiling can be set beside what the table methods reach there (per_scene_regions.md).
 """
 from __future__ import annotations
 
@@ -23,15 +26,15 @@ from pathlib import Path
 from contracts.atomic import write_rows_csv
 from contracts.errors import DatasetError
 from contracts.results_format import read_metrics
-from eval.clean_ceiling import derive_clean_dataset, smoky_input_psnr
+from eval.clean_ceiling import derive_clean_dataset, headroom_recovered, smoky_input_psnr, table_test_psnr
 from eval.regions import score_run
 from eval.runs import RunResult
 
 
-def train(dataset: Path, run_dir: Path, profile: str, seed: int, threads: int) -> dict:
-    """The RGB-only run on the derived dataset (resumed from its checkpoints if interrupted)."""
+def train(dataset: Path, run_dir: Path, mode: str, profile: str, seed: int, threads: int) -> dict:
+    """The ``mode`` run on the derived dataset (resumed from its checkpoints if interrupted)."""
     if not (run_dir / "metrics.json").is_file():
-        cmd = [str(Path(sys.executable).with_name("train-and-evaluate")), str(dataset), "--mode", "rgb-only",
+        cmd = [str(Path(sys.executable).with_name("train-and-evaluate")), str(dataset), "--mode", mode,
                "--profile", profile, "--seed", str(seed), "--threads", str(threads), "--out", str(run_dir),
                "--no-progress"]
         print("running:", " ".join(cmd), flush=True)
@@ -43,6 +46,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("datasets", nargs="+", type=Path)
     ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--modes", default="full,rgb-only", help="comma-separated methods to train on the clean frames")
     ap.add_argument("--profile", default="standard")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=1)
@@ -50,31 +54,44 @@ def main() -> None:
                     help="table runs to read the smoky input's PSNR from")
     ap.add_argument("--csv", type=Path, help="default OUT/clean_ceiling.csv")
     args = ap.parse_args()
+    modes = [m for m in args.modes.split(",") if m]
+    bad = [m for m in modes if m not in ("full", "rgb-only")]
+    if not modes or bad:
+        sys.exit(f"clean_ceiling: --modes: {','.join(bad) or 'nothing'} is not full or rgb-only")
     rows = []
     for src in args.datasets:
         try:
             derived = derive_clean_dataset(src, args.out / src.name / "dataset")
         except (DatasetError, ValueError) as exc:
             sys.exit(f"clean_ceiling: {exc}")
-        run_dir = args.out / src.name / "run"
-        m = train(derived, run_dir, args.profile, args.seed, args.threads)
-        val = m.get("validation") or {}
         input_test, input_val = smoky_input_psnr(src.name, args.profile, args.tables)
-        regions = {r.region: r for r in score_run(
-            RunResult(src.name, "clean-ceiling", args.seed, "ok", str(run_dir), ""), src)}
-        rows.append({
-            "scene": src.name, "profile": args.profile, "seed": args.seed,
-            "ceiling_test_psnr": round(m["metrics"]["psnr"], 3),
-            "ceiling_test_ssim": round(m["metrics"]["ssim"], 4),
-            "ceiling_val_psnr": None if val.get("psnr") is None else round(val["psnr"], 3),
-            "input_test_psnr": None if input_test is None else round(input_test, 3),
-            "input_val_psnr": None if input_val is None else round(input_val, 3),
-            "smoky_pixel_share": round(regions["smoky"].pixel_share, 3),
-            "ceiling_smoky_psnr": round(regions["smoky"].psnr, 2), "input_smoky_psnr": round(regions["smoky"].psnr_input, 2),
-            "ceiling_clear_psnr": round(regions["clear"].psnr, 2), "input_clear_psnr": round(regions["clear"].psnr_input, 2),
-            "wall_s": round(m["wall_time_s"]["total"], 1), "threads": m["provenance"]["threads"],
-            "commit": m["provenance"]["commit"], "source_digest": m["provenance"]["source_digest"][:8]})
-        print({k: rows[-1][k] for k in ("scene", "ceiling_test_psnr", "ceiling_val_psnr", "wall_s")}, flush=True)
+        for mode in modes:
+            run_dir = args.out / src.name / mode
+            m = train(derived, run_dir, mode, args.profile, args.seed, args.threads)
+            val = m.get("validation") or {}
+            digest = m["provenance"]["source_digest"][:8]
+            method = table_test_psnr(src.name, mode, args.seed, args.profile, digest, args.tables)
+            share = headroom_recovered(method, input_test, m["metrics"]["psnr"])
+            regions = {r.region: r for r in score_run(
+                RunResult(src.name, f"clean-ceiling-{mode}", args.seed, "ok", str(run_dir), ""), src)}
+            rows.append({
+                "scene": src.name, "mode": mode, "profile": args.profile, "seed": args.seed,
+                "ceiling_test_psnr": round(m["metrics"]["psnr"], 3),
+                "ceiling_test_ssim": round(m["metrics"]["ssim"], 4),
+                "ceiling_val_psnr": None if val.get("psnr") is None else round(val["psnr"], 3),
+                "input_test_psnr": None if input_test is None else round(input_test, 3),
+                "input_val_psnr": None if input_val is None else round(input_val, 3),
+                "method_test_psnr": None if method is None else round(method, 3),
+                "headroom_recovered": None if share is None else round(share, 3),
+                "smoky_pixel_share": round(regions["smoky"].pixel_share, 3),
+                "ceiling_smoky_psnr": round(regions["smoky"].psnr, 2),
+                "input_smoky_psnr": round(regions["smoky"].psnr_input, 2),
+                "ceiling_clear_psnr": round(regions["clear"].psnr, 2),
+                "input_clear_psnr": round(regions["clear"].psnr_input, 2),
+                "wall_s": round(m["wall_time_s"]["total"], 1), "threads": m["provenance"]["threads"],
+                "commit": m["provenance"]["commit"], "source_digest": digest})
+            print({k: rows[-1][k] for k in ("scene", "mode", "ceiling_test_psnr", "headroom_recovered", "wall_s")},
+                  flush=True)
     write_rows_csv(args.csv or args.out / "clean_ceiling.csv", rows)
 
 

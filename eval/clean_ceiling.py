@@ -5,9 +5,10 @@ at all. Where that bound is far above the smoky input (thin smoke), a method und
 loses in its handling of the smoke, not in the budget; where the bound is near the input,
 "beat the input" is out of reach at that budget whatever the method does.
 
-The derived dataset is the original with its RGB smoky frames replaced by the clean ones
-(links, no copies), the RGB smoke passes dropped and ``smoke.present`` false, so the trainer
-fits no smoke Gaussians; its dataset.json says all this under ``derived_from``.
+The derived dataset is the original with its smoky frames replaced by the clean ones, RGB and
+thermal (links, no copies), the smoke passes dropped and ``smoke.present`` false, so the trainer
+fits no smoke Gaussians; its dataset.json says all this under ``derived_from``. Both Full and
+RGB-only train on it: thermal must cost nothing where there is no smoke to see through.
 """
 from __future__ import annotations
 
@@ -19,39 +20,45 @@ from contracts.atomic import write_json
 from contracts.dataset_format import PASS_FILES, validate_dataset
 from contracts.results_format import read_metrics
 
-SMOKY_RGB = PASS_FILES[("rgb", "smoky")][0].folder
-CLEAN_RGB = PASS_FILES[("rgb", "clean")][0].folder
-DROPPED = PASS_FILES[("rgb", "smoke_alpha")]
+SWAPPED = {modality: dict(zip((pf.folder for pf in PASS_FILES[(modality, "smoky")]),
+                              (pf.folder for pf in PASS_FILES[(modality, "clean")])))
+           for modality in ("rgb", "thermal")}
+"""Per modality, each smoky pass folder and the clean one linked in its place."""
+DROPPED = {pf.folder for modality in ("rgb", "thermal") for pf in PASS_FILES[(modality, "smoke_alpha")]}
 
 
 def derive_clean_dataset(src: Path, dst: Path) -> Path:
-    """Write ``dst`` as ``src`` with its clean RGB frames in place of the smoky ones (kept if
-    ``dst`` is already a finished derived dataset). Written in a staging folder and renamed,
-    so an interrupted call leaves no half dataset."""
+    """Write ``dst`` as ``src`` with its clean frames in place of the smoky ones, RGB and thermal
+    (kept if ``dst`` is already a finished derived dataset). Written in a staging folder and
+    renamed, so an interrupted call leaves no half dataset."""
     if (dst / "dataset.json").is_file():
         return dst
     meta = validate_dataset(src, check_images=False)
-    if "clean" not in meta["passes"].get("rgb", []):
-        raise ValueError(f"{src / 'dataset.json'}: field 'passes.rgb' has no 'clean' pass to train on")
+    modalities = [m for m in SWAPPED if m in meta["passes"]]
+    for modality in modalities:
+        if "clean" not in meta["passes"][modality]:
+            raise ValueError(f"{src / 'dataset.json'}: field 'passes.{modality}' has no 'clean' pass to train on")
     src = src.resolve()
-    skip = {SMOKY_RGB, *(pf.folder for pf in DROPPED)}
+    swapped = {smoky: clean for m in modalities for smoky, clean in SWAPPED[m].items()}
     staging = dst.with_name(f".{dst.name}.staging")
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(parents=True)
     for entry in src.iterdir():
-        if entry.name not in ("dataset.json", "rgb"):
+        if entry.name != "dataset.json" and entry.name not in modalities:
             os.symlink(entry, staging / entry.name)
-    (staging / "rgb").mkdir()
-    for entry in (src / "rgb").iterdir():
-        if f"rgb/{entry.name}" not in skip:
-            os.symlink(entry, staging / "rgb" / entry.name)
-    os.symlink(src / CLEAN_RGB, staging / SMOKY_RGB)
-    meta["passes"]["rgb"] = [p for p in meta["passes"]["rgb"] if p != "smoke_alpha"]
+    for modality in modalities:
+        (staging / modality).mkdir()
+        for entry in (src / modality).iterdir():
+            folder = f"{modality}/{entry.name}"
+            if folder not in DROPPED:
+                os.symlink(src / swapped.get(folder, folder), staging / folder)
+        meta["passes"][modality] = [p for p in meta["passes"][modality] if p != "smoke_alpha"]
     meta.setdefault("smoke", {})["present"] = False
     meta["derived_from"] = {
         "dataset": str(src), "spec_sha256": meta.get("spec_sha256"),
-        "change": f"{SMOKY_RGB} links to {CLEAN_RGB}; the RGB smoke_alpha pass is dropped and smoke.present "
-                  "is false: the smoke-free ceiling of eval/clean_ceiling.py"}
+        "change": "; ".join(f"{smoky} links to {clean}" for smoky, clean in swapped.items())
+                  + "; the smoke_alpha passes are dropped and smoke.present is false: the smoke-free ceiling "
+                    "of eval/clean_ceiling.py"}
     write_json(staging / "dataset.json", meta)
     validate_dataset(staging)
     os.replace(staging, dst)
@@ -67,3 +74,22 @@ def smoky_input_psnr(scene: str, profile: str, table_runs: Path) -> tuple[float 
         if doc["profile"] == profile and doc["status"] == "ok":
             return doc["metrics"]["psnr_input"], (doc.get("validation") or {}).get("psnr_input")
     return None, None
+
+
+def table_test_psnr(scene: str, variant: str, seed: int, profile: str, digest: str, table_runs: Path) -> float | None:
+    """Test PSNR of the finished table run of ``variant`` at this scene, seed, profile and trainer
+    digest (its first 8 hex digits); None where the tables have none yet."""
+    for path in sorted(table_runs.glob(f"{scene}/{variant}/seed{seed}-*/metrics.json")):
+        doc = read_metrics(path.parent)
+        if (doc["profile"] == profile and doc["status"] == "ok"
+                and doc["provenance"]["source_digest"].startswith(digest)):
+            return doc["metrics"]["psnr"]
+    return None
+
+
+def headroom_recovered(method: float | None, smoky_input: float | None, ceiling: float) -> float | None:
+    """The share of the input-to-ceiling gap a method's PSNR closes: 0 at the smoky input, 1 at
+    the clean ceiling; None where the gap is not positive (nothing to recover) or a value is missing."""
+    if method is None or smoky_input is None or ceiling - smoky_input <= 0:
+        return None
+    return (method - smoky_input) / (ceiling - smoky_input)

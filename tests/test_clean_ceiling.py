@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from contracts.results_format import ResultsFormatError
-from eval.clean_ceiling import derive_clean_dataset, smoky_input_psnr
+from contracts.results_format import PROVENANCE_KEYS, ResultsFormatError
+from eval.clean_ceiling import derive_clean_dataset, headroom_recovered, smoky_input_psnr, table_test_psnr
 from scenes.load import load_scene
 from tests.results_builder import write_metrics
 
@@ -22,9 +22,14 @@ def test_derived_dataset_trains_on_the_clean_frames(demo_dataset: Path, tmp_path
     np.testing.assert_array_equal(derived.rgb.images, original.rgb.clean)
     np.testing.assert_array_equal(derived.rgb.clean, original.rgb.clean)
     assert derived.rgb.masks is None and not derived.smoke_present
-    np.testing.assert_array_equal(derived.thermal.images, original.thermal.images)
+    # Thermal is read through the scene's own thermal scale, so compare the files it reads.
+    for smoky, clean in (("smoky", "clean"), ("smoky_radiance", "clean_radiance")):
+        assert (tmp_path / "ceiling" / "thermal" / smoky).resolve() == (demo_dataset / "thermal" / clean).resolve()
+    assert not np.array_equal(derived.thermal.images, original.thermal.images)  # smoke is seen in thermal too
+    assert derived.thermal.masks is None and not (tmp_path / "ceiling" / "thermal" / "smoke_alpha").exists()
     note = json.loads((tmp_path / "ceiling" / "dataset.json").read_text())["derived_from"]
-    assert note["dataset"] == str(demo_dataset.resolve()) and "clean" in note["change"]
+    assert note["dataset"] == str(demo_dataset.resolve())
+    assert "rgb/smoky links to rgb/clean" in note["change"] and "thermal/smoky links to thermal/clean" in note["change"]
     assert not list(tmp_path.glob(".*staging"))
 
 
@@ -54,3 +59,16 @@ def test_smoky_input_psnr_reads_a_finished_run_of_the_profile(tmp_path: Path) ->
     (tmp_path / "house" / "full" / "seed0-abc" / "metrics.json").write_text(json.dumps({"profile": "standard"}))
     with pytest.raises(ResultsFormatError, match=r"full/seed0-abc/metrics\.json: missing field 'format'"):
         smoky_input_psnr("house", "standard", tmp_path)
+
+
+def test_table_psnr_is_the_runs_own_digest_and_the_headroom_its_share_of_the_gap(tmp_path: Path) -> None:
+    for digest, psnr in (("aaaa1111", 21.0), ("bbbb2222", 23.0)):
+        write_metrics(tmp_path / "house" / "full" / f"seed0-{digest}", scene="house", method="full",
+                      profile="standard", seed=0, metrics={"psnr": psnr},
+                      provenance={**dict.fromkeys(PROVENANCE_KEYS), "source_digest": digest * 8})
+    assert table_test_psnr("house", "full", 0, "standard", "bbbb2222", tmp_path) == 23.0
+    assert table_test_psnr("house", "full", 1, "standard", "bbbb2222", tmp_path) is None
+    assert table_test_psnr("house", "rgb-only", 0, "standard", "bbbb2222", tmp_path) is None
+    assert headroom_recovered(23.0, 20.0, 32.0) == pytest.approx(0.25)
+    assert headroom_recovered(19.0, 20.0, 32.0) == pytest.approx(-1 / 12)  # under the input: negative
+    assert headroom_recovered(23.0, 32.0, 31.0) is None and headroom_recovered(None, 20.0, 32.0) is None
