@@ -217,9 +217,10 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
         ctx.log_line("stage 3: skipped (deformable-3dgs baseline has one deformable set)")
     else:
         smoke_pts = _sample(scene.rgb, cfg.stage3.smoke_points, b, rng) if plan.use_smoke else None
+        by_colour = cfg.stage3.surface_init == "by-smoke-colour" and plan.use_thermal
         rgb_views = views_of(scene.rgb, scene.rgb.indices("train"), dev)
         rgb_depth = (rendered_depth_prior(s2.gaussians, rgb_views, "rgb")
-                     if plan.smoke_colour == "haze-lines" or plan.mask_floor != "all" else None)
+                     if plan.smoke_colour == "haze-lines" or plan.mask_floor != "all" or by_colour else None)
         if plan.smoke_colour == "haze-lines":
             smoke_colour = haze_line_smoke_colour(cfg, rgb_depth, scene.rgb)
             ctx.log_line(f"stage 3: smoke colour from haze lines: {smoke_colour.describe()}")
@@ -228,8 +229,8 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
                 plan.notes.append(note)
                 ctx.log_line(f"stage 3: {note}")
         two_surfaces = False
-        if cfg.stage3.surface_init == "by-smoke-colour" and plan.use_thermal:
-            two_surfaces, note = surface_start(smoke_colour)
+        if by_colour:
+            two_surfaces, note = surface_start(smoke_colour, plan.use_smoke)
             plan.notes.append(note)
             ctx.log_line(f"stage 3: {note}")
         if two_surfaces:

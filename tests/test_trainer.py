@@ -369,15 +369,19 @@ def test_mask_alpha_floor_reaches_the_mask_term(splat: Path, tmp_path: Path,
 
 @pytest.mark.parametrize("smoke", ["none", "opaque"])
 def test_no_smoke_and_opaque_smoke_train_without_nan(tmp_path: Path, smoke: str) -> None:
-    # The opaque scene is also flagged static: that must drop the deformation network.
+    # The opaque scene is also flagged static: that must drop the deformation network. Both train
+    # under the standard profile's rules (Stage 3's start chosen by the smoke colour, the floor
+    # read off the images); without smoke that start is the RGB surface with the thermal fill.
     ds = write_splat_dataset(tmp_path / smoke, smoke=smoke, n_rgb=8, n_thermal=6, static_flag=smoke == "opaque")
     run = tmp_path / f"run-{smoke}"
-    assert main([str(ds), "--out", str(run)] + TINY) == 0
+    assert main([str(ds), "--out", str(run)] + BY_SMOKE_COLOUR) == 0
     doc = validate_run_dir(run)
     assert doc["status"] == "ok"
     if smoke == "none":
         assert doc["stages"]["smoke_gaussians"] == 0 and doc["metrics"]["mask_iou"] is None
         assert doc["stages"]["deformation"] is False  # no smoke, so no smoke deformation network
+        assert doc["stages"]["surface_union"] is not None
+        assert any("the run has no smoke, so the RGB sees the surface" in n for n in doc["stages"]["notes"])
     else:
         assert doc["stages"]["smoke_gaussians"] > 0 and doc["stages"]["deformation"] is False
         assert torch.load(run / "checkpoints" / "stage3.pt", weights_only=False)["deform"] is None

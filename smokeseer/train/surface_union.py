@@ -35,9 +35,13 @@ FILL_OPAQUE_SHARE = 0.5
 centre lands in more than this share of the RGB training views that see it."""
 
 
-def surface_start(colour: SmokeColourEstimate | None) -> tuple[bool, str]:
+def surface_start(colour: SmokeColourEstimate | None, smoke: bool) -> tuple[bool, str]:
     """Whether Stage 3 starts from two surfaces, and the note saying why: a held haze-line colour
-    (``colour``) means dense absorbing smoke, and the thermal Stage 2 alone."""
+    (``colour``) means dense absorbing smoke, and the thermal Stage 2 alone; without smoke
+    Gaussians (``smoke`` false) the RGB sees the surface everywhere."""
+    if not smoke:
+        return True, ("surface from the RGB Stage 2 and the thermal Gaussians in its holes (stage3.surface_init="
+                      "by-smoke-colour): the run has no smoke, so the RGB sees the surface")
     if colour is not None and colour.colour is not None:
         return False, ("surface from the thermal Stage 2 alone (stage3.surface_init=by-smoke-colour): the haze "
                        "lines hold a dark smoke colour, so the smoke is dense and the RGB Stage 2 takes it for surface")
