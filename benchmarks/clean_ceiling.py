@@ -64,12 +64,12 @@ def main() -> None:
             derived = derive_clean_dataset(src, args.out / src.name / "dataset")
         except (DatasetError, ValueError) as exc:
             sys.exit(f"clean_ceiling: {exc}")
-        input_test, input_val = smoky_input_psnr(src.name, args.profile, args.tables)
         for mode in modes:
             run_dir = args.out / src.name / mode
             m = train(derived, run_dir, mode, args.profile, args.seed, args.threads)
             val = m.get("validation") or {}
             digest = m["provenance"]["source_digest"][:8]
+            input_test, input_val = smoky_input_psnr(src.name, args.profile, args.tables, digest)
             method = table_test_psnr(src.name, mode, args.seed, args.profile, digest, args.tables)
             share = headroom_recovered(method, input_test, m["metrics"]["psnr"])
             regions = {r.region: r for r in score_run(

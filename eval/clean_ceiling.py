@@ -65,13 +65,16 @@ def derive_clean_dataset(src: Path, dst: Path) -> Path:
     return dst
 
 
-def smoky_input_psnr(scene: str, profile: str, table_runs: Path) -> tuple[float | None, float | None]:
+def smoky_input_psnr(scene: str, profile: str, table_runs: Path, digest: str = "") -> tuple[float | None, float | None]:
     """The smoky input's (test, validation) PSNR from any finished table run of the scene at this
-    profile (the input does not depend on method or seed); (None, None) where there is none. A
-    metrics.json that breaks the results contract raises ResultsFormatError naming it."""
+    profile (the input does not depend on method or seed) and, given ``digest``, at that trainer
+    digest (runs of other trainers may have been scored against clean frames since re-rendered);
+    (None, None) where there is none. A metrics.json that breaks the results contract raises
+    ResultsFormatError naming it."""
     for path in sorted(table_runs.glob(f"{scene}/*/seed*/metrics.json")):
         doc = read_metrics(path.parent)
-        if doc["profile"] == profile and doc["status"] == "ok":
+        if (doc["profile"] == profile and doc["status"] == "ok"
+                and (doc["provenance"]["source_digest"] or "").startswith(digest)):
             return doc["metrics"]["psnr_input"], (doc.get("validation") or {}).get("psnr_input")
     return None, None
 
@@ -82,7 +85,7 @@ def table_test_psnr(scene: str, variant: str, seed: int, profile: str, digest: s
     for path in sorted(table_runs.glob(f"{scene}/{variant}/seed{seed}-*/metrics.json")):
         doc = read_metrics(path.parent)
         if (doc["profile"] == profile and doc["status"] == "ok"
-                and doc["provenance"]["source_digest"].startswith(digest)):
+                and (doc["provenance"]["source_digest"] or "").startswith(digest)):
             return doc["metrics"]["psnr"]
     return None
 

@@ -56,6 +56,7 @@ def test_smoky_input_psnr_reads_a_finished_run_of_the_profile(tmp_path: Path) ->
     assert smoky_input_psnr("house", "standard", tmp_path) == (None, None)
     run("rgb-only", "standard", "ok", 31.0)
     assert smoky_input_psnr("house", "standard", tmp_path) == (31.0, 30.0)
+    assert smoky_input_psnr("house", "standard", tmp_path, "cafe0123") == (None, None)  # no run of that trainer
     (tmp_path / "house" / "full" / "seed0-abc" / "metrics.json").write_text(json.dumps({"profile": "standard"}))
     with pytest.raises(ResultsFormatError, match=r"full/seed0-abc/metrics\.json: missing field 'format'"):
         smoky_input_psnr("house", "standard", tmp_path)
