@@ -7,8 +7,9 @@
 # then each scene's clean ceiling of both at seed 0 (benchmarks/clean_ceiling.py into
 # runs/clean_ceiling_standard; run it once more over every scene afterwards for the whole CSV);
 # then "Full, estimated Stage 1" at seeds 0-2 (each call plans it beside its cached Full, whose
-# Stage 2 it takes), the DCP baseline at seeds 0-2, and Table 2's ablations at seed 0 (the
-# harness's default list for the standard profile), each taking Full's Stage 2 the same way.
+# Stage 2 it takes), "Full, Stage 1 from images" (poses by SfM as well) at seeds 0-1, the DCP
+# baseline at seeds 0-2, and Table 2's ablations at seed 0 (the harness's default list for the
+# standard profile), each taking Full's Stage 2 the same way.
 # A worker claims a step by creating its folder under CLAIMS (mkdir is atomic; the step's log
 # goes there), so two workers never train the same run; cached steps cost seconds.
 # A worker stops before its next step once CLAIMS/STOP exists. An interrupted run resumes from its
@@ -37,6 +38,7 @@ add_steps() {  # add_steps METHODS SEED [ABLATION]: one step per scene
 for seed in 0 1 2; do add_steps full "$seed"; add_steps rgb-only "$seed"; done
 add_steps ceiling:full 0; add_steps ceiling:rgb-only 0
 for seed in 0 1 2; do add_steps full,full-estimated "$seed"; done
+for seed in 0 1; do add_steps full,full-from-images "$seed"; done
 for seed in 0 1 2; do add_steps imgdehaze-dcp "$seed"; done
 for a in "${ablations[@]}"; do add_steps full 0 "$a"; done
 for step in "${steps[@]}"; do

@@ -45,8 +45,12 @@ class SfmSettings:
     while a 4° angle cost one of them its registration. ``peak_threshold``: the least
     difference-of-Gaussians response SIFT keeps (COLMAP's 0.0067); smoke lowers the contrast of
     what lies behind it, and 0.002 (about 1.5-2.5× the features) lowered the centre error on all
-    four held-out scenes that register and the rotation error on three (the fourth moved 0.05°)
-    (benchmarks/results/sfm_poses/README.md)."""
+    four held-out scenes that register and the rotation error on three (the fourth moved 0.05°).
+    ``far_frames``: after bundle adjustment each registered frame's pose is estimated again
+    (LO-RANSAC PnP, then refinement) from only the 3D points that at least two frames this many or
+    more places away in the sequence also see (frames in capture order): smoke changes from frame
+    to frame and the surface does not, so features on smoke that neighbouring frames share no
+    longer pull a smoky frame; 0 is off (benchmarks/results/sfm_poses/README.md)."""
 
     matcher: str = "auto"
     min_width: int = 400
@@ -59,6 +63,7 @@ class SfmSettings:
     filter_max_reproj_error: float = 2.0
     filter_min_tri_angle: float = 1.5
     peak_threshold: float = 0.002
+    far_frames: int = 3
 
     def __post_init__(self) -> None:
         if self.matcher not in MATCHERS:
@@ -71,6 +76,8 @@ class SfmSettings:
             raise ValueError(f"sfm.min_registered: {self.min_registered} is not in (0, 1]")
         if not self.filter_max_reproj_error > 0.0:
             raise ValueError(f"sfm.filter_max_reproj_error: {self.filter_max_reproj_error} is not positive")
+        if self.far_frames < 0:
+            raise ValueError(f"sfm.far_frames: {self.far_frames} is negative")
         if not 0.0 <= self.filter_min_tri_angle < 90.0:
             raise ValueError(f"sfm.filter_min_tri_angle: {self.filter_min_tri_angle} is not in [0, 90) degrees")
 
@@ -123,8 +130,10 @@ class SfmResult:
         r = self.record()
         timing = (f"from the cache ({r['load_s']} s)" if r.get("cached") else
                   f"extract {r['extract_s']} s, match {r['match_s']} s, map {r['map_s']} s")
+        far = (f", {r['far_posed']} posed again from points frames {r['far_frames']} or more apart see"
+               if r.get("far_frames") else "")
         return (f"{r['registered']} of {r['frames']} RGB frames registered, {r['points']} points, intrinsics "
-                f"{r['intrinsics']}, matcher {r['matcher']}, {timing}")
+                f"{r['intrinsics']}, matcher {r['matcher']}{far}, {timing}")
 
 
 def cache_dir() -> Path | None:
@@ -177,7 +186,8 @@ def digest(names: list[str], images: list[np.ndarray], masks: list[np.ndarray] |
 def run_sfm(names: list[str], images: list[np.ndarray], masks: list[np.ndarray] | None = None,
             K: np.ndarray | None = None, settings: SfmSettings = SfmSettings(),
             cache: Path | None = None, what: str = "RGB frames") -> SfmResult:
-    """Pose ``images`` (uint8 H×W×3, one camera) by SfM; ``masks`` (True = smoke) exclude features.
+    """Pose ``images`` (uint8 H×W×3, one camera, in capture order) by SfM; ``masks`` (True = smoke)
+    exclude features.
 
     ``K``, when given, is held fixed; otherwise one pinhole camera is estimated. Raises
     ``SfmError`` (one line) when fewer than ``settings.min_registered`` of the frames register.
@@ -312,6 +322,12 @@ def _solve(names: list[str], images: list[np.ndarray], masks: list[np.ndarray] |
             i = index[image.name]
             registered[i] = True
             viewmats[i, :3, :] = image.cam_from_world().matrix()
+    if settings.far_frames > 0:
+        far = far_point_poses(best, index, settings.far_frames)
+        for i, viewmat in far.items():
+            viewmats[i] = viewmat
+        stats["far_frames"] = settings.far_frames
+        stats["far_posed"] = len(far)
     K_found = next(iter(best.cameras.values())).calibration_matrix()
     K_found[:2] /= up
     points = np.array([p.xyz for p in best.points3D.values()]).reshape(-1, 3)
@@ -324,6 +340,41 @@ def _solve(names: list[str], images: list[np.ndarray], masks: list[np.ndarray] |
                         f"{float(np.median(keypoints)):.0f} features per frame, {100 * float(np.mean(keep)):.0f} % of "
                         "the pixels outside the masks on average")
     return SfmResult(list(names), registered, viewmats, K_found, points, colors, stats)
+
+
+FAR_MIN_POINTS = 12
+"""A frame with fewer far-seen points keeps its bundle-adjusted pose."""
+
+
+def far_point_poses(reconstruction: Any, index: dict[str, int], far: int) -> dict[int, np.ndarray]:
+    """World-to-camera matrices of the registered frames (by sequence position, ``index`` maps an
+    image name to it) estimated by PnP from the 3D points that at least two frames ``far`` or more
+    positions away also see; frames with fewer than ``FAR_MIN_POINTS`` such points, or whose PnP
+    fails, are left out."""
+    import pycolmap
+
+    position = {image.image_id: index[image.name] for image in reconstruction.images.values()}
+    camera = next(iter(reconstruction.cameras.values()))
+    poses: dict[int, np.ndarray] = {}
+    for image in reconstruction.images.values():
+        if not image.has_pose:
+            continue
+        i = position[image.image_id]
+        xy, xyz = [], []
+        for p in image.points2D:
+            if p.has_point3D():
+                point = reconstruction.points3D[p.point3D_id]
+                if sum(abs(position[el.image_id] - i) >= far for el in point.track.elements) >= 2:
+                    xy.append(p.xy)
+                    xyz.append(point.xyz)
+        if len(xy) < FAR_MIN_POINTS:
+            continue
+        found = pycolmap.estimate_and_refine_absolute_pose(np.array(xy), np.array(xyz), camera)
+        if found is not None:
+            viewmat = np.eye(4)
+            viewmat[:3, :] = found["cam_from_world"].matrix()
+            poses[i] = viewmat
+    return poses
 
 
 def _why_none(keypoints: np.ndarray, keep: list[float], pairs: int, what: str) -> str:

@@ -124,6 +124,8 @@ def test_sequential_matching_poses_a_video_and_the_cache_key_follows_its_inputs(
     settings = SfmSettings(matcher="sequential", overlap=3)
     res = run_sfm(names, images, None, K, settings)
     assert res.registered.all() and res.stats["matcher"].startswith("sequential")
+    assert res.stats["far_frames"] == 3 and 0 < res.stats["far_posed"] <= len(names)
+    assert f"{res.stats['far_posed']} posed again from points frames 3 or more apart see" in res.describe()
     assert res.stats["verified_pairs"] < len(names) * (len(names) - 1) // 2  # not every pair
     extent = scene_bounds(views[idx], np.repeat(K[None], len(idx), 0), np.full(len(idx), rgb["w"])).extent
     errs = pose_errors(res.viewmats, views[idx], align(res.viewmats, views[idx]), extent)
@@ -134,6 +136,7 @@ def test_sequential_matching_poses_a_video_and_the_cache_key_follows_its_inputs(
     assert key != digest(names, images, None, K, SfmSettings(matcher="exhaustive", overlap=3))
     assert key != digest(names, images, masks, K, settings)
     assert key != digest(names, images, None, None, settings)
+    assert key != digest(names, images, None, K, SfmSettings(matcher="sequential", overlap=3, far_frames=0))
 
 
 def test_settings_are_checked_and_set_from_the_command_line_and_capture_json() -> None:
@@ -145,6 +148,8 @@ def test_settings_are_checked_and_set_from_the_command_line_and_capture_json() -
         SfmSettings(filter_min_tri_angle=-1.0)
     with pytest.raises(ValueError, match=r"^sfm\.peak_threshold: 0\.0 is not positive$"):
         SfmSettings(peak_threshold=0.0)
+    with pytest.raises(ValueError, match=r"^sfm\.far_frames: -1 is negative$"):
+        SfmSettings(far_frames=-1)
     assert parse_settings(["filter_max_reproj_error=2", "matcher=sequential"]) == SfmSettings(
         filter_max_reproj_error=2.0, matcher="sequential")
     with pytest.raises(ValueError, match="FIELD=VALUE"):
