@@ -5,7 +5,7 @@
 # (the harness gives a run cores/workers threads) like every other run of the tables. The order
 # puts first what the must-holds read (docs/benchmark.md): Full and RGB-only at seeds 0, 1 and 2;
 # then each scene's clean ceiling of both at seed 0 (benchmarks/clean_ceiling.py into
-# runs/clean_ceiling_standard; run it once more over every scene afterwards for the whole CSV);
+# data/clean_ceiling_standard; run it once more over every scene afterwards for the whole CSV);
 # then "Full, estimated Stage 1" at seeds 0-2 (each call plans it beside its cached Full, whose
 # Stage 2 it takes), "Full, Stage 1 from images" (poses by SfM as well) at seeds 0-1, the DCP
 # baseline at seeds 0-2, and Table 2's ablations at seed 0 (the harness's default list for the
@@ -23,7 +23,7 @@ name=${1:?usage: standard_tables_queue.sh NAME [CLAIMS]}
 claims=${2:-runs/claims}
 root=data/standard
 out=data/tables_standard
-ceilings=runs/clean_ceiling_standard
+ceilings=data/clean_ceiling_standard
 mkdir -p "$claims"
 source benchmarks/standard_scenes.sh
 mapfile -t scenes < <(standard_scenes "$root")
