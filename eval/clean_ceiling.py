@@ -65,29 +65,34 @@ def derive_clean_dataset(src: Path, dst: Path) -> Path:
     return dst
 
 
+def _finished_run(table_runs: Path, pattern: str, profile: str, digest: str) -> dict | None:
+    """metrics.json of the first finished table run matching ``pattern`` at this profile whose
+    trainer digest starts with ``digest`` (any, for ""); None where there is none. A metrics.json
+    that breaks the results contract raises ResultsFormatError naming it."""
+    for path in sorted(table_runs.glob(pattern)):
+        doc = read_metrics(path.parent)
+        if (doc["profile"] == profile and doc["status"] == "ok"
+                and (doc["provenance"]["source_digest"] or "").startswith(digest)):
+            return doc
+    return None
+
+
 def smoky_input_psnr(scene: str, profile: str, table_runs: Path, digest: str = "") -> tuple[float | None, float | None]:
     """The smoky input's (test, validation) PSNR from any finished table run of the scene at this
     profile (the input does not depend on method or seed) and, given ``digest``, at that trainer
     digest (runs of other trainers may have been scored against clean frames since re-rendered);
-    (None, None) where there is none. A metrics.json that breaks the results contract raises
-    ResultsFormatError naming it."""
-    for path in sorted(table_runs.glob(f"{scene}/*/seed*/metrics.json")):
-        doc = read_metrics(path.parent)
-        if (doc["profile"] == profile and doc["status"] == "ok"
-                and (doc["provenance"]["source_digest"] or "").startswith(digest)):
-            return doc["metrics"]["psnr_input"], (doc.get("validation") or {}).get("psnr_input")
-    return None, None
+    (None, None) where there is none."""
+    doc = _finished_run(table_runs, f"{scene}/*/seed*/metrics.json", profile, digest)
+    if doc is None:
+        return None, None
+    return doc["metrics"]["psnr_input"], (doc.get("validation") or {}).get("psnr_input")
 
 
 def table_test_psnr(scene: str, variant: str, seed: int, profile: str, digest: str, table_runs: Path) -> float | None:
     """Test PSNR of the finished table run of ``variant`` at this scene, seed, profile and trainer
     digest (its first 8 hex digits); None where the tables have none yet."""
-    for path in sorted(table_runs.glob(f"{scene}/{variant}/seed{seed}-*/metrics.json")):
-        doc = read_metrics(path.parent)
-        if (doc["profile"] == profile and doc["status"] == "ok"
-                and (doc["provenance"]["source_digest"] or "").startswith(digest)):
-            return doc["metrics"]["psnr"]
-    return None
+    doc = _finished_run(table_runs, f"{scene}/{variant}/seed{seed}-*/metrics.json", profile, digest)
+    return None if doc is None else doc["metrics"]["psnr"]
 
 
 def headroom_recovered(method: float | None, smoky_input: float | None, ceiling: float) -> float | None:
