@@ -539,7 +539,7 @@ def regenerate(cfg: HarnessConfig, train_fn: TrainFn = default_train,
                ) -> tuple[list[RunResult], dict[str, Path]]:
     """The whole pipeline: plan (printed first), datasets, dehazing, runs, tables, figures,
     report. With ``dry_run`` only the plan is printed."""
-    from eval.claims import write_claims
+    from eval.claims import targets_for, write_claims
     from eval.convergence import write_convergence
     from eval.figures import write_psnr_vs_time, write_qualitative_grid
     from eval.per_view import write_per_view
@@ -577,7 +577,7 @@ def regenerate(cfg: HarnessConfig, train_fn: TrainFn = default_train,
     ok_sets = {s: Path(d.path) for s, d in datasets.items() if d.status == "ok"}
     paths.update(write_region_split(results, ok_sets, out))
     paths.update(write_per_view(results, out))
-    paths.update(write_claims(results, out))
+    paths.update(write_claims(results, out, targets_for(cfg.profile)))
     paths.update(write_convergence(results, out))
     if ok_sets:
         cols = ["thermal", "rgb", "gt"] + [k for k in ("full", "imgdehaze-dcp", "rgb-only") if k in cfg.methods]
