@@ -6,8 +6,9 @@ depth (issue 49), from the density sweep's finished runs.
 
 Reads DATASETS/kK/SCENE (made by benchmarks/density_sweep_generate.sh) for each density's
 optical depth and smoky input, and TABLES_kK/runs (made by benchmarks/density_sweep_train.sh)
-for the runs of Full and RGB-only, one trainer version (the digest given, else the one with the
-most runs). Writes to OUT:
+for the runs of Full and RGB-only, one trainer version at every k (the digest given, else
+today's trainer: k = 1's runs are Table 1's, whose folder also keeps older versions' runs).
+Writes to OUT:
 
 - sweep.csv: per scene and k, the mean optical depth −ln(1 − ᾱ) of the RGB smoke in the test
   views, each method's test PSNR (mean of views), pooled PSNR (of the views' mean squared error)
@@ -34,8 +35,10 @@ from contracts.atomic import write_rows_csv  # noqa: E402
 from contracts.dataset_format import PASS_FILES, file_path  # noqa: E402
 from contracts.imageio import image01, read_exr_channel, read_png  # noqa: E402
 from contracts.metrics import psnr  # noqa: E402
+from contracts.source import code_digest  # noqa: E402
 from eval.density_sweep import crossover, mean_optical_depth, paired_lead  # noqa: E402
 from eval.finished_runs import finished_runs  # noqa: E402
+from eval.harness import TRAINER_ENTRY  # noqa: E402
 from eval.per_view import pooled_over_views  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -79,7 +82,7 @@ Scores = dict[tuple[str, str], dict[int, dict[str, Any]]]
 """{(scene, method): {seed: {metric: value, "run": folder}}} of one density's finished runs."""
 
 
-def run_scores(tables: Path, digest: str | None) -> Scores:
+def run_scores(tables: Path, digest: str) -> Scores:
     """The scores of one density's finished runs of Full and RGB-only."""
     try:
         _, runs = finished_runs(tables, METHODS, digest)
@@ -193,11 +196,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--datasets", type=Path, default=ROOT / "data" / "density_sweep")
     parser.add_argument("--tables", type=Path, default=ROOT / "data" / "tables_density")
-    parser.add_argument("--digest", help="trainer digest prefix of the runs (default: the one with the most runs)")
+    parser.add_argument("--digest", help="trainer digest prefix of the runs (default: today's trainer)")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "density_sweep")
     args = parser.parse_args()
     dens, table_dirs = density_folders(args.datasets), _table_folders(args.tables)
-    scores_by_k = {k: run_scores(table_dirs[k], args.digest) if k in table_dirs else {} for k in dens}
+    digest = args.digest or code_digest(TRAINER_ENTRY)
+    scores_by_k = {k: run_scores(table_dirs[k], digest) if k in table_dirs else {} for k in dens}
     rows = sweep_rows(dens, scores_by_k)
     if not rows:
         raise SystemExit(f"density_sweep: no dataset under {args.datasets}/k*/ (run "

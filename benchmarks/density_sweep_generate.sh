@@ -6,6 +6,11 @@
 #
 #   bash benchmarks/density_sweep_generate.sh [OUT] [BAKES]     (defaults: data/density_sweep runs/bakes)
 #
+# k = 1 is not rendered again: it is the standard benchmark's dataset of the scene, linked as
+# OUT/k1/SCENE. The sweep's bakes reproduce the standard datasets' simulations (their RGB frames
+# come out byte for byte; docs/experiments/2026-11-29-density-sweep-k1.md), so Full and RGB-only
+# at k = 1 are Table 1's runs (benchmarks/density_sweep_train.sh links them).
+#
 # The ladder reaches, per scene, a k where the smoky input falls to about the paper's 15 dB:
 # chair and food_plate get there near k = 8; house's smoke covers little of each view (mean
 # optical depth 0.03 at k = 1), so its ladder runs to k = 64 (benchmarks/results/density_sweep/).
@@ -13,7 +18,12 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 out=${1:-data/density_sweep}
 bakes=${2:-runs/bakes}
-ladder=("0:chair,food_plate,house" "1:chair,food_plate,house" "4:chair,food_plate,house"
+standard=data/standard
+mkdir -p "$out/k1"
+for s in chair food_plate house; do
+    ln -sfn "$(realpath --relative-to="$out/k1" "$standard/$s")" "$out/k1/$s"
+done
+ladder=("0:chair,food_plate,house" "4:chair,food_plate,house"
         "0.5:chair,food_plate" "2:chair,food_plate" "8:chair,food_plate" "16:house" "64:house")
 for entry in "${ladder[@]}"; do
     k=${entry%%:*}

@@ -2,7 +2,9 @@
 # Issue 49's density sweep, the runs: Full and RGB-only at the standard profile, seeds 0-2, on
 # every dataset benchmarks/density_sweep_generate.sh has finished. One regenerate-tables call per
 # density into TABLES_kK (its runs keyed and resumed like the standard tables'; data/README.md),
-# then benchmarks/density_sweep.py writes the curves.
+# then benchmarks/density_sweep.py writes the curves. At k = 1 the datasets are the standard
+# benchmark's (benchmarks/density_sweep_generate.sh), so TABLES_k1/runs/SCENE links to Table 1's
+# runs of the scene: finished ones are taken as they are, and one trained here is Table 1's too.
 #
 #   bash benchmarks/density_sweep_train.sh [DATASETS] [TABLES] [extra regenerate-tables options]
 #   (defaults: data/density_sweep data/tables_density; --finished-only trains nothing)
@@ -22,6 +24,12 @@ for folder in "$datasets"/k*/; do
         args+=(--dataset "$s=${d%/}")
     done
     [[ ${#scenes[@]} -gt 0 ]] || continue
+    if [[ $k == k1 ]]; then
+        mkdir -p "${tables}_k1/runs"
+        for s in "${scenes[@]}"; do
+            ln -sfn "$(realpath --relative-to="${tables}_k1/runs" data/tables_standard/runs/"$s")" "${tables}_k1/runs/$s"
+        done
+    fi
     echo "== $(date -u +%FT%TZ) $k: ${scenes[*]}" >&2
     .venv/bin/regenerate-tables --profile standard --workers 2 --scenes "$(IFS=,; echo "${scenes[*]}")" \
         "${args[@]}" --methods full,rgb-only --seeds 0,1,2 --no-ablations --out "${tables}_$k" "$@" \
