@@ -254,6 +254,13 @@ def test_the_committed_cpu_reference_of_house() -> None:
     assert "within" in psnr_verdict(29.2, ref) and "outside" in psnr_verdict(28.9, ref)
     with pytest.raises(ValueError, match="no finished CPU run of seed 0 at profile paper"):
         cpu_reference(ROOT / "data" / "tables_standard" / "runs" / "house" / "full", "paper")
+    # the GPU run's own trainer version is preferred where it has a seed-0 run
+    house = ROOT / "data" / "tables_standard" / "runs" / "house" / "full"
+    own = json.loads((house / "seed0-6cae0a53465b" / "metrics.json").read_text())["provenance"]["source_digest"]
+    mine = cpu_reference(house, "standard", prefer=own)
+    assert mine.source_digest == own and mine.seed0_run == "seed0-6cae0a53465b"
+    assert mine.seed0_psnr == pytest.approx(32.2057, abs=1e-3)
+    assert cpu_reference(house, "standard", prefer="no such version").source_digest.startswith("6663d970")
 
 
 def test_parity_outcomes_and_printed_errors_come_from_junit(tmp_path: Path) -> None:

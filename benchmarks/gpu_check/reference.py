@@ -56,10 +56,11 @@ class CpuReference:
                 "spread_db": self.spread_db, "std_db": statistics.pstdev(self.psnrs)}
 
 
-def cpu_reference(runs: Path, profile: str) -> CpuReference:
+def cpu_reference(runs: Path, profile: str, prefer: str = "") -> CpuReference:
     """Among the finished CPU runs under ``runs`` (one folder per seed, as regenerate-tables
-    writes them) at ``profile``, the trainer version (source digest) with a seed-0 run and the
-    most seeds. Raises ValueError naming the folder when there is none."""
+    writes them) at ``profile``: the trainer version (source digest) ``prefer`` where it has a
+    seed-0 run (the GPU run's own version), else the one with a seed-0 run and the most seeds.
+    Raises ValueError naming the folder when there is none."""
     groups: dict[str, dict[int, tuple[float, str]]] = {}
     for metrics_path in sorted(runs.glob("*/metrics.json")):
         doc = json.loads(metrics_path.read_text())
@@ -72,7 +73,7 @@ def cpu_reference(runs: Path, profile: str) -> CpuReference:
     usable = {d: seeds for d, seeds in groups.items() if 0 in seeds}
     if not usable:
         raise ValueError(f"{runs}: no finished CPU run of seed 0 at profile {profile}")
-    digest = max(sorted(usable), key=lambda d: len(usable[d]))
+    digest = prefer if prefer in usable else max(sorted(usable), key=lambda d: len(usable[d]))
     seeds = usable[digest]
     order = sorted(seeds)
     return CpuReference(str(runs), digest, order, [seeds[s][0] for s in order], seeds[0][0], seeds[0][1])

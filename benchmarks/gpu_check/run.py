@@ -292,7 +292,8 @@ class Check:
                                 + ", so its first iterations shared the node's CPUs with them.")
         scene = self.dataset.name
         try:
-            ref = cpu_reference(ROOT / "data" / "tables_standard" / "runs" / scene / "full", "standard")
+            ref = cpu_reference(ROOT / "data" / "tables_standard" / "runs" / scene / "full", "standard",
+                                prefer=runs.get("standard-gsplat", {}).get("source_digest", ""))
         except (ValueError, OSError) as exc:
             out["notes"].append(f"No CPU reference: {exc}")
             return out
