@@ -19,8 +19,9 @@ cd "$(dirname "$0")/.."
 out=${1:-data/density_sweep}
 bakes=${2:-runs/bakes}
 standard=data/standard
+sweep=(chair food_plate house)
 mkdir -p "$out/k1"
-for s in chair food_plate house; do
+for s in "${sweep[@]}"; do
     ln -sfn "$(realpath --relative-to="$out/k1" "$standard/$s")" "$out/k1/$s"
 done
 ladder=("0:chair,food_plate,house" "4:chair,food_plate,house"

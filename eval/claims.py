@@ -162,8 +162,7 @@ def _lead_checks(results: list[RunResult], targets: Targets) -> list[ClaimCheck]
         "-" if not seeds else f"{lead:+.2f} dB ({label} {_stat_text(full)}, {other} {_stat_text(rgb)}); "
                               f"per seed {per_seed}",
         _seed_list(seeds), left_out)
-    diffs = {sc: _scene_mean(psnr, sc, REFERENCE, seeds) - _scene_mean(psnr, sc, RGB_ONLY, seeds)
-             for sc in scenes} if seeds else {}
+    diffs = _scene_gaps(psnr, scenes, REFERENCE, RGB_ONLY, seeds) if seeds else {}
     below = [sc for sc in scenes if seeds and diffs[sc] < -targets.lag_per_scene]
     worst = min(diffs, key=lambda sc: diffs[sc]) if diffs else ""
     scene_check = ClaimCheck(
@@ -178,11 +177,11 @@ def _lead_checks(results: list[RunResult], targets: Targets) -> list[ClaimCheck]
 def _input_checks(results: list[RunResult], targets: Targets) -> list[ClaimCheck]:
     """Full's mean against its target and against the smoky input, and on how many scenes it beats
     the input."""
+    if not _present(results, REFERENCE):
+        return []
     psnr = _psnr_by_run(results)
     scenes = sorted({r.scene for r in results})
     floor = input_psnr(results)
-    if not _present(results, REFERENCE):
-        return []
     seeds, left_out = complete_seeds(results, (REFERENCE,))
     full = _by_seed(psnr, scenes, REFERENCE, seeds)
     stat = seed_stat(full)
@@ -246,8 +245,7 @@ def ablation_checks(results: list[RunResult], targets: Targets = Targets()) -> l
         mine = _by_seed(psnr, scenes, key, seeds)
         full = _by_seed(psnr, scenes, REFERENCE, seeds)
         ok = None if not seeds else seed_stat(mine).mean <= seed_stat(full).mean + targets.ablation_margin
-        above = [sc for sc in scenes if seeds and
-                 _scene_mean(psnr, sc, key, seeds) > _scene_mean(psnr, sc, REFERENCE, seeds)]
+        above = [sc for sc, gap in _scene_gaps(psnr, scenes, key, REFERENCE, seeds).items() if gap > 0] if seeds else []
         measured = "-" if not seeds else (
             f"{_stat_text(mine)} against {_stat_text(full)} dB "
             f"({seed_stat(mine).mean - seed_stat(full).mean:+.2f}); above Full on {len(above)} of "
@@ -280,11 +278,10 @@ def stage1_checks(results: list[RunResult], targets: Targets = Targets()) -> lis
             claim, ok = f"{label}: its gap to {reference} on the mean over scenes, stated", bool(seeds and scenes)
         else:
             claim, ok = f"{label} ≥ {reference} − {bound:.2f} dB on the mean over scenes", gap >= -bound
+        gaps = _scene_gaps(psnr, scenes, key, REFERENCE, seeds) if seeds else {}
         measured = "-" if not (seeds and scenes) else (
             f"{gap:+.2f} dB ({_stat_text(mine)} against {_stat_text(full)}) over {len(scenes)} scenes; lowest "
-            + ", ".join(f"{sc} {_scene_mean(psnr, sc, key, seeds) - _scene_mean(psnr, sc, REFERENCE, seeds):+.2f}"
-                        for sc in sorted(scenes, key=lambda sc: _scene_mean(psnr, sc, key, seeds)
-                                         - _scene_mean(psnr, sc, REFERENCE, seeds))[:2]))
+            + ", ".join(f"{sc} {gaps[sc]:+.2f}" for sc in sorted(gaps, key=lambda sc: gaps[sc])[:2]))
         if failed:
             measured += f"; failed on {', '.join(failed)} (report.md says why)"
         checks.append(ClaimCheck(claim, _verdict(None if not (seeds and scenes) else ok), measured,
@@ -300,6 +297,12 @@ def _by_seed(psnr: dict[tuple[str, str, int], float], scenes: list[str], variant
 
 def _scene_mean(psnr: dict[tuple[str, str, int], float], scene: str, variant: str, seeds: list[int]) -> float:
     return sum(psnr[(scene, variant, s)] for s in seeds) / len(seeds)
+
+
+def _scene_gaps(psnr: dict[tuple[str, str, int], float], scenes: list[str], variant: str, reference: str,
+                seeds: list[int]) -> dict[str, float]:
+    """Per scene, ``variant``'s mean over ``seeds`` minus ``reference``'s."""
+    return {sc: _scene_mean(psnr, sc, variant, seeds) - _scene_mean(psnr, sc, reference, seeds) for sc in scenes}
 
 
 def _listed(results: list[RunResult]) -> list[str]:
