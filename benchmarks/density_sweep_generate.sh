@@ -7,7 +7,9 @@
 #   bash benchmarks/density_sweep_generate.sh [OUT] [BAKES]     (defaults: data/density_sweep runs/bakes)
 #
 # k = 1 is not rendered again: it is the standard benchmark's dataset of the scene, linked as
-# OUT/k1/SCENE. The sweep's bakes reproduce the standard datasets' simulations (their RGB frames
+# OUT/k1/SCENE. It also lends its clean passes to every other k (--clean-from; they never see the
+# smoke, so they are the same at every k, and they are the costliest pass): each k renders only
+# the smoky, depth and smoke-alpha passes. The sweep's bakes reproduce the standard datasets' simulations (their RGB frames
 # come out byte for byte; docs/experiments/2026-11-29-density-sweep-k1.md), so Full and RGB-only
 # at k = 1 are Table 1's runs (benchmarks/density_sweep_train.sh links them).
 #
@@ -30,5 +32,5 @@ for entry in "${ladder[@]}"; do
     k=${entry%%:*}
     echo "== $(date -u +%FT%TZ) k=$k: ${entry#*:}" >&2
     .venv/bin/generate-benchmark --profile standard --scenes "${entry#*:}" --density-scale "$k" \
-        --bake-cache "$bakes" --out "$out/k$k" --quiet
+        --bake-cache "$bakes" --clean-from "$out/k1" --out "$out/k$k" --quiet
 done

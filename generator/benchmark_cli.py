@@ -4,8 +4,10 @@ Each scene goes to OUT/<scene>/ through `generator.api.generate`. A scene whose 
 already there and was made from the same resolved spec is skipped (so an interrupted run
 resumes; an unfinished scene also resumes inside the generator's own staging folder); one
 that differs only in the clean passes' samples has just those re-rendered
-(`generator.clean_refresh`); one made from another spec is regenerated. Every scene prints one line (time, size, smoke
-statistics), and the run writes OUT/benchmark.json and OUT/benchmark.md.
+(`generator.clean_refresh`); one made from another spec is regenerated. With `--clean-from DIR`,
+DIR/<scene> lends its clean passes to a scene generated at another density scale
+(`generator.clean_reuse`). Every scene prints one line (time, size, smoke statistics), and the run
+writes OUT/benchmark.json and OUT/benchmark.md.
 
 Besides the generator's statistics, each record has the mean RGB smoke opacity inside the
 smoke (where it exceeds the mask threshold), its target `OPACITY_PER_DENSITY x density`,
@@ -30,6 +32,7 @@ import numpy as np
 from generator.api import generate, resolve_spec
 from generator.assets import load_manifest
 from generator.clean_refresh import clean_refresh_needed, refresh_clean
+from generator.clean_reuse import generate_reusing_clean
 from contracts.dataset_format import PASS_FILES
 from contracts.errors import DatasetError
 from contracts.imageio import read_exr_channel
@@ -94,9 +97,11 @@ def _finished(out: Path, spec: SceneSpec) -> bool:
 
 
 def run_scene(scene: str, profile: Profile, out_root: Path, force: bool, threads: int | None,
-              show_progress: bool, density_scale: float | None, bake_store: Path | None) -> dict[str, Any]:
+              show_progress: bool, density_scale: float | None, bake_store: Path | None,
+              clean_from: Path | None = None) -> dict[str, Any]:
     """Generate (or reuse) one scene; returns its benchmark record. `density_scale` overrides
-    the preset's; `bake_store` keeps and reuses the bakes (generator.bakes)."""
+    the preset's; `bake_store` keeps and reuses the bakes (generator.bakes); `clean_from` is a
+    folder whose dataset of the scene lends its clean passes (generator.clean_reuse)."""
     spec = _resolved(scene, profile, density_scale)
     out = out_root / scene
     reused = not force and _finished(out, spec)
@@ -104,6 +109,9 @@ def run_scene(scene: str, profile: Profile, out_root: Path, force: bool, threads
     started = time.perf_counter()
     if refreshed:
         refresh_clean(out, spec, threads=threads, show_progress=show_progress)
+    elif not reused and clean_from is not None:
+        generate_reusing_clean(spec, out, clean_from / scene, threads=threads, show_progress=show_progress,
+                               bake_store=bake_store, force=True)
     elif not reused:
         generate(scene, out, force=True, show_progress=show_progress, threads=threads, bake_store=bake_store,
                  density_scale=density_scale, **profile.kwargs())
@@ -126,6 +134,7 @@ def run_scene(scene: str, profile: Profile, out_root: Path, force: bool, threads
         "opacity_in_smoke": float(inside.mean()) if inside.size else None, "target_opacity": target,
         "extinction_scale": extinction_scale(alphas, threshold, target),
         "extinction_per_m": spec.smoke.extinction_per_m, "code_sha256": meta.get("code_sha256"),
+        "clean_reused_from": meta.get("clean_reused", {}).get("from"),
     }
 
 
@@ -177,6 +186,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="scale every smoke coefficient by K in every scene: opacity 1-(1-a)^K, 0 = no smoke")
     p.add_argument("--bake-cache", type=Path, metavar="DIR",
                    help="keep each scene's Mantaflow bake in DIR; a run at another --density-scale only renders")
+    p.add_argument("--clean-from", type=Path, metavar="DIR",
+                   help="copy each scene's clean passes from DIR/SCENE, the same scene at another --density-scale, "
+                        "instead of rendering them")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     return p
 
@@ -191,6 +203,9 @@ def main(argv: list[str] | None = None) -> int:
               f"choose from {', '.join(BENCHMARK_SCENES)}", file=sys.stderr)
         return 2
     profile = get_profile(args.profile)
+    if args.clean_from is not None and not args.clean_from.is_dir():
+        print(f"generate-benchmark: error: --clean-from {args.clean_from}: no such folder", file=sys.stderr)
+        return 2
     try:  # a bad option is one line before any scene starts, not ten failed scenes
         _resolved(scenes[0], profile, args.density_scale)
     except GeneratorError as exc:
@@ -202,7 +217,7 @@ def main(argv: list[str] | None = None) -> int:
     for scene in scenes:
         try:
             record = run_scene(scene, profile, args.out, args.force, args.threads, not args.quiet,
-                               args.density_scale, args.bake_cache)
+                               args.density_scale, args.bake_cache, args.clean_from)
         except (GeneratorError, DatasetError) as exc:
             print(f"{scene:<11} FAILED: {exc}", file=sys.stderr)
             failed.append(scene)

@@ -45,27 +45,49 @@ def with_clean_samples(spec: SceneSpec, samples: dict[str, int]) -> SceneSpec:
         thermal=replace(rig.thermal, clean_samples=samples.get("thermal", rig.thermal.clean_samples))))
 
 
-def _clean_modalities(spec: SceneSpec) -> tuple[str, ...]:
+def clean_modalities(spec: SceneSpec) -> tuple[str, ...]:
     return tuple(m for m, passes in spec.passes.items() if CLEAN in passes)
+
+
+def recorded_spec(dataset: Path) -> tuple[SceneSpec, dict[str, Any]] | None:
+    """The spec a finished dataset was made from, with its clean passes' samples as rendered, and
+    its dataset.json; None when either file is missing or the spec no longer reads back."""
+    meta_path, spec_path = dataset / "dataset.json", dataset / "scene.yaml"
+    if not (meta_path.is_file() and spec_path.is_file()):
+        return None
+    meta = json.loads(meta_path.read_text())
+    try:
+        return with_clean_samples(load_spec_file(spec_path), rendered_clean_samples(meta)), meta
+    except (SpecError, KeyError) as exc:  # a record from an older spec schema
+        log.info("%s: its recorded spec does not read back (%s)", dataset, exc)
+        return None
 
 
 def clean_refresh_needed(dataset: Path, target: SceneSpec) -> bool:
     """True when the finished dataset at `dataset` was made from `target` except for the clean
     passes' samples (so re-rendering those makes it `target`'s dataset)."""
-    meta_path, spec_path = dataset / "dataset.json", dataset / "scene.yaml"
-    if not (meta_path.is_file() and spec_path.is_file()):
+    record = recorded_spec(dataset)
+    if record is None or record[1].get("spec_sha256") == target.sha256():
         return False
-    meta = json.loads(meta_path.read_text())
-    if meta.get("spec_sha256") == target.sha256():
-        return False
-    try:
-        recorded = with_clean_samples(load_spec_file(spec_path), rendered_clean_samples(meta))
-    except (SpecError, KeyError) as exc:  # a record from an older spec schema: regenerate instead
-        log.info("%s: its recorded spec does not read back (%s); it cannot be refreshed", dataset, exc)
-        return False
-    if recorded == target or not _clean_modalities(target):
+    recorded = record[0]
+    if recorded == target or not clean_modalities(target):
         return False
     return with_clean_samples(recorded, {m: getattr(target.rig, m).clean_samples for m in ("rgb", "thermal")}) == target
+
+
+def copy_clean_passes(source: Path, into: Path, modalities: tuple[str, ...], why_not: str) -> None:
+    """Copy the clean pass files of `modalities` from dataset `source` into dataset `into`, once
+    both are shown to hold the same cameras at the same timestamps (`why_not` ends the error)."""
+    for m in modalities:
+        if json.loads((source / transforms_name(m)).read_text()) != json.loads((into / transforms_name(m)).read_text()):
+            raise GeneratorError(f"{source / transforms_name(m)}: other cameras or timestamps than "
+                                 f"{into / transforms_name(m)}; {why_not}")
+    for m in modalities:
+        for frame in json.loads((into / transforms_name(m)).read_text())["frames"]:
+            for pf in PASS_FILES[(m, CLEAN)]:
+                dst = file_path(into, pf, frame["file_stem"])
+                dst.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(file_path(source, pf, frame["file_stem"]), dst)
 
 
 def refresh_clean(dataset: Path, target: SceneSpec, threads: int | None = None, show_progress: bool = True) -> Path:
@@ -85,7 +107,7 @@ def refresh_clean(dataset: Path, target: SceneSpec, threads: int | None = None, 
     started = time.perf_counter()
     meta = json.loads((dataset / "dataset.json").read_text())
     before = rendered_clean_samples(meta)
-    modalities = _clean_modalities(target)
+    modalities = clean_modalities(target)
     rendered = staging / "render"
     clean_only = replace(target, passes={m: (CLEAN,) for m in modalities})
     log.info("%s: re-rendering the clean passes (%s) at %s samples, were %s", dataset.name, ", ".join(modalities),
@@ -93,22 +115,13 @@ def refresh_clean(dataset: Path, target: SceneSpec, threads: int | None = None, 
     if not (rendered / "dataset.json").is_file():
         generate(clean_only, rendered, threads=threads, force=True, show_progress=show_progress)
     new_meta = json.loads((rendered / "dataset.json").read_text())
-    for m in modalities:
-        old_frames = json.loads((dataset / transforms_name(m)).read_text())
-        new_frames = json.loads((rendered / transforms_name(m)).read_text())
-        if old_frames != new_frames:
-            raise GeneratorError(f"{dataset / transforms_name(m)}: the re-rendered clean frames have other cameras "
-                                 "or timestamps than the dataset's; regenerate the dataset instead")
     fresh = staging / "dataset"
     if fresh.exists():
         shutil.rmtree(fresh)
     shutil.copytree(dataset, fresh)
+    copy_clean_passes(rendered, fresh, modalities, "regenerate the dataset instead")
     stems = {m: [f["file_stem"] for f in json.loads((fresh / transforms_name(m)).read_text())["frames"]]
              for m in target.passes}
-    for m in modalities:
-        for pf in PASS_FILES[(m, CLEAN)]:
-            for stem in stems[m]:
-                shutil.copyfile(file_path(rendered, pf, stem), file_path(fresh, pf, stem))
     after = {m: getattr(target.rig, m).clean_samples for m in modalities}
     for m in modalities:
         meta["render"][m]["clean_samples"] = after[m]
