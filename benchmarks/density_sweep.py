@@ -15,7 +15,8 @@ Writes to OUT:
   and SSIM, mean ± std over seeds, and Full − RGB-only paired by seed;
 - crossover.csv: per scene and metric, the optical depth where Full's lead turns positive;
 - lead.png: the lead against optical depth, one line per scene, a panel per metric;
-- strip.png: one test view per scene across k: smoky input, RGB-only, Full (seed 0), clean.
+- strip.png: one test view per scene across k: smoky input, RGB-only, Full (seed 0), clean;
+- claims.csv, claims.md: the sweep's must-holds checked on sweep.csv (eval.density_sweep.sweep_checks).
 """
 from __future__ import annotations
 
@@ -36,10 +37,12 @@ from contracts.dataset_format import PASS_FILES, file_path  # noqa: E402
 from contracts.imageio import image01, read_exr_channel, read_png  # noqa: E402
 from contracts.metrics import psnr  # noqa: E402
 from contracts.source import code_digest  # noqa: E402
-from eval.density_sweep import crossover, mean_optical_depth, paired_lead  # noqa: E402
+from eval.claims import ClaimCheck  # noqa: E402
+from eval.density_sweep import crossover, mean_optical_depth, paired_lead, sweep_checks  # noqa: E402
 from eval.finished_runs import finished_runs  # noqa: E402
 from eval.harness import TRAINER_ENTRY  # noqa: E402
 from eval.per_view import pooled_over_views  # noqa: E402
+from eval.regions import write_split_files  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 METHODS = ("full", "rgb-only")
@@ -213,6 +216,13 @@ def main() -> None:
         write_rows_csv(args.out / "crossover.csv", cross)
     plot_lead(rows, args.out / "lead.png")
     plot_strip(rows, dens, scores_by_k, args.out / "strip.png")
+    checks = sweep_checks(rows)
+    summary = "\n".join(["# The density sweep's must-holds, checked on sweep.csv", "",
+                         "Test PSNR (dB), each scene's mean over the seeds named (Full / RGB-only).", "",
+                         "| claim | holds | measured | seeds | left out |", "|---|---|---|---|---|",
+                         *(f"| {c.claim} | {c.holds} | {c.measured} | {c.seeds} | {c.left_out or '-'} |"
+                           for c in checks)]) + "\n"
+    write_split_files(args.out, "claims", ClaimCheck, checks, summary, [])
     for r in rows:
         lead = r["lead_psnr"]
         print(f"{r['scene']:<11} k {r['k']:<5g} optical depth {r['optical_depth']:.3f}  input {r['input_psnr']:.2f} dB  "

@@ -110,7 +110,7 @@ def _stat_text(values_by_seed: dict[int, list[float]]) -> str:
     return format_value(stat.mean) + ("" if stat.std is None else f" ± {format_value(stat.std)}")
 
 
-def _verdict(ok: bool | None) -> str:
+def verdict(ok: bool | None) -> str:
     return "not yet" if ok is None else ("yes" if ok else "no")
 
 
@@ -140,7 +140,7 @@ def _order_checks(results: list[RunResult]) -> list[ClaimCheck]:
                     f"{variant_label(better)} {_stat_text(high)}, {variant_label(worse)} {_stat_text(low)} dB; "
                     f"ahead on {wins} of {len(scenes)} scenes")
         checks.append(ClaimCheck(f"{variant_label(better)} > {variant_label(worse)} on the mean over scenes",
-                                 _verdict(ok), measured, _seed_list(seeds), left_out))
+                                 verdict(ok), measured, _seed_list(seeds), left_out))
     return checks
 
 
@@ -158,7 +158,7 @@ def _lead_checks(results: list[RunResult], targets: Targets) -> list[ClaimCheck]
     per_seed = ", ".join(f"{sum(full[s]) / len(full[s]) - sum(rgb[s]) / len(rgb[s]):+.2f}" for s in seeds)
     mean_check = ClaimCheck(
         f"{label} − {other} ≥ +{targets.lead_on_mean:.2f} dB on the mean over scenes",
-        _verdict(None if not seeds else lead >= targets.lead_on_mean),
+        verdict(None if not seeds else lead >= targets.lead_on_mean),
         "-" if not seeds else f"{lead:+.2f} dB ({label} {_stat_text(full)}, {other} {_stat_text(rgb)}); "
                               f"per seed {per_seed}",
         _seed_list(seeds), left_out)
@@ -167,7 +167,7 @@ def _lead_checks(results: list[RunResult], targets: Targets) -> list[ClaimCheck]
     worst = min(diffs, key=lambda sc: diffs[sc]) if diffs else ""
     scene_check = ClaimCheck(
         f"{label} ≥ {other} − {targets.lag_per_scene:.2f} dB on every scene (mean over seeds)",
-        _verdict(None if not seeds else not below),
+        verdict(None if not seeds else not below),
         "-" if not seeds else (f"lowest {worst} {diffs[worst]:+.2f} dB; below on {len(below)} of {len(scenes)} "
                                "scenes" + (f" ({', '.join(f'{sc} {diffs[sc]:+.2f}' for sc in below)})" if below else "")),
         _seed_list(seeds), left_out)
@@ -190,7 +190,7 @@ def _input_checks(results: list[RunResult], targets: Targets) -> list[ClaimCheck
     if targets.full_mean is not None:
         checks.append(ClaimCheck(
             f"{label} ≥ {targets.full_mean:.2f} dB on the mean over scenes",
-            _verdict(None if not seeds else stat.mean >= targets.full_mean),
+            verdict(None if not seeds else stat.mean >= targets.full_mean),
             "-" if not seeds else f"{label} {_stat_text(full)} dB ({stat.mean - targets.full_mean:+.2f})",
             _seed_list(seeds), left_out))
     if not all(sc in floor for sc in scenes):
@@ -198,7 +198,7 @@ def _input_checks(results: list[RunResult], targets: Targets) -> list[ClaimCheck
     floor_mean = sum(floor[sc] for sc in scenes) / len(scenes)
     checks.append(ClaimCheck(
         f"{label} > smoky input on the mean over scenes",
-        _verdict(None if not seeds else stat.mean > floor_mean),
+        verdict(None if not seeds else stat.mean > floor_mean),
         "-" if not seeds else f"{label} {_stat_text(full)}, input {format_value(floor_mean)} dB",
         _seed_list(seeds), left_out))
     need = math.ceil(targets.share_above_input * len(scenes))
@@ -207,7 +207,7 @@ def _input_checks(results: list[RunResult], targets: Targets) -> list[ClaimCheck
                          for s in seeds)
     checks.append(ClaimCheck(
         f"{label} > smoky input on at least {need} of {len(scenes)} scenes (mean over seeds)",
-        _verdict(None if not seeds else len(above) >= need),
+        verdict(None if not seeds else len(above) >= need),
         "-" if not seeds else f"{len(above)} of {len(scenes)} ({per_seed})",
         _seed_list(seeds), left_out))
     return checks
@@ -229,7 +229,7 @@ def _spread_checks(results: list[RunResult], targets: Targets) -> list[ClaimChec
     worst = max(std, key=lambda sc: std[sc])
     measured = (f"largest {worst} {format_value(std[worst])}; above on {len(above)} of {len(scenes)} scenes"
                 + (f" ({', '.join(f'{sc} {format_value(std[sc])}' for sc in above)})" if above else ""))
-    return [ClaimCheck(claim, _verdict(not above), measured, _seed_list(seeds), left_out)]
+    return [ClaimCheck(claim, verdict(not above), measured, _seed_list(seeds), left_out)]
 
 
 def ablation_checks(results: list[RunResult], targets: Targets = Targets()) -> list[ClaimCheck]:
@@ -252,7 +252,7 @@ def ablation_checks(results: list[RunResult], targets: Targets = Targets()) -> l
             f"{len(scenes)} scenes" + (f" ({', '.join(above)})" if above else ""))
         checks.append(ClaimCheck(
             f"{variant_label(key)} ≤ {variant_label(REFERENCE)} + {targets.ablation_margin:.2f} dB on the mean over scenes",
-            _verdict(ok), measured, _seed_list(seeds), left_out))
+            verdict(ok), measured, _seed_list(seeds), left_out))
     return checks
 
 
@@ -284,7 +284,7 @@ def stage1_checks(results: list[RunResult], targets: Targets = Targets()) -> lis
             + ", ".join(f"{sc} {gaps[sc]:+.2f}" for sc in sorted(gaps, key=lambda sc: gaps[sc])[:2]))
         if failed:
             measured += f"; failed on {', '.join(failed)} (report.md says why)"
-        checks.append(ClaimCheck(claim, _verdict(None if not (seeds and scenes) else ok), measured,
+        checks.append(ClaimCheck(claim, verdict(None if not (seeds and scenes) else ok), measured,
                                  _seed_list(seeds), left_out))
     return checks
 

@@ -12,6 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from eval.claims import ClaimCheck, verdict
+
 
 def mean_optical_depth(alphas: list[np.ndarray]) -> float:
     """−ln(1 − ᾱ), ᾱ the mean RGB smoke opacity over every pixel of the given views."""
@@ -65,3 +67,83 @@ def crossover(depths: list[float], leads: list[float]) -> tuple[float | None, st
     at = x0 + (x1 - x0) * (-y0) / (y1 - y0)
     again = any(v < 0 for v in y[first:])
     return at, "crossing, then behind again" if again else "crossing"
+
+
+@dataclass(frozen=True)
+class SweepTargets:
+    """The sweep's must-holds (issue 49), on test PSNR in dB, scene values the means over seeds."""
+
+    scenes: int = 3
+    densities: int = 5
+    seeds: tuple[int, ...] = (0, 1, 2)
+    clear_lag: float = 0.1
+    """At k = 0 (no smoke), Full ≥ RGB-only − this on every scene."""
+    dense_rgb_only: float = 16.0
+    """The densest k of a scene must bring RGB-only to this or below (about the paper's regime)..."""
+    dense_lead: float = 3.0
+    """...where Full − RGB-only is at least this."""
+
+
+def _leads(rows: list[dict], scene: str) -> list[dict]:
+    """A scene's rows that have a lead, in order of k."""
+    return sorted((r for r in rows if r["scene"] == scene and r["lead_psnr"] is not None), key=lambda r: r["k"])
+
+
+def _seeds_text(rows: list[dict]) -> str:
+    return "; ".join(f"{r['scene']} k {r['k']:g}: {r['full_seeds'] or '-'} / {r['rgb-only_seeds'] or '-'}" for r in rows)
+
+
+def sweep_checks(rows: list[dict], targets: SweepTargets = SweepTargets()) -> list[ClaimCheck]:
+    """The sweep's must-holds on its rows (benchmarks/density_sweep.py's sweep.csv): its coverage,
+    no cost at k = 0, the lead at the densest k, and a lead that does not fall as k rises beyond
+    the spread of the two leads over seeds, √(s₁² + s₂²)."""
+    scenes = sorted({r["scene"] for r in rows})
+    want = " ".join(str(s) for s in targets.seeds)
+    complete = {sc: [r["k"] for r in rows if r["scene"] == sc and r["full_seeds"] == want
+                     and r["rgb-only_seeds"] == want] for sc in scenes}
+    covered = [sc for sc in scenes if len(complete[sc]) >= targets.densities]
+    checks = [ClaimCheck(
+        f"≥ {targets.scenes} scenes × ≥ {targets.densities} densities × seeds {want}, Full and RGB-only",
+        verdict(len(covered) >= targets.scenes),
+        "; ".join(f"{sc}: {len(complete[sc])} complete (k {', '.join(f'{k:g}' for k in complete[sc]) or '-'})"
+                  for sc in scenes), want, "")]
+
+    clear = [r for sc in scenes for r in _leads(rows, sc) if r["k"] == 0]
+    missing = [sc for sc in scenes if sc not in {r["scene"] for r in clear}]
+    checks.append(ClaimCheck(
+        f"k = 0: Full ≥ RGB-only − {targets.clear_lag:g} dB on every scene",
+        verdict(False if any(r["lead_psnr"] < -targets.clear_lag for r in clear) else None if missing else True),
+        ", ".join(f"{r['scene']} {r['lead_psnr']:+.2f}" for r in clear) or "-", _seeds_text(clear),
+        ", ".join(missing)))
+
+    dense, notes = [], []
+    for sc in scenes:
+        pts = _leads(rows, sc)
+        if not pts:
+            continue
+        top = pts[-1]
+        dense.append(top)
+        reached = top["rgb-only_psnr"] <= targets.dense_rgb_only
+        notes.append(f"{sc} k {top['k']:g}: RGB-only {top['rgb-only_psnr']:.2f} dB, lead {top['lead_psnr']:+.2f}"
+                     + ("" if reached else f" (RGB-only above {targets.dense_rgb_only:g} dB: the sweep stops short)"))
+    ok = None if not dense else all(r["rgb-only_psnr"] <= targets.dense_rgb_only
+                                    and r["lead_psnr"] >= targets.dense_lead for r in dense)
+    checks.append(ClaimCheck(
+        f"densest k, RGB-only ≤ {targets.dense_rgb_only:g} dB: Full − RGB-only ≥ +{targets.dense_lead:g} dB on every scene",
+        verdict(ok), "; ".join(notes) or "-", _seeds_text(dense), ""))
+
+    falls, worst = [], []
+    for sc in scenes:
+        pts = _leads(rows, sc)
+        steps = [(a, b, a["lead_psnr"] - b["lead_psnr"], math.hypot(a["lead_psnr_std"] or 0.0, b["lead_psnr_std"] or 0.0))
+                 for a, b in zip(pts, pts[1:])]
+        if not steps:
+            continue
+        a, b, _, spread = max(steps, key=lambda s: s[2] - s[3])
+        worst.append(f"{sc}: worst step k {a['k']:g} → {b['k']:g}, lead {a['lead_psnr']:+.2f} → "
+                     f"{b['lead_psnr']:+.2f} (spread {spread:.2f})")
+        falls += [sc for _, _, d, s in steps if d > s]
+    checks.append(ClaimCheck(
+        "Full − RGB-only does not fall as k rises beyond the seed spread, on any scene",
+        verdict(None if not worst else not falls), "; ".join(worst) or "-", want, ""))
+    return checks

@@ -5,7 +5,7 @@ already there and was made from the same resolved spec is skipped (so an interru
 resumes; an unfinished scene also resumes inside the generator's own staging folder); one
 that differs only in the clean passes' samples has just those re-rendered
 (`generator.clean_refresh`); one made from another spec is regenerated. With `--clean-from DIR`,
-DIR/<scene> lends its clean passes to a scene generated at another density scale
+DIR/<scene> provides the clean passes of a scene generated at another density scale
 (`generator.clean_reuse`). Every scene prints one line (time, size, smoke statistics), and the run
 writes OUT/benchmark.json and OUT/benchmark.md.
 
@@ -101,7 +101,7 @@ def run_scene(scene: str, profile: Profile, out_root: Path, force: bool, threads
               clean_from: Path | None = None) -> dict[str, Any]:
     """Generate (or reuse) one scene; returns its benchmark record. `density_scale` overrides
     the preset's; `bake_store` keeps and reuses the bakes (generator.bakes); `clean_from` is a
-    folder whose dataset of the scene lends its clean passes (generator.clean_reuse)."""
+    folder whose dataset of the scene provides the clean passes (generator.clean_reuse)."""
     spec = _resolved(scene, profile, density_scale)
     out = out_root / scene
     reused = not force and _finished(out, spec)

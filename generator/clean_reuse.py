@@ -37,7 +37,7 @@ def _clean_code(meta: dict) -> str:
 
 
 def clean_source_problem(source: Path, target: SceneSpec) -> str | None:
-    """Why the dataset at `source` cannot lend its clean passes to `target`; None when it can."""
+    """Why the dataset at `source` cannot provide its clean passes to `target`; None when it can."""
     record = recorded_spec(source)
     if record is None:
         return "not a finished dataset with a readable scene.yaml and dataset.json"
@@ -61,7 +61,7 @@ def generate_reusing_clean(target: SceneSpec, out: Path, source: Path, threads: 
     out, source = Path(out).resolve(), Path(source).resolve()
     problem = clean_source_problem(source, target)
     if problem:
-        raise GeneratorError(f"{source / 'dataset.json'}: cannot lend its clean passes: {problem}")
+        raise GeneratorError(f"{source / 'dataset.json'}: cannot provide its clean passes: {problem}")
     if out.exists() and not force:
         raise GeneratorError(f"{out}: already exists (use --force to replace it)")
     started = time.perf_counter()

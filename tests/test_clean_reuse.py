@@ -48,7 +48,7 @@ def test_reused_clean_passes_make_the_directly_generated_dataset(tmp_path: Path)
     assert meta_a == meta_b
     assert reuse["from"] == "../k0.5" and reuse["source_density_scale"] == 0.5
     assert reuse["passes"] == ["rgb.clean", "thermal.clean"]
-    # The smoky frames at k = 2 are not the source's: only the clean passes were lent.
+    # The smoky frames at k = 2 are not the source's: only the clean passes were copied.
     src = _files(source)
     assert b["rgb/smoky/0000.png"] != src["rgb/smoky/0000.png"]
 
@@ -65,6 +65,6 @@ def test_a_source_that_is_not_the_same_scene_is_refused(tmp_path: Path) -> None:
     meta["code_sha256"] = "0" * 64
     (old / "dataset.json").write_text(json.dumps(meta))
     assert "other render code" in clean_source_problem(old, _at(3.0))
-    with pytest.raises(GeneratorError, match=r"old_code/dataset.json: cannot lend its clean passes: .*render code"):
+    with pytest.raises(GeneratorError, match=r"old_code/dataset.json: cannot provide its clean passes: .*render code"):
         generate_reusing_clean(_at(3.0), tmp_path / "k3", old, show_progress=False)
     assert not (tmp_path / "k3").exists() and not (tmp_path / ".k3.clean-reuse").exists()

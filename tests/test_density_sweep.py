@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from eval.density_sweep import crossover, mean_optical_depth, paired_lead
+from eval.density_sweep import crossover, mean_optical_depth, paired_lead, sweep_checks
 
 
 def test_optical_depth_of_uniform_smoke_scales_with_k() -> None:
@@ -36,3 +36,44 @@ def test_crossover_interpolates_between_the_densities_around_it() -> None:
     assert at == pytest.approx(0.5) and how == "crossing, then behind again"
     with pytest.raises(ValueError):
         crossover([0.0], [])
+
+
+def _row(scene: str, k: float, lead: float | None, rgb: float, std: float | None = 0.1, seeds: str = "0 1 2") -> dict:
+    return {"scene": scene, "k": k, "lead_psnr": lead, "lead_psnr_std": std, "rgb-only_psnr": rgb,
+            "full_seeds": seeds, "rgb-only_seeds": seeds}
+
+
+def _holds(rows: list[dict]) -> list[str]:
+    return [c.holds for c in sweep_checks(rows)]
+
+
+def test_sweep_checks_on_a_sweep_that_meets_every_target() -> None:
+    ks = (0.0, 0.5, 1.0, 2.0, 8.0)
+    rows = [_row(sc, k, lead, rgb) for sc in ("a", "b", "c")
+            for k, lead, rgb in zip(ks, (-0.05, 0.2, 0.9, 2.0, 3.5), (30.0, 26.0, 22.0, 19.0, 14.0))]
+    assert _holds(rows) == ["yes", "yes", "yes", "yes"]
+
+
+def test_sweep_checks_name_each_failure() -> None:
+    ks = (0.0, 0.5, 1.0, 2.0, 8.0)
+    good = [_row("a", k, lead, rgb) for k, lead, rgb in zip(ks, (0.0, 0.2, 0.9, 2.0, 3.5), (30, 26, 22, 19, 14))]
+    # b: costs 0.3 dB with no smoke, its lead falls 1.0 dB from k 1 to 2 with a spread of
+    # √(0.3² + 0.4²) = 0.5, and its densest k leaves RGB-only at 17 dB.
+    b = [_row("b", 0.0, -0.3, 30), _row("b", 0.5, 0.5, 26), _row("b", 1.0, 1.5, 22, std=0.3),
+         _row("b", 2.0, 0.5, 20, std=0.4), _row("b", 8.0, 3.2, 17)]
+    checks = sweep_checks(good + b)
+    assert [c.holds for c in checks] == ["no", "no", "no", "no"]  # coverage: two scenes, not three
+    assert "b -0.30" in checks[1].measured
+    assert "RGB-only above 16 dB" in checks[2].measured and "b k 8" in checks[2].measured
+    assert "b: worst step k 1 → 2, lead +1.50 → +0.50 (spread 0.50)" in checks[3].measured
+    # The same fall inside a wider spread (√(0.8² + 0.8²) = 1.13) is not a fall.
+    b[2], b[3] = _row("b", 1.0, 1.5, 22, std=0.8), _row("b", 2.0, 0.5, 20, std=0.8)
+    assert sweep_checks(good + b)[3].holds == "yes"
+
+
+def test_sweep_checks_wait_for_what_has_not_run() -> None:
+    rows = [_row("a", 0.0, None, 30.0, seeds=""), _row("a", 1.0, 0.4, 22.0, seeds="0")]
+    checks = sweep_checks(rows)
+    assert [c.holds for c in checks] == ["no", "not yet", "no", "not yet"]
+    assert checks[1].left_out == "a"
+    assert "a: 0 complete" in checks[0].measured
