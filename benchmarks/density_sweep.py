@@ -37,7 +37,7 @@ from contracts.dataset_format import PASS_FILES, file_path  # noqa: E402
 from contracts.imageio import image01, read_exr_channel, read_png  # noqa: E402
 from contracts.metrics import psnr  # noqa: E402
 from contracts.source import code_digest  # noqa: E402
-from eval.claims import ClaimCheck  # noqa: E402
+from eval.claims import ClaimCheck, claims_table  # noqa: E402
 from eval.density_sweep import crossover, mean_optical_depth, paired_lead, sweep_checks  # noqa: E402
 from eval.finished_runs import finished_runs  # noqa: E402
 from eval.harness import TRAINER_ENTRY  # noqa: E402
@@ -219,9 +219,7 @@ def main() -> None:
     checks = sweep_checks(rows)
     summary = "\n".join(["# The density sweep's must-holds, checked on sweep.csv", "",
                          "Test PSNR (dB), each scene's mean over the seeds named (Full / RGB-only).", "",
-                         "| claim | holds | measured | seeds | left out |", "|---|---|---|---|---|",
-                         *(f"| {c.claim} | {c.holds} | {c.measured} | {c.seeds} | {c.left_out or '-'} |"
-                           for c in checks)]) + "\n"
+                         *claims_table(checks)]) + "\n"
     write_split_files(args.out, "claims", ClaimCheck, checks, summary, [])
     for r in rows:
         lead = r["lead_psnr"]

@@ -7,11 +7,12 @@
 #   bash benchmarks/density_sweep_generate.sh [OUT] [BAKES]     (defaults: data/density_sweep runs/bakes)
 #
 # k = 1 is not rendered again: it is the standard benchmark's dataset of the scene, linked as
-# OUT/k1/SCENE. It also provides the clean passes of every other k (--clean-from; they never see the
-# smoke, so they are the same at every k, and they are the costliest pass): each k renders only
-# the smoky, depth and smoke-alpha passes. The sweep's bakes reproduce the standard datasets' simulations (their RGB frames
+# OUT/k1/SCENE. The sweep's bakes reproduce the standard datasets' simulations (their RGB frames
 # come out byte for byte; docs/experiments/2026-11-29-density-sweep-k1.md), so Full and RGB-only
-# at k = 1 are Table 1's runs (benchmarks/density_sweep_train.sh links them).
+# at k = 1 are Table 1's runs (benchmarks/density_sweep_train.sh links them). k = 1 also provides
+# the clean passes of every other k (--clean-from): they never see the smoke, so they are the same
+# at every k, and they are the costliest pass; each k renders only the smoky, depth and
+# smoke-alpha passes.
 #
 # The ladder reaches, per scene, a k where the smoky input falls to about the paper's 15 dB:
 # chair and food_plate get there near k = 8; house's smoke covers little of each view (mean

@@ -345,14 +345,19 @@ def _per_seed_table(results: list[RunResult]) -> list[str]:
     return lines
 
 
+def claims_table(checks: list[ClaimCheck]) -> list[str]:
+    """The checks as the lines of a markdown table, one row per check."""
+    return ["| claim | holds | measured | seeds | left out |", "|---|---|---|---|---|",
+            *(f"| {c.claim} | {c.holds} | {c.measured} | {c.seeds} | {c.left_out or '-'} |" for c in checks)]
+
+
 def _summary(checks: list[ClaimCheck], results: list[RunResult]) -> str:
     seeds = sorted({r.seed for r in results})
     lines = ["# The claims, checked on the finished runs", "",
              "Test PSNR (dB). Each claim is checked over the seeds where every variant it compares has "
              "finished on every scene: per seed the mean over scenes, then mean ± sample std over those "
              "seeds. Incomplete seeds are left out of the check and named.", "",
-             "| claim | holds | measured | seeds | left out |", "|---|---|---|---|---|"]
-    lines += [f"| {c.claim} | {c.holds} | {c.measured} | {c.seeds} | {c.left_out or '-'} |" for c in checks]
+             *claims_table(checks)]
     lines += ["", "## Per seed: mean over scenes", "", *_per_seed_table(results)]
     lines += ["", f"## Per scene (seeds {' / '.join(str(s) for s in seeds)}; - not finished)", "",
               *_per_scene_table(results)]

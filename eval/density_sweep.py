@@ -98,6 +98,7 @@ def sweep_checks(rows: list[dict], targets: SweepTargets = SweepTargets()) -> li
     no cost at k = 0, the lead at the densest k, and a lead that does not fall as k rises beyond
     the spread of the two leads over seeds, √(s₁² + s₂²)."""
     scenes = sorted({r["scene"] for r in rows})
+    leads = {sc: _leads(rows, sc) for sc in scenes}
     want = " ".join(str(s) for s in targets.seeds)
     complete = {sc: [r["k"] for r in rows if r["scene"] == sc and r["full_seeds"] == want
                      and r["rgb-only_seeds"] == want] for sc in scenes}
@@ -108,7 +109,7 @@ def sweep_checks(rows: list[dict], targets: SweepTargets = SweepTargets()) -> li
         "; ".join(f"{sc}: {len(complete[sc])} complete (k {', '.join(f'{k:g}' for k in complete[sc]) or '-'})"
                   for sc in scenes), want, "")]
 
-    clear = [r for sc in scenes for r in _leads(rows, sc) if r["k"] == 0]
+    clear = [r for sc in scenes for r in leads[sc] if r["k"] == 0]
     missing = [sc for sc in scenes if sc not in {r["scene"] for r in clear}]
     checks.append(ClaimCheck(
         f"k = 0: Full ≥ RGB-only − {targets.clear_lag:g} dB on every scene",
@@ -118,10 +119,9 @@ def sweep_checks(rows: list[dict], targets: SweepTargets = SweepTargets()) -> li
 
     dense, notes = [], []
     for sc in scenes:
-        pts = _leads(rows, sc)
-        if not pts:
+        if not leads[sc]:
             continue
-        top = pts[-1]
+        top = leads[sc][-1]
         dense.append(top)
         reached = top["rgb-only_psnr"] <= targets.dense_rgb_only
         notes.append(f"{sc} k {top['k']:g}: RGB-only {top['rgb-only_psnr']:.2f} dB, lead {top['lead_psnr']:+.2f}"
@@ -134,7 +134,7 @@ def sweep_checks(rows: list[dict], targets: SweepTargets = SweepTargets()) -> li
 
     falls, worst = [], []
     for sc in scenes:
-        pts = _leads(rows, sc)
+        pts = leads[sc]
         steps = [(a, b, a["lead_psnr"] - b["lead_psnr"], math.hypot(a["lead_psnr_std"] or 0.0, b["lead_psnr_std"] or 0.0))
                  for a, b in zip(pts, pts[1:])]
         if not steps:

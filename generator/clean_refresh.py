@@ -90,6 +90,25 @@ def copy_clean_passes(source: Path, into: Path, modalities: tuple[str, ...], why
                 shutil.copyfile(file_path(source, pf, frame["file_stem"]), dst)
 
 
+def finish_clean_swap(dataset: Path, meta: dict[str, Any], target: SceneSpec, clean_timings: dict[str, Any],
+                      key: str, record: dict[str, Any]) -> None:
+    """Make `dataset`, whose clean passes were just swapped in, `target`'s dataset: its metadata
+    describes `target` (passes, clean samples, spec hash, statistics), `meta[key]` says where the
+    clean passes came from (their per-frame time from `clean_timings`), and the folder validates."""
+    stems = {m: [f["file_stem"] for f in json.loads((dataset / transforms_name(m)).read_text())["frames"]]
+             for m in target.passes}
+    meta["passes"] = {m: list(p) for m, p in target.passes.items()}
+    meta["spec_sha256"] = target.sha256()
+    for m in clean_modalities(target):
+        meta["render"][m]["clean_samples"] = getattr(target.rig, m).clean_samples
+        meta["timings_s"]["render"][f"{m}.{CLEAN}"] = clean_timings.get(f"{m}.{CLEAN}")
+    meta["stats"] = postprocess.scene_stats(dataset, stems, target.passes)
+    meta[key] = record
+    write_json(dataset / "dataset.json", meta)
+    (dataset / "scene.yaml").write_text(yaml.safe_dump(target.to_dict(), sort_keys=False))
+    validate_dataset(dataset)
+
+
 def refresh_clean(dataset: Path, target: SceneSpec, threads: int | None = None, show_progress: bool = True) -> Path:
     """Re-render the clean passes of `dataset` at `target`'s clean_samples and swap them in.
 
@@ -120,22 +139,12 @@ def refresh_clean(dataset: Path, target: SceneSpec, threads: int | None = None, 
         shutil.rmtree(fresh)
     shutil.copytree(dataset, fresh)
     copy_clean_passes(rendered, fresh, modalities, "regenerate the dataset instead")
-    stems = {m: [f["file_stem"] for f in json.loads((fresh / transforms_name(m)).read_text())["frames"]]
-             for m in target.passes}
     after = {m: getattr(target.rig, m).clean_samples for m in modalities}
-    for m in modalities:
-        meta["render"][m]["clean_samples"] = after[m]
-        meta["timings_s"]["render"][f"{m}.{CLEAN}"] = new_meta["timings_s"]["render"].get(f"{m}.{CLEAN}")
-    meta["spec_sha256"] = target.sha256()
-    meta["stats"] = postprocess.scene_stats(fresh, stems, target.passes)
-    meta["clean_refresh"] = {
+    finish_clean_swap(fresh, meta, target, new_meta["timings_s"]["render"], "clean_refresh", {
         "passes": [f"{m}.{CLEAN}" for m in modalities], "clean_samples_before": before, "clean_samples": after,
         "code_sha256": render_code_digest(), "versions": {**versions(), "blender": new_meta["versions"]["blender"]},
         "seconds": round(time.perf_counter() - started, 1),
-        "note": "only the clean passes were rendered again; every other file is the original dataset's"}
-    write_json(fresh / "dataset.json", meta)
-    (fresh / "scene.yaml").write_text(yaml.safe_dump(target.to_dict(), sort_keys=False))
-    validate_dataset(fresh)
+        "note": "only the clean passes were rendered again; every other file is the original dataset's"})
     old = staging / "old"
     os.replace(dataset, old)
     os.replace(fresh, dataset)

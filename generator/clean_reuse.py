@@ -18,12 +18,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-import yaml
-
-from contracts.atomic import write_json
-from contracts.dataset_format import transforms_name, validate_dataset
-from generator import postprocess
-from generator.clean_refresh import CLEAN, clean_modalities, copy_clean_passes, recorded_spec
+from generator.clean_refresh import CLEAN, clean_modalities, copy_clean_passes, finish_clean_swap, recorded_spec
 from generator.errors import GeneratorError
 from generator.pipeline import generate, render_code_digest
 from generator.spec import SceneSpec
@@ -36,9 +31,7 @@ def _clean_code(meta: dict) -> str:
     return str(meta.get("clean_refresh", {}).get("code_sha256", meta.get("code_sha256", "")))
 
 
-def clean_source_problem(source: Path, target: SceneSpec) -> str | None:
-    """Why the dataset at `source` cannot provide its clean passes to `target`; None when it can."""
-    record = recorded_spec(source)
+def _problem(record: tuple[SceneSpec, dict] | None, target: SceneSpec) -> str | None:
     if record is None:
         return "not a finished dataset with a readable scene.yaml and dataset.json"
     recorded, meta = record
@@ -53,14 +46,20 @@ def clean_source_problem(source: Path, target: SceneSpec) -> str | None:
     return None
 
 
+def clean_source_problem(source: Path, target: SceneSpec) -> str | None:
+    """Why the dataset at `source` cannot provide its clean passes to `target`; None when it can."""
+    return _problem(recorded_spec(source), target)
+
+
 def generate_reusing_clean(target: SceneSpec, out: Path, source: Path, threads: int | None = None,
                            show_progress: bool = True, bake_store: Path | None = None, force: bool = False) -> Path:
     """Generate `target` at `out`, rendering every pass but the clean ones, which are copied from
     `source`. Staged beside `out` (`.NAME.clean-reuse/`, resumed after an interruption); with
     `force`, a dataset already at `out` is replaced once the new one validates."""
     out, source = Path(out).resolve(), Path(source).resolve()
-    problem = clean_source_problem(source, target)
-    if problem:
+    record = recorded_spec(source)
+    problem = _problem(record, target)
+    if record is None or problem:
         raise GeneratorError(f"{source / 'dataset.json'}: cannot provide its clean passes: {problem}")
     if out.exists() and not force:
         raise GeneratorError(f"{out}: already exists (use --force to replace it)")
@@ -73,26 +72,15 @@ def generate_reusing_clean(target: SceneSpec, out: Path, source: Path, threads: 
     if not (rendered / "dataset.json").is_file():
         generate(rest, rendered, threads=threads, force=True, show_progress=show_progress, bake_store=bake_store)
     copy_clean_passes(source, rendered, modalities, "its clean passes cannot be reused")
-    meta = json.loads((rendered / "dataset.json").read_text())
-    source_meta = json.loads((source / "dataset.json").read_text())
-    stems = {m: [f["file_stem"] for f in json.loads((rendered / transforms_name(m)).read_text())["frames"]]
-             for m in target.passes}
-    meta["passes"] = {m: list(p) for m, p in target.passes.items()}
-    meta["spec_sha256"] = target.sha256()
-    for m in modalities:
-        meta["render"][m]["clean_samples"] = getattr(target.rig, m).clean_samples
-        meta["timings_s"]["render"][f"{m}.{CLEAN}"] = source_meta["timings_s"]["render"].get(f"{m}.{CLEAN}")
-    meta["stats"] = postprocess.scene_stats(rendered, stems, target.passes)
-    meta["clean_reused"] = {
+    source_meta = record[1]
+    finish_clean_swap(rendered, json.loads((rendered / "dataset.json").read_text()), target,
+                      source_meta["timings_s"]["render"], "clean_reused", {
         "passes": [f"{m}.{CLEAN}" for m in modalities], "from": os.path.relpath(source, out),
         "source_spec_sha256": source_meta["spec_sha256"],
         "source_density_scale": source_meta["smoke"].get("density_scale", 1.0),
         "code_sha256": _clean_code(source_meta), "seconds": round(time.perf_counter() - started, 1),
         "note": "the clean passes never see the smoke, so they are the source's files; every other file "
-                "was rendered for this dataset (timings_s.render gives the source's clean timings)"}
-    write_json(rendered / "dataset.json", meta)
-    (rendered / "scene.yaml").write_text(yaml.safe_dump(target.to_dict(), sort_keys=False))
-    validate_dataset(rendered)
+                "was rendered for this dataset (timings_s.render gives the source's clean timings)"})
     if out.exists():
         shutil.rmtree(out)
     os.replace(rendered, out)
