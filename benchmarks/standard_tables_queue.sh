@@ -11,9 +11,12 @@
 # afterwards for the whole CSV); the DCP baseline at seed 0; "Full, estimated Stage 1" at seeds 1-2;
 # "Full, Stage 1 from images" (poses by SfM as well) at seeds 0-1; and the DCP baseline at seeds 1-2.
 # A worker claims a step by creating its folder under CLAIMS (mkdir is atomic; the step's log
-# goes there), so two workers never train the same run; cached steps cost seconds.
-# A worker stops before its next step once CLAIMS/STOP exists. An interrupted run resumes from its
-# checkpoint when its step's claim folder is removed and a worker reaches it again. Afterwards,
+# goes there) and writing its process id and start time into it, so two workers never train the
+# same run; cached steps cost seconds. A step's folder gets a `done` file when its call returns.
+# A claim without `done` whose owner has gone (the machine restarted, the worker was killed) is
+# stale: the next worker to reach it renames it away (rename is atomic, so only one worker
+# succeeds), says so, and claims the step afresh; the run resumes from its checkpoint.
+# A worker stops before its next step once CLAIMS/STOP exists. Afterwards,
 # `bash benchmarks/standard_tables.sh --finished-only` writes the tables.
 #
 #   bash benchmarks/standard_tables_queue.sh NAME [CLAIMS]     (CLAIMS default: runs/claims)
@@ -25,6 +28,23 @@ root=data/standard
 out=data/tables_standard
 ceilings=data/clean_ceiling_standard
 mkdir -p "$claims"
+me="$$ $(ps -o lstart= -p $$)"
+alive() {  # alive CLAIM: its owner process still runs (same pid and start time)
+    local pid started
+    read -r pid started 2>/dev/null < "$1/owner" || return 1
+    [[ "$pid $(ps -o lstart= -p "$pid" 2>/dev/null)" == "$pid $started" ]]
+}
+take() {  # take CLAIM: claim the step, or take over a stale claim of it
+    if mkdir "$1" 2>/dev/null; then echo "$me" > "$1/owner"; return 0; fi
+    [[ -e $1/done ]] && return 1
+    sleep 1  # a claim just made may not have its owner file yet
+    alive "$1" && return 1
+    local stale; stale="$1.stale.$(date -u +%Y%m%dT%H%M%SZ).$$"
+    mv -T "$1" "$stale" 2>/dev/null || return 1
+    echo "[$name] $(date -u +%FT%TZ) stale claim taken over ($(cat "$stale/owner" 2>/dev/null || echo no owner)): $stale"
+    mkdir "$1" 2>/dev/null || return 1
+    echo "$me" > "$1/owner"
+}
 source benchmarks/standard_scenes.sh
 mapfile -t scenes < <(standard_scenes "$root")
 ablations=$(.venv/bin/python -c \
@@ -47,7 +67,7 @@ for step in "${steps[@]}"; do
     if [[ -e "$claims/STOP" ]]; then echo "[$name] $(date -u +%FT%TZ) STOP found, leaving"; exit 0; fi
     read -r scene method seed ablation <<< "$step"
     claim="$claims/$(echo "$step" | md5sum | cut -c1-12)"
-    mkdir "$claim" 2>/dev/null || continue
+    take "$claim" || continue
     if [[ $ablation == - ]]; then which=(--no-ablations); else which=(--ablations --ablation-list "$ablation"); fi
     echo "[$name] $(date -u +%FT%TZ) start $step"
     t0=$SECONDS
@@ -59,6 +79,7 @@ for step in "${steps[@]}"; do
         .venv/bin/regenerate-tables --profile standard --workers 2 --scenes "$scene" --dataset "$scene=$root/$scene" \
             --methods "$method" --seeds "$seed," "${which[@]}" --out "$out" > "$claim/log" 2>&1 || rc=$?
     fi
+    echo "$rc" > "$claim/done"
     echo "[$name] $(date -u +%FT%TZ) done $step rc=$rc $((SECONDS - t0)) s"
 done
 echo "[$name] $(date -u +%FT%TZ) queue empty"
