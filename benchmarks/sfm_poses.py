@@ -7,9 +7,13 @@ intrinsics held fixed, the features masked where the true smoke opacity exceeds 
 from SfM on the smoky thermal frames, ``scenes.rig.estimate_rig_rotation``, zero lever) and with
 it assumed (identity, zero lever). The SfM poses are brought onto the truth by a Sim(3): its rotation is the chordal mean
 of the per-frame rotations between the two frames (camera orientations), its scale and shift the
-least-squares fit of the camera centres. Umeyama on the centres alone cannot be used: on the
-flyovers (straight paths) the rotation about the path is undetermined by the centres (it
-returned 127-152 degree errors), and on orbits it tilts with the centre noise.
+least-squares fit of the camera centres. Umeyama on the centres alone cannot score rotations: on
+the flyovers (straight paths) the rotation about the path is undetermined by the centres (it
+returned 127-152 degree errors), and on orbits it tilts with the centre noise. The trajectory
+error is given both ways: ``centre_rmse_*`` after the alignment above, and ``ate_rmse_*``, the
+absolute trajectory error of the TUM RGB-D benchmark (Umeyama Sim(3) on the centres, the
+least-squares optimum, so never above the first; a rotation left free about a straight path
+moves no centre).
 
     python benchmarks/sfm_poses.py DATASET... [--mask-alpha none 0.5] [--set FIELD=VALUE ...] [--no-thermal]
         [--out benchmarks/results/sfm_poses]
@@ -38,6 +42,7 @@ from scenes.cameras import c2w_gl_to_viewmat, camera_center, intrinsics, scene_b
 from scenes.generated import spec_rig
 from scenes.rig import RigExtrinsic, estimate_rig_rotation, thermal_from_rig
 from scenes.sfm import SfmError, SfmResult, SfmSettings, run_sfm, stretched
+from scenes.similarity import umeyama
 
 
 def rotation_error_deg(a: np.ndarray, b: np.ndarray) -> float:
@@ -106,6 +111,15 @@ def summarise(rot: np.ndarray, dist: np.ndarray, extent: float) -> dict[str, flo
             "centre_rmse_frac": float(np.sqrt(np.mean(dist ** 2)) / extent)}
 
 
+def ate_rmse_m(est: np.ndarray, ref: np.ndarray) -> float:
+    """Absolute trajectory error: RMSE of the camera centres after the least-squares Sim(3) of
+    the centres alone (Umeyama), as the TUM RGB-D benchmark defines it."""
+    c_est = np.stack([camera_center(v) for v in est])
+    c_ref = np.stack([camera_center(v) for v in ref])
+    moved = umeyama(c_est, c_ref).apply(c_est)
+    return float(np.sqrt(np.mean(np.sum((moved - c_ref) ** 2, axis=1))))
+
+
 def evaluate(root: Path, mask_alpha: float | None, settings: SfmSettings,
              thermal: tuple[SfmResult | None, str]) -> tuple[dict[str, object], list[dict[str, object]]]:
     """The scene's row, and one row per registered frame: its errors beside the true smoke over it
@@ -133,6 +147,8 @@ def evaluate(root: Path, mask_alpha: float | None, settings: SfmSettings,
     sim = align(res.viewmats[reg], views[reg])
     rot, dist = frame_errors(res.viewmats[reg], views[reg], sim)
     errs = summarise(rot, dist, bounds.extent)
+    ate = ate_rmse_m(res.viewmats[reg], views[reg])
+    errs.update(ate_rmse_m=ate, ate_rmse_frac=ate / bounds.extent)
     frames = [{"scene": root.name, "mask_alpha": row["mask_alpha"], "frame": names[i], "timestamp_s": times[i],
                "true_alpha_mean": round(float(alpha[i].mean()), 4),
                "true_alpha_over_half": round(float(np.mean(alpha[i] > 0.5)), 4),
