@@ -4,12 +4,13 @@
 # Each call says --workers 2, as standard_tables.sh does, so that its one run trains on one thread
 # (the harness gives a run cores/workers threads) like every other run of the tables. The order
 # puts first what the must-holds read (docs/benchmark.md): Full and RGB-only at seeds 0, 1 and 2;
+# "Full, Stage 1 from images" (poses by SfM, masks and smoke presence estimated) at seeds 0-1;
 # "Full, estimated Stage 1" at seed 0 (each call plans it beside its cached Full, whose Stage 2 it
 # takes); Table 2's ablations at seed 0 (the harness's default list for the standard profile, each
 # taking Full's Stage 2 the same way); then each scene's clean ceiling of both at seed 0
 # (benchmarks/clean_ceiling.py into data/clean_ceiling_standard; run it once more over every scene
 # afterwards for the whole CSV); the DCP baseline at seed 0; "Full, estimated Stage 1" at seeds 1-2;
-# "Full, Stage 1 from images" (poses by SfM as well) at seeds 0-1; and the DCP baseline at seeds 1-2.
+# and the DCP baseline at seeds 1-2.
 # A worker claims a step by creating its folder under CLAIMS (mkdir is atomic; the step's log
 # goes there) and writing its process id and start time into it, so two workers never train the
 # same run; cached steps cost seconds. A step's folder gets a `done` file when its call returns.
@@ -56,12 +57,12 @@ add_steps() {  # add_steps METHODS SEED [ABLATION]: one step per scene
     for s in "${scenes[@]}"; do steps+=("$s $1 $2 ${3:--}"); done
 }
 for seed in 0 1 2; do add_steps full "$seed"; add_steps rgb-only "$seed"; done
+for seed in 0 1; do add_steps full,full-from-images "$seed"; done
 add_steps full,full-estimated 0
 for a in "${ablations[@]}"; do add_steps full 0 "$a"; done
 add_steps ceiling:full 0; add_steps ceiling:rgb-only 0
 add_steps imgdehaze-dcp 0
 for seed in 1 2; do add_steps full,full-estimated "$seed"; done
-for seed in 0 1; do add_steps full,full-from-images "$seed"; done
 for seed in 1 2; do add_steps imgdehaze-dcp "$seed"; done
 for step in "${steps[@]}"; do
     if [[ -e "$claims/STOP" ]]; then echo "[$name] $(date -u +%FT%TZ) STOP found, leaving"; exit 0; fi
