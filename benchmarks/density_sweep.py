@@ -38,7 +38,7 @@ from contracts.imageio import image01, read_exr_channel, read_png  # noqa: E402
 from contracts.metrics import psnr  # noqa: E402
 from contracts.source import code_digest  # noqa: E402
 from eval.claims import ClaimCheck, claims_table  # noqa: E402
-from eval.density_sweep import crossover, mean_optical_depth, paired_lead, sweep_checks  # noqa: E402
+from eval.density_sweep import crossover, mean_optical_depth, paired_lead, stems_of_test_views, sweep_checks  # noqa: E402
 from eval.finished_runs import finished_runs  # noqa: E402
 from eval.harness import TRAINER_ENTRY  # noqa: E402
 from eval.per_view import pooled_over_views  # noqa: E402
@@ -65,14 +65,9 @@ def _table_folders(tables: Path) -> dict[float, Path]:
     return density_folders(tables.parent, f"{tables.name}_")
 
 
-def test_stems(dataset: Path) -> list[str]:
-    frames = json.loads((dataset / "transforms_rgb.json").read_text())["frames"]
-    return [f["file_stem"] for f in frames if f["split"] == "test"]
-
-
 def scene_density(dataset: Path) -> dict[str, Any]:
     """The test views' mean RGB optical depth and the smoky input's PSNR (mean of views)."""
-    stems = test_stems(dataset)
+    stems = stems_of_test_views(dataset)
     alpha_file = PASS_FILES[("rgb", "smoke_alpha")][0]
     alphas = [read_exr_channel(file_path(dataset, alpha_file, s), "A") for s in stems]
     psnrs = [psnr(image01(read_png(dataset / "rgb" / "smoky" / f"{s}.png")),
@@ -173,7 +168,7 @@ def plot_strip(rows: list[dict[str, Any]], dens: dict[float, Path], scores_by_k:
             dataset, scores = dens[k] / scene, scores_by_k[k]
             images: list[np.ndarray | None] = [None] * 4
             if (dataset / "dataset.json").is_file():
-                stem = test_stems(dataset)[0]
+                stem = stems_of_test_views(dataset)[0]
                 images[0] = read_png(dataset / "rgb" / "smoky" / f"{stem}.png")
                 images[3] = read_png(dataset / "rgb" / "clean" / f"{stem}.png")
                 for j, method in ((1, "rgb-only"), (2, "full")):

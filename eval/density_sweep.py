@@ -7,12 +7,20 @@ depth −ln(1 − ᾱ) of the RGB smoke over the test views' pixels.
 """
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from eval.claims import ClaimCheck, verdict
+
+
+def stems_of_test_views(dataset: Path) -> list[str]:
+    """The file stems of a dataset's RGB test views, as its transforms split them."""
+    frames = json.loads((Path(dataset) / "transforms_rgb.json").read_text())["frames"]
+    return [f["file_stem"] for f in frames if f["split"] == "test"]
 
 
 def mean_optical_depth(alphas: list[np.ndarray]) -> float:
@@ -21,6 +29,23 @@ def mean_optical_depth(alphas: list[np.ndarray]) -> float:
         raise ValueError("mean_optical_depth: no views")
     mean = float(np.mean([float(np.mean(np.clip(a, 0.0, 1.0))) for a in alphas]))
     return -math.log1p(-min(mean, 1.0 - 1e-12))
+
+
+def frame_at_scale(smoky: np.ndarray, clean: np.ndarray, alpha: np.ndarray, k: float,
+                   alpha_min: float = 1e-3) -> np.ndarray:
+    """An estimate of a smoky frame at density scale k from the same frame at k = 1, for choosing a
+    ladder before rendering it. Per pixel, I = (1 − α)·J + α·A with J the clean frame and α the
+    smoke opacity; the smoke's own colour A is solved for where α > ``alpha_min`` (clipped to
+    [0, 1]) and held, while the opacity becomes 1 − (1 − α)^k. Where α ≤ ``alpha_min`` the k = 1
+    frame is kept, render noise and all. It ignores how the smoke's colour changes with its
+    density (self-shadowing, multiple scattering), so it is a guide, not a render."""
+    if k < 0 or not math.isfinite(k):
+        raise ValueError(f"frame_at_scale: k must be finite and at least 0, got {k!r}")
+    a = np.clip(alpha, 0.0, 1.0 - 1e-9)[..., None] if alpha.ndim == smoky.ndim - 1 else np.clip(alpha, 0.0, 1.0 - 1e-9)
+    smoke = a > alpha_min
+    colour = np.clip((smoky - (1.0 - a) * clean) / np.where(smoke, a, 1.0), 0.0, 1.0)
+    a_k = 1.0 - (1.0 - a) ** k
+    return np.where(smoke, (1.0 - a_k) * clean + a_k * colour, smoky)
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from eval.density_sweep import crossover, mean_optical_depth, paired_lead, sweep_checks
+from eval.density_sweep import crossover, frame_at_scale, mean_optical_depth, paired_lead, sweep_checks
 
 
 def test_optical_depth_of_uniform_smoke_scales_with_k() -> None:
@@ -17,6 +17,29 @@ def test_optical_depth_of_uniform_smoke_scales_with_k() -> None:
     assert math.isfinite(mean_optical_depth([np.ones((2, 2))]))  # opaque smoke: large, not inf
     with pytest.raises(ValueError):
         mean_optical_depth([])
+
+
+def test_a_frame_at_another_density_follows_the_compositing_of_its_smoke() -> None:
+    """A frame composited from a known clean frame J, smoke colour A and opacity α comes back at
+    k = 1, becomes J at k = 0, and at k = 3 is J under opacity 1 − (1 − α)³ of the same colour;
+    pixels with no smoke keep the k = 1 frame (its render noise is not the smoke's)."""
+    rng = np.random.default_rng(0)
+    clean = rng.uniform(0, 1, (5, 7, 3))
+    colour = rng.uniform(0, 1, (5, 7, 3))
+    alpha = rng.uniform(0.05, 0.95, (5, 7))
+    alpha[0, 0] = 0.0
+    smoky = (1 - alpha[..., None]) * clean + alpha[..., None] * colour
+    smoky[0, 0] += 0.01  # noise where there is no smoke
+    assert np.allclose(frame_at_scale(smoky, clean, alpha, 1.0), smoky)
+    assert np.allclose(frame_at_scale(smoky, clean, alpha, 0.0)[1:], clean[1:])
+    a3 = 1 - (1 - alpha[..., None]) ** 3
+    expected = (1 - a3) * clean + a3 * colour
+    expected[0, 0] = smoky[0, 0]
+    assert np.allclose(frame_at_scale(smoky, clean, alpha, 3.0), expected)
+    opaque = frame_at_scale(smoky, clean, np.full((5, 7), 1.0), 2.0)
+    assert np.all(np.isfinite(opaque)) and opaque.min() >= 0 and opaque.max() <= 1
+    with pytest.raises(ValueError):
+        frame_at_scale(smoky, clean, alpha, -1.0)
 
 
 def test_lead_pairs_seeds() -> None:
