@@ -15,24 +15,16 @@ from pathlib import Path
 
 import numpy as np
 
-from contracts.dataset_format import PASS_FILES, file_path
-from contracts.imageio import image01, read_exr_channel, read_png
 from contracts.metrics import psnr
-from eval.density_sweep import frame_at_scale, mean_optical_depth, stems_of_test_views
+from eval.density_sweep import frame_at_scale, mean_optical_depth, frames_of_test_views
 
 
 def ladder_row(root: Path, ks: list[float]) -> dict[str, float]:
     """The scene's optical depth at k = 1 and its estimated input PSNR (mean over test views) at each k."""
-    alpha_file = PASS_FILES[("rgb", "smoke_alpha")][0]
-    scores: dict[float, list[float]] = {k: [] for k in ks}
-    alphas = []
-    for stem in stems_of_test_views(root):
-        smoky = image01(read_png(root / "rgb" / "smoky" / f"{stem}.png"))
-        clean = image01(read_png(root / "rgb" / "clean" / f"{stem}.png"))
-        alphas.append(read_exr_channel(file_path(root, alpha_file, stem), "A"))
-        for k in ks:
-            scores[k].append(psnr(frame_at_scale(smoky, clean, alphas[-1], k), clean))
-    return {"optical_depth_k1": mean_optical_depth(alphas), **{f"k{k:g}": float(np.mean(v)) for k, v in scores.items()}}
+    views = list(frames_of_test_views(root))
+    scores = {f"k{k:g}": float(np.mean([psnr(frame_at_scale(smoky, clean, alpha, k), clean)
+                                         for smoky, clean, alpha in views])) for k in ks}
+    return {"optical_depth_k1": mean_optical_depth([alpha for _, _, alpha in views]), **scores}
 
 
 def main() -> None:

@@ -33,12 +33,12 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from contracts.atomic import write_rows_csv  # noqa: E402
-from contracts.dataset_format import PASS_FILES, file_path  # noqa: E402
-from contracts.imageio import image01, read_exr_channel, read_png  # noqa: E402
+from contracts.imageio import read_png  # noqa: E402
 from contracts.metrics import psnr  # noqa: E402
 from contracts.source import code_digest  # noqa: E402
 from eval.claims import ClaimCheck, claims_table  # noqa: E402
-from eval.density_sweep import crossover, mean_optical_depth, paired_lead, stems_of_test_views, sweep_checks  # noqa: E402
+from eval.density_sweep import (crossover, frames_of_test_views, mean_optical_depth, paired_lead,  # noqa: E402
+                                stems_of_test_views, sweep_checks)
 from eval.finished_runs import finished_runs  # noqa: E402
 from eval.harness import TRAINER_ENTRY  # noqa: E402
 from eval.per_view import pooled_over_views  # noqa: E402
@@ -67,11 +67,9 @@ def _table_folders(tables: Path) -> dict[float, Path]:
 
 def scene_density(dataset: Path) -> dict[str, Any]:
     """The test views' mean RGB optical depth and the smoky input's PSNR (mean of views)."""
-    stems = stems_of_test_views(dataset)
-    alpha_file = PASS_FILES[("rgb", "smoke_alpha")][0]
-    alphas = [read_exr_channel(file_path(dataset, alpha_file, s), "A") for s in stems]
-    psnrs = [psnr(image01(read_png(dataset / "rgb" / "smoky" / f"{s}.png")),
-                  image01(read_png(dataset / "rgb" / "clean" / f"{s}.png"))) for s in stems]
+    views = list(frames_of_test_views(dataset))
+    alphas = [alpha for _, _, alpha in views]
+    psnrs = [psnr(smoky, clean) for smoky, clean, _ in views]
     return {"optical_depth": mean_optical_depth(alphas), "input_psnr": float(np.mean(psnrs)),
             "input_pooled_psnr": pooled_over_views(psnrs)}
 

@@ -9,11 +9,14 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from contracts.dataset_format import PASS_FILES, file_path
+from contracts.imageio import image01, read_exr_channel, read_png
 from eval.claims import ClaimCheck, verdict
 
 
@@ -21,6 +24,15 @@ def stems_of_test_views(dataset: Path) -> list[str]:
     """The file stems of a dataset's RGB test views, as its transforms split them."""
     frames = json.loads((Path(dataset) / "transforms_rgb.json").read_text())["frames"]
     return [f["file_stem"] for f in frames if f["split"] == "test"]
+
+
+def frames_of_test_views(dataset: Path) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Each RGB test view's smoky frame, clean frame (both in [0, 1]) and smoke opacity."""
+    alpha_file = PASS_FILES[("rgb", "smoke_alpha")][0]
+    for stem in stems_of_test_views(dataset):
+        yield (image01(read_png(dataset / "rgb" / "smoky" / f"{stem}.png")),
+               image01(read_png(dataset / "rgb" / "clean" / f"{stem}.png")),
+               read_exr_channel(file_path(dataset, alpha_file, stem), "A"))
 
 
 def mean_optical_depth(alphas: list[np.ndarray]) -> float:
@@ -41,7 +53,9 @@ def frame_at_scale(smoky: np.ndarray, clean: np.ndarray, alpha: np.ndarray, k: f
     density (self-shadowing, multiple scattering), so it is a guide, not a render."""
     if k < 0 or not math.isfinite(k):
         raise ValueError(f"frame_at_scale: k must be finite and at least 0, got {k!r}")
-    a = np.clip(alpha, 0.0, 1.0 - 1e-9)[..., None] if alpha.ndim == smoky.ndim - 1 else np.clip(alpha, 0.0, 1.0 - 1e-9)
+    a = np.clip(alpha, 0.0, 1.0 - 1e-9)
+    if a.ndim == smoky.ndim - 1:  # one opacity per pixel, shared by the colour channels
+        a = a[..., None]
     smoke = a > alpha_min
     colour = np.clip((smoky - (1.0 - a) * clean) / np.where(smoke, a, 1.0), 0.0, 1.0)
     a_k = 1.0 - (1.0 - a) ** k
