@@ -11,22 +11,31 @@
 # (benchmarks/clean_ceiling.py into data/clean_ceiling_standard; run it once more over every scene
 # afterwards for the whole CSV); the DCP baseline at seed 0; "Full, estimated Stage 1" at seeds 1-2;
 # and the DCP baseline at seeds 1-2.
+# With --density-sweep the queue is issue 49's instead: Full and RGB-only at seeds 0-2 on every
+# dataset of data/density_sweep/kK (k = 1 aside, whose runs are Table 1's), seed 0 at every k
+# first, each into data/tables_density_kK as benchmarks/density_sweep_train.sh keys them; that
+# script run with --finished-only afterwards writes the tables and the curves.
 # A worker claims a step by creating its folder under CLAIMS (mkdir is atomic; the step's log
 # goes there) and writing its process id and start time into it, so two workers never train the
 # same run; cached steps cost seconds. A step's folder gets a `done` file when its call returns.
 # A claim without `done` whose owner has gone (the machine restarted, the worker was killed) is
 # stale: the next worker to reach it renames it away (rename is atomic, so only one worker
 # succeeds), says so, and claims the step afresh; the run resumes from its checkpoint.
-# A worker stops before its next step once CLAIMS/STOP exists. Afterwards,
+# A worker plans afresh before each step, so the sweep's list takes up the datasets generated
+# meanwhile, seed 0 first. A worker stops before its next step once CLAIMS/STOP exists. Afterwards,
 # `bash benchmarks/standard_tables.sh --finished-only` writes the tables.
 #
-#   bash benchmarks/standard_tables_queue.sh NAME [CLAIMS]     (CLAIMS default: runs/claims)
+#   bash benchmarks/standard_tables_queue.sh [--density-sweep] NAME [CLAIMS]   (CLAIMS default: runs/claims)
 set -euo pipefail
 cd "$(dirname "$0")/.."
-name=${1:?usage: standard_tables_queue.sh NAME [CLAIMS]}
+plan=standard
+if [[ ${1:-} == --density-sweep ]]; then plan=density-sweep; shift; fi
+name=${1:?usage: standard_tables_queue.sh [--density-sweep] NAME [CLAIMS]}
 claims=${2:-runs/claims}
 root=data/standard
 out=data/tables_standard
+sweep=data/density_sweep
+sweep_tables=data/tables_density
 ceilings=data/clean_ceiling_standard
 mkdir -p "$claims"
 me="$$ $(ps -o lstart= -p $$)"
@@ -51,24 +60,44 @@ mapfile -t scenes < <(standard_scenes "$root")
 ablations=$(.venv/bin/python -c \
     "from eval.settings import default_ablations; print(*default_ablations('standard', {}), sep='\n')")
 mapfile -t ablations <<< "$ablations"
-steps=()
 add_steps() {  # add_steps METHODS SEED [ABLATION]: one step per scene
     local s
     for s in "${scenes[@]}"; do steps+=("$s $1 $2 ${3:--}"); done
 }
-for seed in 0 1 2; do add_steps full "$seed"; add_steps rgb-only "$seed"; done
-for seed in 0 1; do add_steps full,full-from-images "$seed"; done
-add_steps full,full-estimated 0
-for a in "${ablations[@]}"; do add_steps full 0 "$a"; done
-add_steps ceiling:full 0; add_steps ceiling:rgb-only 0
-add_steps imgdehaze-dcp 0
-for seed in 1 2; do add_steps full,full-estimated "$seed"; done
-for seed in 1 2; do add_steps imgdehaze-dcp "$seed"; done
-for step in "${steps[@]}"; do
+plan_steps() {  # fills steps
+    steps=()
+    if [[ $plan == standard ]]; then
+        for seed in 0 1 2; do add_steps full "$seed"; add_steps rgb-only "$seed"; done
+        for seed in 0 1; do add_steps full,full-from-images "$seed"; done
+        add_steps full,full-estimated 0
+        for a in "${ablations[@]}"; do add_steps full 0 "$a"; done
+        add_steps ceiling:full 0; add_steps ceiling:rgb-only 0
+        add_steps imgdehaze-dcp 0
+        for seed in 1 2; do add_steps full,full-estimated "$seed"; done
+        for seed in 1 2; do add_steps imgdehaze-dcp "$seed"; done
+        return
+    fi
+    local d k m
+    for seed in 0 1 2; do  # SCENE METHOD SEED - kK: the dataset is $sweep/kK/SCENE
+        for d in "$sweep"/k*/*/dataset.json; do
+            d=${d%/dataset.json}; k=$(basename "$(dirname "$d")")
+            [[ $k == k1 ]] && continue
+            for m in full rgb-only; do steps+=("$(basename "$d") $m $seed - $k"); done
+        done
+    done
+}
+while :; do  # each step planned afresh: the first of the plan that can be claimed
     if [[ -e "$claims/STOP" ]]; then echo "[$name] $(date -u +%FT%TZ) STOP found, leaving"; exit 0; fi
-    read -r scene method seed ablation <<< "$step"
-    claim="$claims/$(echo "$step" | md5sum | cut -c1-12)"
-    take "$claim" || continue
+    plan_steps
+    step=""
+    for candidate in "${steps[@]}"; do
+        claim="$claims/$(echo "$candidate" | md5sum | cut -c1-12)"
+        if take "$claim"; then step=$candidate; break; fi
+    done
+    [[ -n $step ]] || break
+    read -r scene method seed ablation k <<< "$step"
+    dataset=$root/$scene tables=$out
+    if [[ -n $k ]]; then dataset=$sweep/$k/$scene tables=${sweep_tables}_$k; fi
     if [[ $ablation == - ]]; then which=(--no-ablations); else which=(--ablations --ablation-list "$ablation"); fi
     echo "[$name] $(date -u +%FT%TZ) start $step"
     t0=$SECONDS
@@ -77,8 +106,8 @@ for step in "${steps[@]}"; do
         .venv/bin/python benchmarks/clean_ceiling.py "$root/$scene" --modes "${method#ceiling:}" --seed "$seed" \
             --out "$ceilings" --csv "$claim/clean_ceiling.csv" > "$claim/log" 2>&1 || rc=$?
     else
-        .venv/bin/regenerate-tables --profile standard --workers 2 --scenes "$scene" --dataset "$scene=$root/$scene" \
-            --methods "$method" --seeds "$seed," "${which[@]}" --out "$out" > "$claim/log" 2>&1 || rc=$?
+        .venv/bin/regenerate-tables --profile standard --workers 2 --scenes "$scene" --dataset "$scene=$dataset" \
+            --methods "$method" --seeds "$seed," "${which[@]}" --out "$tables" > "$claim/log" 2>&1 || rc=$?
     fi
     echo "$rc" > "$claim/done"
     echo "[$name] $(date -u +%FT%TZ) done $step rc=$rc $((SECONDS - t0)) s"
