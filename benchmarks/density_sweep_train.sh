@@ -14,16 +14,16 @@ datasets=data/density_sweep
 tables=data/tables_density
 if [[ $# -gt 0 && $1 != --* ]]; then datasets=$1; shift; fi
 if [[ $# -gt 0 && $1 != --* ]]; then tables=$1; shift; fi
-for folder in "$datasets"/k*/; do
-    k=$(basename "$folder")
+source benchmarks/density_sweep_plan.sh
+mapfile -t entries < <(sweep_datasets "$datasets")
+for k in $(printf '%s\n' "${entries[@]%% *}" | uniq); do
     scenes=() args=()
-    for d in "$folder"*/; do
-        [[ -f $d/dataset.json ]] || continue
-        s=$(basename "$d")
+    for entry in "${entries[@]}"; do
+        [[ ${entry%% *} == "$k" ]] || continue
+        s=${entry#* }
         scenes+=("$s")
-        args+=(--dataset "$s=${d%/}")
+        args+=(--dataset "$s=$datasets/$k/$s")
     done
-    [[ ${#scenes[@]} -gt 0 ]] || continue
     if [[ $k == k1 ]]; then
         mkdir -p "${tables}_k1/runs"
         for s in "${scenes[@]}"; do
@@ -32,7 +32,8 @@ for folder in "$datasets"/k*/; do
     fi
     echo "== $(date -u +%FT%TZ) $k: ${scenes[*]}" >&2
     .venv/bin/regenerate-tables --profile standard --workers 2 --scenes "$(IFS=,; echo "${scenes[*]}")" \
-        "${args[@]}" --methods full,rgb-only --seeds 0,1,2 --no-ablations --out "${tables}_$k" "$@" \
+        "${args[@]}" --methods "$(IFS=,; echo "${sweep_methods[*]}")" \
+        --seeds "$(IFS=,; echo "${sweep_seeds[*]}")" --no-ablations --out "${tables}_$k" "$@" \
         || [[ $? -eq 1 ]]  # 1: tables written, some runs failed (report.md)
 done
 .venv/bin/python benchmarks/density_sweep.py --datasets "$datasets" --tables "$tables"

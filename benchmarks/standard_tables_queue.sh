@@ -13,8 +13,8 @@
 # and the DCP baseline at seeds 1-2.
 # With --density-sweep the queue is issue 49's instead: Full and RGB-only at seeds 0-2 on every
 # dataset of data/density_sweep/kK (k = 1 aside, whose runs are Table 1's), seed 0 at every k
-# first, each into data/tables_density_kK as benchmarks/density_sweep_train.sh keys them; that
-# script run with --finished-only afterwards writes the tables and the curves.
+# first, each into data/tables_density_kK (benchmarks/density_sweep_plan.sh, shared with
+# density_sweep_train.sh, which run with --finished-only afterwards writes the tables and curves).
 # A worker claims a step by creating its folder under CLAIMS (mkdir is atomic; the step's log
 # goes there) and writing its process id and start time into it, so two workers never train the
 # same run; cached steps cost seconds. A step's folder gets a `done` file when its call returns.
@@ -56,6 +56,7 @@ take() {  # take CLAIM: claim the step, or take over a stale claim of it
     echo "$me" > "$1/owner"
 }
 source benchmarks/standard_scenes.sh
+source benchmarks/density_sweep_plan.sh
 mapfile -t scenes < <(standard_scenes "$root")
 ablations=$(.venv/bin/python -c \
     "from eval.settings import default_ablations; print(*default_ablations('standard', {}), sep='\n')")
@@ -77,12 +78,13 @@ plan_steps() {  # fills steps
         for seed in 1 2; do add_steps imgdehaze-dcp "$seed"; done
         return
     fi
-    local d k m
-    for seed in 0 1 2; do  # SCENE METHOD SEED - kK: the dataset is $sweep/kK/SCENE
-        for d in "$sweep"/k*/*/dataset.json; do
-            d=${d%/dataset.json}; k=$(basename "$(dirname "$d")")
+    local k s m
+    mapfile -t datasets < <(sweep_datasets "$sweep")
+    for seed in "${sweep_seeds[@]}"; do  # SCENE METHOD SEED - kK: the dataset is $sweep/kK/SCENE
+        for entry in "${datasets[@]}"; do
+            read -r k s <<< "$entry"
             [[ $k == k1 ]] && continue
-            for m in full rgb-only; do steps+=("$(basename "$d") $m $seed - $k"); done
+            for m in "${sweep_methods[@]}"; do steps+=("$s $m $seed - $k"); done
         done
     done
 }
