@@ -1,0 +1,67 @@
+"""Which of Table 2's ablations get seeds 1-2 beside seed 0.
+
+Why: at one seed, a row whose mean sits close to Full's cannot be told apart from it (Full's own
+seed std on the ten-scene mean is 0.1-0.2 dB), so its sign needs the other seeds; a row well
+below Full is settled at seed 0. The rule: an ablation whose seed-0 runs have finished on every
+scene asked for and whose mean over them is at least Full's seed-0 mean over the same scenes minus
+RESEED_MARGIN_DB. A row above Full counts too: it is the one that would break "every ablation
+≤ Full + 0.1 dB".
+
+    python -m eval.reseed_ablations TABLES --scenes a,b,c [--profile standard] [--digest PREFIX]
+
+prints one ablation per line (the queue and benchmarks/standard_tables.sh read it).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from contracts.source import code_digest
+from eval.finished_runs import finished_runs
+from eval.harness import TRAINER_ENTRY
+from eval.settings import default_ablations
+
+RESEED_MARGIN_DB = 0.3
+
+
+def seed0_means(tables: Path, scenes: list[str], variants: list[str], digest: str) -> dict[str, float]:
+    """{variant: mean test PSNR over ``scenes`` at seed 0} for each variant finished on all of them."""
+    try:
+        _, runs = finished_runs(tables, variants, digest)
+    except ValueError:
+        return {}
+    psnr: dict[str, dict[str, float]] = {}
+    for _, rec in runs:
+        if rec["seed"] == 0 and rec["scene"] in scenes:
+            psnr.setdefault(rec["variant"], {})[rec["scene"]] = float(rec["metrics"]["psnr"])
+    return {v: sum(by_scene.values()) / len(scenes) for v, by_scene in psnr.items() if set(by_scene) >= set(scenes)}
+
+
+def ablations_to_reseed(tables: Path, scenes: list[str], ablations: list[str], digest: str) -> list[str]:
+    """The ablations, in the order given, that the rule in this module's docstring picks."""
+    means = seed0_means(tables, scenes, ["full", *ablations], digest)
+    if "full" not in means:
+        return []
+    return [a for a in ablations if a in means and means[a] >= means["full"] - RESEED_MARGIN_DB]
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m eval.reseed_ablations", description=__doc__.split("\n\n")[0])
+    ap.add_argument("tables", type=Path, help="a regenerate-tables --out folder")
+    ap.add_argument("--scenes", required=True, help="comma-separated scenes the means are taken over")
+    ap.add_argument("--profile", default="standard", help="the profile whose Table 2 rows are checked")
+    ap.add_argument("--digest", default=None, help="trainer code digest prefix (default: today's trainer)")
+    args = ap.parse_args(argv)
+    scenes = [s for s in args.scenes.split(",") if s]
+    if not scenes:
+        print("python -m eval.reseed_ablations: error: --scenes is empty", file=sys.stderr)
+        return 2
+    digest = args.digest or code_digest(TRAINER_ENTRY)
+    for a in ablations_to_reseed(args.tables, scenes, default_ablations(args.profile, {}), digest):
+        print(a)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

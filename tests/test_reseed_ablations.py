@@ -1,0 +1,65 @@
+"""The rule that gives a Table 2 ablation seeds 1-2: seed-0 mean within 0.3 dB of Full's, or above."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from eval.reseed_ablations import RESEED_MARGIN_DB, ablations_to_reseed, main
+
+DIGEST = "f" * 64
+SCENES = ["a", "b"]
+
+
+def _run(tables: Path, scene: str, variant: str, psnr: float, seed: int = 0, digest: str = DIGEST,
+         status: str = "ok") -> None:
+    folder = tables / "runs" / scene / variant / f"seed{seed}-{digest[:12]}"
+    folder.mkdir(parents=True)
+    (folder / "train_log.csv").write_text("stage,iteration\n")
+    (folder / "harness.json").write_text(json.dumps({
+        "scene": scene, "variant": variant, "seed": seed, "status": status, "code_digest": digest,
+        "metrics": {"psnr": psnr}}))
+
+
+@pytest.fixture
+def tables(tmp_path: Path) -> Path:
+    out = tmp_path / "tables"
+    for scene, psnr in zip(SCENES, (20.0, 30.0)):  # Full's mean: 25.0
+        _run(out, scene, "full", psnr)
+    return out
+
+
+def test_an_ablation_close_below_full_or_above_it_is_reseeded_and_one_well_below_is_not(tables: Path) -> None:
+    for scene, psnr in zip(SCENES, (20.0, 30.0 - 2 * (RESEED_MARGIN_DB - 0.05))):  # mean 25 - margin + 0.05
+        _run(tables, scene, "close", psnr)
+    for scene, psnr in zip(SCENES, (20.0, 30.0 - 2 * (RESEED_MARGIN_DB + 0.05))):  # mean 25 - margin - 0.05
+        _run(tables, scene, "below", psnr)
+    for scene, psnr in zip(SCENES, (21.0, 31.0)):
+        _run(tables, scene, "above", psnr)
+    assert ablations_to_reseed(tables, SCENES, ["below", "above", "close"], DIGEST) == ["above", "close"]
+
+
+def test_only_finished_seed0_runs_of_the_trainer_asked_for_count(tables: Path) -> None:
+    _run(tables, "a", "partial", 25.0)  # b not finished: the row is not decided yet
+    _run(tables, "b", "partial", 25.0, status="failed")
+    _run(tables, "a", "other-trainer", 25.0, digest="0" * 64)
+    _run(tables, "b", "other-trainer", 25.0, digest="0" * 64)
+    _run(tables, "a", "seed1-only", 25.0, seed=1)
+    _run(tables, "b", "seed1-only", 25.0, seed=1)
+    assert ablations_to_reseed(tables, SCENES, ["partial", "other-trainer", "seed1-only"], DIGEST) == []
+
+
+def test_without_full_at_seed0_nothing_is_reseeded(tmp_path: Path) -> None:
+    for scene in SCENES:
+        _run(tmp_path / "t", scene, "close", 25.0)
+    assert ablations_to_reseed(tmp_path / "t", SCENES, ["close"], DIGEST) == []
+    assert ablations_to_reseed(tmp_path / "empty", SCENES, ["close"], DIGEST) == []
+
+
+def test_the_command_prints_one_ablation_per_line(tables: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    for scene, psnr in zip(SCENES, (20.0, 30.0)):
+        _run(tables, scene, "no-mono", psnr)
+    assert main([str(tables), "--scenes", ",".join(SCENES), "--digest", "fff"]) == 0
+    assert capsys.readouterr().out == "no-mono\n"
+    assert main([str(tables), "--scenes", ","]) == 2
