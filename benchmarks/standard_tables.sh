@@ -44,7 +44,8 @@ run "${common[@]}" --methods full,rgb-only,imgdehaze-dcp,full-estimated,full-fro
 for f in table1.md table1.tex table1.csv per_scene.csv; do  # seed 0 alone: every scene on the same seed
     cp "$out/$f" "$out/${f%.*}_seed0.${f##*.}"
 done
-mapfile -t reseed < <(.venv/bin/python -m eval.reseed_ablations "$out" --scenes "$list")
+close=$(.venv/bin/python -m eval.reseed_ablations "$out" --scenes "$list")  # a failure stops here (set -e)
+read -r -a reseed <<< "${close//$'\n'/ }"
 if [[ ${#reseed[@]} -gt 0 ]]; then  # the ablations close to Full at seed 0, over seeds 0-2
     run "${common[@]}" --methods full --seeds 3 --ablations --ablation-list "$(IFS=,; echo "${reseed[*]}")"
     for f in table2.md table2.tex table2.csv figure5_ablations.png; do cp "$out/$f" "$out/${f%.*}_3seeds.${f##*.}"; done

@@ -75,7 +75,9 @@ plan_steps() {  # fills steps
         for a in "${ablations[@]}"; do add_steps full 0 "$a"; done
         add_steps ceiling:full 0; add_steps ceiling:rgb-only 0
         add_steps imgdehaze-dcp 0
-        mapfile -t reseed < <(.venv/bin/python -m eval.reseed_ablations "$out" --scenes "$(IFS=,; echo "${scenes[*]}")")
+        local close  # a failure of the rule stops the worker (set -e), never an empty list
+        close=$(.venv/bin/python -m eval.reseed_ablations "$out" --scenes "$(IFS=,; echo "${scenes[*]}")")
+        read -r -a reseed <<< "${close//$'\n'/ }"
         for seed in 1 2; do for a in "${reseed[@]}"; do add_steps full "$seed" "$a"; done; done
         for seed in 1 2; do add_steps full,full-estimated "$seed"; done
         for seed in 1 2; do add_steps imgdehaze-dcp "$seed"; done
