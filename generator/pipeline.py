@@ -146,7 +146,9 @@ def _metadata(spec: SceneSpec, plan: Plan, sensor: ThermalSensor | None, summary
         "spec_sha256": spec.sha256(), "code_sha256": code,
         "duration_s": plan.timeline.duration_s, "sim_fps": spec.sim.fps,
         "passes": {m: list(p) for m, p in spec.passes.items()},
-        "smoke": {"present": spec.has_smoke, "fire": spec.has_fire, "static": spec.sim.static,
+        # At k = 0 the bake is there but no frame shows smoke: present is what the frames show.
+        "smoke": {"present": spec.has_smoke and spec.smoke.density_scale > 0,
+                  "fire": spec.has_fire, "static": spec.sim.static,
                   "mask_threshold": spec.smoke.mask_threshold, "density": spec.smoke.density,
                   "density_scale": spec.smoke.density_scale,
                   "particles": spec.smoke.particles, "sources": len(spec.sources),

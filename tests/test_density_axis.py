@@ -116,6 +116,9 @@ def test_opacity_follows_the_power_law(scaled_demo: dict[float, Path]) -> None:
 @pytest.mark.blender
 def test_zero_density_is_the_smoke_free_scene(scaled_demo: dict[float, Path]) -> None:
     assert np.all(_alphas(scaled_demo[0.0]) == 0.0)
+    # The frames show no smoke, so the dataset says so: a trainer plans no smoke for it.
+    assert _meta(scaled_demo[0.0])["smoke"]["present"] is False
+    assert _meta(scaled_demo[0.5])["smoke"]["present"] is True
 
     def psnr(dataset: Path) -> float:
         stems = sorted(p.name for p in (dataset / "rgb" / "clean").glob("*.png"))
