@@ -3,7 +3,7 @@
 Why: at one seed, a row whose mean sits close to Full's cannot be told apart from it (Full's own
 seed std on the ten-scene mean is 0.1-0.2 dB), so its sign needs the other seeds; a row well
 below Full is settled at seed 0. The rule: an ablation whose seed-0 runs have finished on every
-scene asked for and whose mean over them is at least Full's seed-0 mean over the same scenes minus
+scene asked for (where Full's run stands for it, eval/twins.py, with Full's score) and whose mean over them is at least Full's seed-0 mean over the same scenes minus
 RESEED_MARGIN_DB. A row above Full counts too: it is the one that would break "every ablation
 ≤ Full + 0.1 dB".
 
@@ -14,27 +14,39 @@ prints one ablation per line (the queue and benchmarks/standard_tables.sh read i
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
+from typing import Any
 
 from contracts.source import code_digest
 from eval.finished_runs import finished_runs
 from eval.harness import TRAINER_ENTRY
 from eval.settings import default_ablations
+from eval.twins import twin_reason
 
 RESEED_MARGIN_DB = 0.3
 
 
 def seed0_means(tables: Path, scenes: list[str], variants: list[str], digest: str) -> dict[str, float]:
-    """{variant: mean test PSNR over ``scenes`` at seed 0} for each variant finished on all of them."""
+    """{variant: mean test PSNR over ``scenes`` at seed 0} for each variant finished on all of them.
+    On a scene where Full's seed-0 run stands for the ablation's (eval/twins.py: the harness never
+    trains that run, so it has no folder), the ablation scores Full's PSNR there."""
     try:
         _, runs = finished_runs(tables, variants, digest)
     except ValueError:
         return {}
     psnr: dict[str, dict[str, float]] = {}
-    for _, rec in runs:
+    full_docs: dict[str, dict[str, Any]] = {}
+    for run_dir, rec in runs:
         if rec["seed"] == 0 and rec["scene"] in scenes:
             psnr.setdefault(rec["variant"], {})[rec["scene"]] = float(rec["metrics"]["psnr"])
+            if rec["variant"] == "full":
+                full_docs[rec["scene"]] = json.loads((run_dir / "metrics.json").read_text())
+    for variant in variants:
+        for scene, doc in full_docs.items():
+            if scene not in psnr.get(variant, {}) and twin_reason(variant, doc):
+                psnr.setdefault(variant, {})[scene] = psnr["full"][scene]
     return {v: sum(by_scene.values()) / len(scenes) for v, by_scene in psnr.items() if set(by_scene) >= set(scenes)}
 
 

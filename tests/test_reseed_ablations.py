@@ -13,10 +13,11 @@ SCENES = ["a", "b"]
 
 
 def _run(tables: Path, scene: str, variant: str, psnr: float, seed: int = 0, digest: str = DIGEST,
-         status: str = "ok") -> None:
+         status: str = "ok", stages: dict | None = None) -> None:
     folder = tables / "runs" / scene / variant / f"seed{seed}-{digest[:12]}"
     folder.mkdir(parents=True)
     (folder / "train_log.csv").write_text("stage,iteration\n")
+    (folder / "metrics.json").write_text(json.dumps({"stages": stages or {}}))
     (folder / "harness.json").write_text(json.dumps({
         "scene": scene, "variant": variant, "seed": seed, "status": status, "code_digest": digest,
         "metrics": {"psnr": psnr}}))
@@ -48,6 +49,20 @@ def test_only_finished_seed0_runs_of_the_trainer_asked_for_count(tables: Path) -
     _run(tables, "a", "seed1-only", 25.0, seed=1)
     _run(tables, "b", "seed1-only", 25.0, seed=1)
     assert ablations_to_reseed(tables, SCENES, ["partial", "other-trainer", "seed1-only"], DIGEST) == []
+
+
+def test_a_scene_where_fulls_run_stands_for_the_ablation_counts_with_fulls_score(tmp_path: Path) -> None:
+    """The harness never trains a twin (eval/twins.py), so no run folder of the ablation is there:
+    on scene b Full held the smoke colour fixed, so no-mono and no-smoke-color score Full's 30 dB."""
+    tables = tmp_path / "t"
+    _run(tables, "a", "full", 20.0)
+    _run(tables, "b", "full", 30.0, stages={"smoke_colour": {"source": "haze-lines"}})
+    _run(tables, "a", "no-mono", 21.0)  # mean with b's twin 25.5: above Full's 25
+    _run(tables, "a", "no-smoke-color", 18.0)  # mean 24.0: more than the margin below
+    _run(tables, "a", "no-mask", 21.0)  # no twin of Full for this ablation: b is not finished
+    assert ablations_to_reseed(tables, SCENES, ["no-mono", "no-smoke-color", "no-mask"], DIGEST) == ["no-mono"]
+    _run(tables, "b", "no-mono", 10.0)  # a trained run, where there is one, is what counts
+    assert ablations_to_reseed(tables, SCENES, ["no-mono"], DIGEST) == []
 
 
 def test_without_full_at_seed0_nothing_is_reseeded(tmp_path: Path) -> None:
