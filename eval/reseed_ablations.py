@@ -3,9 +3,9 @@
 Why: at one seed, a row whose mean sits close to Full's cannot be told apart from it (Full's own
 seed std on the ten-scene mean is 0.1-0.2 dB), so its sign needs the other seeds; a row well
 below Full is settled at seed 0. The rule: an ablation whose seed-0 runs have finished on every
-scene asked for (where Full's run stands for it, eval/twins.py, with Full's score) and whose mean over them is at least Full's seed-0 mean over the same scenes minus
-RESEED_MARGIN_DB. A row above Full counts too: it is the one that would break "every ablation
-≤ Full + 0.1 dB".
+scene asked for (where Full's run stands for it, eval/twins.py, with Full's score) and whose mean
+over them is at least Full's seed-0 mean over the same scenes minus RESEED_MARGIN_DB. A row above
+Full counts too: it is the one that would break "every ablation ≤ Full + 0.1 dB".
 
     python -m eval.reseed_ablations TABLES --scenes a,b,c [--profile standard] [--digest PREFIX]
 
