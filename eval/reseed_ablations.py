@@ -14,11 +14,10 @@ prints one ablation per line (the queue and benchmarks/standard_tables.sh read i
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
-from typing import Any
 
+from contracts.results_format import ResultsFormatError, read_metrics
 from contracts.source import code_digest
 from eval.finished_runs import finished_runs
 from eval.harness import TRAINER_ENTRY
@@ -37,15 +36,16 @@ def seed0_means(tables: Path, scenes: list[str], variants: list[str], digest: st
     except ValueError:
         return {}
     psnr: dict[str, dict[str, float]] = {}
-    full_docs: dict[str, dict[str, Any]] = {}
+    full_runs: dict[str, Path] = {}
     for run_dir, rec in runs:
         if rec["seed"] == 0 and rec["scene"] in scenes:
             psnr.setdefault(rec["variant"], {})[rec["scene"]] = float(rec["metrics"]["psnr"])
             if rec["variant"] == "full":
-                full_docs[rec["scene"]] = json.loads((run_dir / "metrics.json").read_text())
+                full_runs[rec["scene"]] = run_dir
+    full_docs = {scene: read_metrics(run_dir) for scene, run_dir in full_runs.items()}
     for variant in variants:
         for scene, doc in full_docs.items():
-            if scene not in psnr.get(variant, {}) and twin_reason(variant, doc):
+            if scene not in psnr.get(variant, {}) and twin_reason(variant, doc, full_runs[scene] / "metrics.json"):
                 psnr.setdefault(variant, {})[scene] = psnr["full"][scene]
     return {v: sum(by_scene.values()) / len(scenes) for v, by_scene in psnr.items() if set(by_scene) >= set(scenes)}
 
@@ -70,7 +70,12 @@ def main(argv: list[str] | None = None) -> int:
         print("python -m eval.reseed_ablations: error: --scenes is empty", file=sys.stderr)
         return 2
     digest = args.digest or code_digest(TRAINER_ENTRY)
-    for a in ablations_to_reseed(args.tables, scenes, default_ablations(args.profile, {}), digest):
+    try:
+        reseed = ablations_to_reseed(args.tables, scenes, default_ablations(args.profile, {}), digest)
+    except ResultsFormatError as exc:  # a Full run whose metrics.json breaks the contract: the rule cannot decide
+        print(f"python -m eval.reseed_ablations: error: {exc}", file=sys.stderr)
+        return 1
+    for a in reseed:
         print(a)
     return 0
 

@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 
 from eval.reseed_ablations import RESEED_MARGIN_DB, ablations_to_reseed, main
+from tests.results_builder import write_metrics
 
 DIGEST = "f" * 64
 SCENES = ["a", "b"]
@@ -17,7 +18,8 @@ def _run(tables: Path, scene: str, variant: str, psnr: float, seed: int = 0, dig
     folder = tables / "runs" / scene / variant / f"seed{seed}-{digest[:12]}"
     folder.mkdir(parents=True)
     (folder / "train_log.csv").write_text("stage,iteration\n")
-    (folder / "metrics.json").write_text(json.dumps({"stages": stages or {}}))
+    write_metrics(folder, scene=scene, method=variant, profile="standard", seed=seed, status=status,
+                  metrics={"psnr": psnr}, stages=stages or {})
     (folder / "harness.json").write_text(json.dumps({
         "scene": scene, "variant": variant, "seed": seed, "status": status, "code_digest": digest,
         "metrics": {"psnr": psnr}}))
@@ -78,3 +80,12 @@ def test_the_command_prints_one_ablation_per_line(tables: Path, capsys: pytest.C
     assert main([str(tables), "--scenes", ",".join(SCENES), "--digest", "fff"]) == 0
     assert capsys.readouterr().out == "no-mono\n"
     assert main([str(tables), "--scenes", ","]) == 2
+
+
+def test_a_full_run_whose_metrics_break_the_contract_is_one_clear_error(tables: Path,
+                                                                        capsys: pytest.CaptureFixture[str]) -> None:
+    broken = next((tables / "runs" / "b" / "full").iterdir()) / "metrics.json"
+    broken.write_text(json.dumps({"format": "smokeseer-synth-results"}))
+    assert main([str(tables), "--scenes", ",".join(SCENES), "--digest", "fff"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{broken}: missing field" in err
