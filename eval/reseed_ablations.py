@@ -17,12 +17,12 @@ import argparse
 import sys
 from pathlib import Path
 
-from contracts.results_format import ResultsFormatError, read_metrics
+from contracts.results_format import ResultsFormatError
 from contracts.source import code_digest
 from eval.finished_runs import finished_runs
 from eval.harness import TRAINER_ENTRY
 from eval.settings import default_ablations
-from eval.twins import twin_reason
+from eval.twins import run_twin_reason
 
 RESEED_MARGIN_DB = 0.3
 
@@ -42,10 +42,9 @@ def seed0_means(tables: Path, scenes: list[str], variants: list[str], digest: st
             psnr.setdefault(rec["variant"], {})[rec["scene"]] = float(rec["metrics"]["psnr"])
             if rec["variant"] == "full":
                 full_runs[rec["scene"]] = run_dir
-    full_docs = {scene: read_metrics(run_dir) for scene, run_dir in full_runs.items()}
     for variant in variants:
-        for scene, doc in full_docs.items():
-            if scene not in psnr.get(variant, {}) and twin_reason(variant, doc, full_runs[scene] / "metrics.json"):
+        for scene, full_dir in full_runs.items():
+            if scene not in psnr.get(variant, {}) and run_twin_reason(variant, full_dir):
                 psnr.setdefault(variant, {})[scene] = psnr["full"][scene]
     return {v: sum(by_scene.values()) / len(scenes) for v, by_scene in psnr.items() if set(by_scene) >= set(scenes)}
 

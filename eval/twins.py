@@ -38,6 +38,11 @@ def twin_reason(variant: str, full_doc: dict[str, Any], where: Path = Path("metr
     return COLOUR_FIXED_REASON if colour.get("source") == "haze-lines" else None
 
 
+def run_twin_reason(variant: str, full_dir: Path) -> str | None:
+    """``twin_reason`` for the Full run folder ``full_dir`` (read from its metrics.json)."""
+    return twin_reason(variant, read_metrics(full_dir), full_dir / "metrics.json")
+
+
 def full_twins(specs: list[RunSpec], out: Path,
                finished: Callable[[RunSpec, Path], RunResult | None]) -> dict[str, RunResult]:
     """For each ablation run of the plan that Full's finished run stands for: its record (Full's
@@ -53,7 +58,7 @@ def full_twins(specs: list[RunSpec], out: Path,
         if done is None:
             continue
         try:
-            reason = twin_reason(spec.variant, read_metrics(full_dir), full_dir / "metrics.json")
+            reason = run_twin_reason(spec.variant, full_dir)
         except ResultsFormatError:
             continue
         if reason:
