@@ -30,6 +30,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.ticker import NullLocator  # noqa: E402
 import numpy as np  # noqa: E402
 
 from contracts.atomic import write_rows_csv  # noqa: E402
@@ -136,6 +137,7 @@ def crossover_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 def plot_lead(rows: list[dict[str, Any]], path: Path) -> None:
     fig, axes = plt.subplots(1, len(METRICS), figsize=(5 * len(METRICS), 4.2))
+    max_depth = max((r["optical_depth"] for r in rows), default=0.0)
     for ax, (metric, label) in zip(axes, METRICS.items()):
         for scene in sorted({r["scene"] for r in rows}):
             pts = sorted((r for r in rows if r["scene"] == scene and r[f"lead_{metric}"] is not None),
@@ -145,6 +147,10 @@ def plot_lead(rows: list[dict[str, Any]], path: Path) -> None:
                             yerr=[r[f"lead_{metric}_std"] or 0.0 for r in pts], marker="o", capsize=3, label=scene)
         ax.axhline(0.0, color="k", lw=0.8)
         ax.set_xscale("symlog", linthresh=0.05)
+        ticks = [t for t in (0, 0.1, 0.2, 0.5, 1, 2, 5) if t <= 1.5 * max_depth] if max_depth > 0 else [0]
+        ax.set_xticks(ticks, [f"{t:g}" for t in ticks])  # plain numbers: symlog's own labels put −10⁻² at 0
+        ax.xaxis.set_minor_locator(NullLocator())
+        ax.set_xlim(left=-0.01)
         ax.set_xlabel("mean optical depth of the RGB smoke, test views")
         ax.set_ylabel(f"Full − RGB-only, {label}")
         ax.grid(alpha=0.3)
