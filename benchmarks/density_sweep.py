@@ -147,10 +147,10 @@ def plot_lead(rows: list[dict[str, Any]], path: Path) -> None:
                             yerr=[r[f"lead_{metric}_std"] or 0.0 for r in pts], marker="o", capsize=3, label=scene)
         ax.axhline(0.0, color="k", lw=0.8)
         ax.set_xscale("symlog", linthresh=0.05)
-        ticks = [t for t in (0, 0.1, 0.2, 0.5, 1, 2, 5) if t <= 1.5 * max_depth] if max_depth > 0 else [0]
+        ticks = [t for t in (0, 0.1, 0.2, 0.5, 1, 2, 5) if t <= 1.5 * max_depth]
         ax.set_xticks(ticks, [f"{t:g}" for t in ticks])  # plain numbers: symlog's own labels put −10⁻² at 0
         ax.xaxis.set_minor_locator(NullLocator())
-        ax.set_xlim(left=-0.01)
+        ax.set_xlim(-0.01, max(1.3 * max_depth, 0.1))  # room for the densest point
         ax.set_xlabel("mean optical depth of the RGB smoke, test views")
         ax.set_ylabel(f"Full − RGB-only, {label}")
         ax.grid(alpha=0.3)
