@@ -3,10 +3,10 @@
 Every tracked text file is read (``git ls-files``): docs, code, tests, scripts, configs, presets,
 committed results and dataset metadata. A file counts as text unless its suffix is a known binary
 image or model format or its bytes hold a NUL. The run records are left out: those under
-``data/tables_*/runs/``, ``data/clean_ceiling_*/`` and ``data/candidates/``. They are what each training run wrote (its
-``metrics.json``, and the harness's ``harness.json``), including the dataset path it was given and that machine's LPIPS
-message; the harness re-roots those paths on load, and rewriting a record by hand would make it
-no longer the run's own.
+``data/tables_*/runs/``, ``data/clean_ceiling_*/`` and ``data/candidates/``. They are what each
+training run wrote (its ``metrics.json``, and the harness's ``harness.json``), including the
+dataset path it was given and that machine's LPIPS message; the harness re-roots those paths on
+load, and rewriting a record by hand would make it no longer the run's own.
 
 Forbidden: the word for a working sitting of the people who built the project (also inside code
 identifiers), the words for borrowing a machine for a while, and the absolute folders of that
