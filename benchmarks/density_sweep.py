@@ -13,6 +13,7 @@ Writes to OUT:
 - sweep.csv: per scene and k, the mean optical depth −ln(1 − ᾱ) of the RGB smoke in the test
   views, each method's test PSNR (mean of views), pooled PSNR (of the views' mean squared error)
   and SSIM, mean ± std over seeds, and Full − RGB-only paired by seed;
+- results.md: sweep.csv's test PSNR as a markdown table (eval.density_sweep.results_table);
 - crossover.csv: per scene and metric, the optical depth where Full's lead turns positive;
 - lead.png: the lead against optical depth, one line per scene, a panel per metric;
 - strip.png: one test view per scene across k: smoky input, RGB-only, Full (seed 0), clean;
@@ -33,13 +34,13 @@ import matplotlib.pyplot as plt  # noqa: E402
 from matplotlib.ticker import NullLocator  # noqa: E402
 import numpy as np  # noqa: E402
 
-from contracts.atomic import write_rows_csv  # noqa: E402
+from contracts.atomic import write_rows_csv, write_text  # noqa: E402
 from contracts.imageio import read_png  # noqa: E402
 from contracts.metrics import psnr  # noqa: E402
 from contracts.source import code_digest  # noqa: E402
 from eval.claims import ClaimCheck, claims_table  # noqa: E402
 from eval.density_sweep import (crossover, frames_of_test_views, mean_optical_depth, paired_lead,  # noqa: E402
-                                stems_of_test_views, sweep_checks)
+                                results_table, stems_of_test_views, sweep_checks)
 from eval.finished_runs import finished_runs  # noqa: E402
 from eval.harness import TRAINER_ENTRY  # noqa: E402
 from eval.per_view import pooled_over_views  # noqa: E402
@@ -210,6 +211,10 @@ def main() -> None:
                          "benchmarks/density_sweep_generate.sh first)")
     args.out.mkdir(parents=True, exist_ok=True)
     write_rows_csv(args.out / "sweep.csv", rows)
+    write_text(args.out / "results.md", "\n".join([
+        "# The density sweep's test PSNR, from sweep.csv", "",
+        "dB, mean of each dataset's test views; mean ± std over the seeds named (RGB-only / Full where "
+        "they differ). Full − RGB-only is paired by seed.", "", *results_table(rows)]) + "\n")
     cross = crossover_rows(rows)
     if cross:
         write_rows_csv(args.out / "crossover.csv", cross)

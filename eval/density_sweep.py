@@ -186,3 +186,31 @@ def sweep_checks(rows: list[dict], targets: SweepTargets = SweepTargets()) -> li
         "Full − RGB-only does not fall as k rises beyond the seed spread, on any scene",
         verdict(None if not worst else not falls), "; ".join(worst) or "-", want, ""))
     return checks
+
+
+def _signed(x: float) -> str:
+    """A lead with a typographic minus, as the results tables print them."""
+    return f"+{x:.2f}" if x >= 0 else f"−{-x:.2f}"
+
+
+def _score(row: dict, method: str) -> str:
+    mean, std = row[f"{method}_psnr"], row[f"{method}_psnr_std"]
+    if mean is None:
+        return "-"
+    return f"{mean:.2f}" if std is None else f"{mean:.2f} ± {std:.2f}"
+
+
+def results_table(rows: list[dict]) -> list[str]:
+    """The sweep's rows as a markdown table in order of k, then scene: the optical depth, the smoky
+    input, each method's test PSNR (mean ± std over its seeds), the lead paired by seed, and the
+    seeds (RGB-only / Full where they differ)."""
+    lines = ["| scene | k | optical depth | smoky input | RGB-only | Full | Full − RGB-only | seeds |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in sorted(rows, key=lambda r: (r["k"], r["scene"])):
+        full, rgb = r["full_seeds"].replace(" ", ", "), r["rgb-only_seeds"].replace(" ", ", ")
+        seeds = full if full == rgb else f"{rgb or '-'} / {full or '-'}"
+        lead = "-" if r["lead_psnr"] is None else _signed(r["lead_psnr"])
+        lines.append(f"| {r['scene']} | {r['k']:g} | {r['optical_depth']:.2f} | {r['input_psnr']:.2f} | "
+                     f"{_score(r, 'rgb-only')} | {_score(r, 'full')} | {lead} | {seeds} |")
+    return lines
+

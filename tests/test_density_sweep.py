@@ -6,7 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from eval.density_sweep import crossover, frame_at_scale, mean_optical_depth, paired_lead, sweep_checks
+from eval.density_sweep import (crossover, frame_at_scale, mean_optical_depth, paired_lead, results_table,
+                                sweep_checks)
 
 
 def test_optical_depth_of_uniform_smoke_scales_with_k() -> None:
@@ -100,3 +101,16 @@ def test_sweep_checks_wait_for_what_has_not_run() -> None:
     assert [c.holds for c in checks] == ["no", "not yet", "no", "not yet"]
     assert checks[1].left_out == "a"
     assert "a: 0 complete" in checks[0].measured
+
+
+def test_results_table_orders_by_density_and_says_which_seeds_each_method_has() -> None:
+    def row(scene: str, k: float, full: tuple, rgb: tuple, lead: float | None, seeds: tuple[str, str]) -> dict:
+        return {"scene": scene, "k": k, "optical_depth": 0.5 * k, "input_psnr": 20.0 - k,
+                "full_psnr": full[0], "full_psnr_std": full[1], "rgb-only_psnr": rgb[0], "rgb-only_psnr_std": rgb[1],
+                "lead_psnr": lead, "full_seeds": seeds[0], "rgb-only_seeds": seeds[1]}
+    lines = results_table([row("b", 2.0, (18.0, None), (None, None), None, ("0", "")),
+                           row("b", 0.0, (30.004, 0.1), (30.5, 0.25), -0.496, ("0 1 2", "0 1 2")),
+                           row("a", 2.0, (19.0, 0.3), (17.0, None), 2.0, ("0 1", "0"))])
+    assert lines[2:] == ["| b | 0 | 0.00 | 20.00 | 30.50 ± 0.25 | 30.00 ± 0.10 | −0.50 | 0, 1, 2 |",
+                         "| a | 2 | 1.00 | 18.00 | 17.00 | 19.00 ± 0.30 | +2.00 | 0 / 0, 1 |",
+                         "| b | 2 | 1.00 | 18.00 | - | 18.00 | - | - / 0 |"]
