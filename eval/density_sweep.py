@@ -18,6 +18,7 @@ import numpy as np
 from contracts.dataset_format import PASS_FILES, file_path
 from contracts.imageio import image01, read_exr_channel, read_png
 from eval.claims import ClaimCheck, verdict
+from eval.tables import Stat, format_stat
 
 
 def stems_of_test_views(dataset: Path) -> list[str]:
@@ -194,10 +195,7 @@ def _signed(x: float) -> str:
 
 
 def _score(row: dict, method: str) -> str:
-    mean, std = row[f"{method}_psnr"], row[f"{method}_psnr_std"]
-    if mean is None:
-        return "-"
-    return f"{mean:.2f}" if std is None else f"{mean:.2f} ± {std:.2f}"
+    return format_stat(Stat(row[f"{method}_psnr"], row[f"{method}_psnr_std"], len(row[f"{method}_seeds"].split())), 2)
 
 
 def results_table(rows: list[dict]) -> list[str]:
@@ -208,8 +206,8 @@ def results_table(rows: list[dict]) -> list[str]:
              "|---|---|---|---|---|---|---|---|"]
     for r in sorted(rows, key=lambda r: (r["k"], r["scene"])):
         full, rgb = r["full_seeds"].replace(" ", ", "), r["rgb-only_seeds"].replace(" ", ", ")
-        seeds = full if full == rgb else f"{rgb or '-'} / {full or '-'}"
-        lead = "-" if r["lead_psnr"] is None else _signed(r["lead_psnr"])
+        seeds = full if full == rgb else f"{rgb or '—'} / {full or '—'}"
+        lead = "—" if r["lead_psnr"] is None else _signed(r["lead_psnr"])
         lines.append(f"| {r['scene']} | {r['k']:g} | {r['optical_depth']:.2f} | {r['input_psnr']:.2f} | "
                      f"{_score(r, 'rgb-only')} | {_score(r, 'full')} | {lead} | {seeds} |")
     return lines
