@@ -23,3 +23,14 @@ def read_train_log(path: Path) -> list[dict[str, str]]:
                 kept.pop()
             kept.append(row)
     return kept
+
+
+def stage2_rows(run_dir: Path) -> list[tuple[str, ...]] | None:
+    """The Stage-2 rows of a run's train_log.csv without their wall times: what two runs of one
+    Stage 2 share when they train it to the same bytes. None where the log is missing or holds no
+    Stage-2 row."""
+    path = Path(run_dir) / "train_log.csv"
+    if not path.is_file():
+        return None
+    rows = [tuple(v for k, v in row.items() if k != "wall_s") for row in read_train_log(path) if row["stage"] == "2"]
+    return rows or None

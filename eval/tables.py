@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable
 
+from contracts.train_log import stage2_rows
 from eval.runs import ABLATIONS, METHODS, VARIANTS, RunResult, variant_label
 
 
@@ -57,6 +58,9 @@ class Row:
     same_as_reason: str = ""
     scenes_by_seed: dict[int, int] = field(default_factory=dict)
     """Finished runs (scenes) each seed's mean is taken over."""
+    stage2_apart_by_seed: dict[int, tuple[int, int]] = field(default_factory=dict)
+    """An ablation's trained runs whose Stage 2 ended apart from Full's of the same scene and seed,
+    and how many were compared, per seed (``stage2_apart``)."""
 
 
 def seed_stat(values_by_seed: dict[int, list[float]]) -> Stat:
@@ -82,6 +86,25 @@ def _metric_values(results: Iterable[RunResult], metric: str) -> dict[int, list[
     return out
 
 
+def stage2_apart(results: list[RunResult], variant: str) -> dict[int, tuple[int, int]]:
+    """Per seed: of ``variant``'s trained runs that have a finished Full of the same scene and seed,
+    how many logged a Stage 2 other than Full's. Table 2's ablations share Full's Stage-2 settings
+    (``TrainConfig.stage2_sha256``), so with the same data, code and seed the two differ only in
+    float rounding, which differs between machines and builds; where they differ, the ablation's
+    difference to Full holds Stage 2's spread besides the ablated term."""
+    full = {(r.scene, r.seed): r.run_dir for r in results if r.variant == "full" and r.status == "ok"}
+    out: dict[int, tuple[int, int]] = {}
+    for r in results:
+        if r.variant != variant or r.status != "ok" or r.same_as or (r.scene, r.seed) not in full:
+            continue
+        mine, theirs = stage2_rows(Path(r.run_dir)), stage2_rows(Path(full[(r.scene, r.seed)]))
+        if mine is None or theirs is None:
+            continue
+        apart, compared = out.get(r.seed, (0, 0))
+        out[r.seed] = (apart + (mine != theirs), compared + 1)
+    return dict(sorted(out.items()))
+
+
 def build_rows(results: list[RunResult], variants: list[str], metrics: Iterable[str]) -> list[Row]:
     """One row per variant that appears in `variants`, in that order."""
     metrics = list(metrics)
@@ -104,6 +127,7 @@ def build_rows(results: list[RunResult], variants: list[str], metrics: Iterable[
             runs_same_as=sum(bool(r.same_as) for r in mine if r.status == "ok"),
             same_as_reason="; ".join(sorted({r.same_as_reason for r in mine if r.same_as})),
             scenes_by_seed=dict(sorted(Counter(r.seed for r in mine if r.status == "ok").items())),
+            stage2_apart_by_seed=stage2_apart(results, key) if key in ABLATIONS else {},
         ))
     return rows
 
@@ -167,6 +191,14 @@ def _footnotes(rows: list[Row], n_scenes: int, n_finished: int, devices: dict[st
         if r.runs_same_as:
             notes.append(f"{r.label}: {r.runs_same_as} of its {r.runs_ok} runs are Full's of the same scene and "
                          f"seed, not trained: {r.same_as_reason}.")
+        apart = sum(a for a, _ in r.stage2_apart_by_seed.values())
+        if apart:
+            compared = sum(n for _, n in r.stage2_apart_by_seed.values())
+            per_seed = ", ".join(f"seed {k}: {a} of {n}" for k, (a, n) in r.stage2_apart_by_seed.items())
+            notes.append(f"{r.label}: its Stage 2 ended apart from Full's on {apart} of the {compared} runs compared "
+                         f"({per_seed}). Both had the same settings, data, code and seed, so they differ only in "
+                         "float rounding, which differs between machines and builds; on those runs its difference "
+                         "to Full holds Stage 2's spread besides the ablated term.")
         if r.runs_failed or r.runs_ok < r.runs_expected:
             pending = r.runs_expected - r.runs_ok - r.runs_failed
             notes.append(f"† {r.label}: {r.runs_failed} failed, " + (f"{pending} not trained yet, " if pending else "")

@@ -143,3 +143,53 @@ def test_qualitative_grid_uses_the_test_frame(tmp_path: Path) -> None:
     assert pick_test_frame(ds)["file_stem"] == "0003"  # middle of the test views (0001, 0003)
     img = np.asarray(Image.open(out))
     assert img.shape[0] > 100 and img.shape[1] > 500
+
+
+def _log(folder: Path, stage2: list[tuple[int, int, float]]) -> str:
+    """A train_log.csv with these Stage-2 rows (iteration, Gaussians, loss) and one Stage-3 row;
+    the wall times differ per folder, as they do between two machines."""
+    folder.mkdir(parents=True)
+    wall = float(len(str(folder)))
+    lines = ["stage,iteration,wall_s,n_gaussians,n_smoke,loss"]
+    lines += [f"2,{it},{wall + it},{n},,{loss}" for it, n, loss in stage2]
+    lines.append(f"3,10,{wall + 99},{stage2[-1][1]},7,0.5")
+    (folder / "train_log.csv").write_text("\n".join(lines) + "\n")
+    return str(folder)
+
+
+def test_table2_says_where_an_ablation_trained_a_stage2_apart_from_fulls(tmp_path: Path) -> None:
+    """Scene a, seed 1: the ablation's Stage 2 parts from Full's in the loss's last digit (rounding);
+    every other pair agrees row for row, wall times aside. A twin of Full is not counted."""
+    same = [(10, 500, 0.25), (20, 520, 0.125)]
+    rounded = [(10, 500, 0.25), (20, 520, 0.125001)]
+    runs = []
+    for scene in ("a", "b"):
+        for seed in (0, 1):
+            full = _run(scene, "full", seed, 22.0)
+            full = RunResult(**{**full.to_json(), "run_dir": _log(tmp_path / scene / "full" / str(seed), same)})
+            abl = _run(scene, "no-mask", seed, 21.0)
+            log = rounded if (scene, seed) == ("a", 1) else same
+            abl = RunResult(**{**abl.to_json(), "run_dir": _log(tmp_path / scene / "no-mask" / str(seed), log)})
+            runs += [full, abl]
+    twin = RunResult(**{**_run("a", "no-mono", 1, 22.0).to_json(), "run_dir": runs[2].run_dir,
+                        "same_as": "full", "same_as_reason": "Full held the colour"})
+    md = write_tables(runs + [twin], tmp_path / "tables")["table2.md"].read_text()
+    assert ("w/o mask: its Stage 2 ended apart from Full's on 1 of the 4 runs compared "
+            "(seed 0: 0 of 2, seed 1: 1 of 2).") in md
+    assert "w/o mono: its Stage 2" not in md
+    agreeing = [r if r.run_dir != runs[3].run_dir else
+                RunResult(**{**r.to_json(), "run_dir": _log(tmp_path / "a" / "no-mask" / "again", same)})
+                for r in runs]
+    assert "ended apart" not in write_tables(agreeing, tmp_path / "again")["table2.md"].read_text()
+
+
+def test_table2_ablations_share_fulls_stage2_settings() -> None:
+    """What the Stage-2 footnote above rests on: every ablation trains Full's Stage 2."""
+    from eval.runs import ABLATIONS
+    from smokeseer.config import make_config
+
+    for profile in ("quick", "standard"):
+        for seed in (0, 2):
+            full = make_config("full", profile, seed).stage2_sha256()
+            assert all(make_config(v.mode, profile, seed, dict(v.overrides)).stage2_sha256() == full
+                       for v in ABLATIONS.values())
