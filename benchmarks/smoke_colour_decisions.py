@@ -1,12 +1,13 @@
 """The haze-line smoke-colour decision of every finished run of a table, beside its score.
 
     python benchmarks/smoke_colour_decisions.py [--tables data/tables_standard] [--digest PREFIX]
-        [--min-meeting F --max-brightness F] [--datasets data/standard]
+        [--variants full,rgb-only] [--min-meeting F --max-brightness F] [--datasets data/standard]
 
-For each finished Full and RGB-only run of one trainer version (``--digest``, default: the
-version with the most runs) this reads ``metrics.json`` → ``stages.smoke_colour``: the haze-line
-estimate (held, or refused with the colour the lines came nearest to), the fraction of lines
-that meet, and whether the run held it; beside the run's final validation and test PSNR. Writes
+For each finished run of ``--variants`` (default Full and RGB-only; Table 2's ablations decide
+the same way) of one trainer version (``--digest``, default: the version with the most runs)
+this reads ``metrics.json`` → ``stages.smoke_colour``: the haze-line estimate (held, or refused
+with the colour the lines came nearest to), how many observation lines it had, the fraction of
+lines that meet, and whether the run held it; beside the run's final validation and test PSNR. Writes
 ``benchmarks/results/standard/smoke_colour_decisions.csv``. Why: the estimate's colour can be
 stable across seeds while its trust test flips, and which runs gain from holding it is a
 question of the colour as much as of the test. ``--min-meeting`` / ``--max-brightness`` add what
@@ -29,9 +30,9 @@ from contracts.atomic import write_rows_csv
 from contracts.dataset_format import file_path, load_transforms, pass_file, read_pass_image
 from contracts.imageio import image01, read_png
 from eval.finished_runs import finished_runs
+from eval.runs import VARIANTS as TABLE_VARIANTS
 from smokeseer.stage1.haze_lines import HazeLineSettings, refusal
 
-VARIANTS = ("full", "rgb-only")
 REFUSED_COLOUR = re.compile(r"(?:nearest point|smoke colour|at) \[([-\d.]+), ([-\d.]+), ([-\d.]+)\]")
 
 
@@ -49,9 +50,15 @@ def estimate(stages: dict) -> tuple[list[float] | None, float | None, bool]:
 def decision(stages: dict) -> dict[str, object]:
     """``estimate`` as table columns, with the colour's mean over channels."""
     colour, met, held = estimate(stages)
-    return {"held": held, "meeting_fraction": met,
+    lines = ((stages.get("smoke_colour") or {}).get("haze_lines") or {}).get("lines")
+    return {"held": held, "lines": lines, "meeting_fraction": met,
             "colour": "" if colour is None else " ".join(f"{c:.3f}" for c in colour),
             "colour_mean": None if colour is None else round(sum(colour) / 3, 3)}
+
+
+def fraction(met: float | None) -> str:
+    """A meeting fraction for the printout; none where too few lines were found to try."""
+    return "none" if met is None else f"{met:.2f}"
 
 
 def true_smoke_colour(root: Path, min_alpha: float = 0.3, every: int = 3) -> tuple[list[float], float]:
@@ -76,6 +83,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--tables", type=Path, default=Path("data/tables_standard"))
     ap.add_argument("--digest", default=None, help="trainer code digest prefix (default: the one with the most runs)")
+    ap.add_argument("--variants", default="full,rgb-only", help="comma-separated table variants")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/standard/smoke_colour_decisions.csv"))
     ap.add_argument("--min-meeting", type=float, default=None, help="a rule's least meeting fraction (rule_holds)")
     ap.add_argument("--max-brightness", type=float, default=None, help="a rule's brightest channel mean (rule_holds)")
@@ -84,8 +92,12 @@ def main() -> None:
     given = {k: v for k, v in (("min_meeting_fraction", args.min_meeting), ("max_brightness", args.max_brightness))
              if v is not None}
     rule = HazeLineSettings(**given) if given else None
+    variants = tuple(args.variants.split(","))
+    unknown = sorted(set(variants) - set(TABLE_VARIANTS))
+    if unknown:
+        raise SystemExit(f"--variants: unknown {', '.join(unknown)} (known: {', '.join(TABLE_VARIANTS)})")
     try:
-        _, runs = finished_runs(args.tables, VARIANTS, args.digest)
+        _, runs = finished_runs(args.tables, variants, args.digest)
     except ValueError as exc:
         raise SystemExit(str(exc)) from None
     truth: dict[str, tuple[list[float], float]] = {}
@@ -106,7 +118,7 @@ def main() -> None:
             rows[-1].update(true_colour=" ".join(f"{c:.3f}" for c in colour), true_colour_spread=spread)
     write_rows_csv(args.out, rows)
     for r in rows:
-        print(f"{r['scene']:11s} {r['variant']:8s} {r['seed']}  meet {r['meeting_fraction']:.2f}  colour "
+        print(f"{r['scene']:11s} {r['variant']:14s} {r['seed']}  lines {r['lines']}  meet {fraction(r['meeting_fraction'])}  colour "
               f"[{r['colour']}] (mean {r['colour_mean']})  {'held   ' if r['held'] else 'learned'}  "
               f"val {r['val_psnr']:.2f}  test {r['test_psnr']:.2f}"
               + ("" if rule is None or r["rule_holds"] == r["held"] else

@@ -125,9 +125,9 @@ def test_estimate_on_a_smokeless_sequence_is_a_refusal_not_nan(spread: float) ->
 def test_the_decisions_table_reads_the_colour_back_from_every_refusal(colour: tuple, met: float) -> None:
     reason = refusal(np.array(colour), met, HazeLineSettings(max_brightness=0.5))
     assert reason
-    stages = {"smoke_colour": {"haze_lines": {"colour": None, "meeting_fraction": met, "refused": reason}}}
+    stages = {"smoke_colour": {"haze_lines": {"colour": None, "lines": 120, "meeting_fraction": met, "refused": reason}}}
     got = decision(stages)
-    assert not got["held"]
+    assert not got["held"] and got["lines"] == 120
     assert [float(c) for c in got["colour"].split()] == pytest.approx(colour, abs=1e-3)
 
 
