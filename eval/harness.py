@@ -35,6 +35,7 @@ from contracts.results_format import ResultsFormatError, read_metrics
 from contracts.source import code_digest
 from contracts.train_log import read_train_log
 from eval.dehaze import dehaze_dataset, get_dehazer
+from eval.float_setup import float_setup
 from eval.runs import VARIANTS, RunResult, RunSpec, config_hash
 from eval.settings import DatasetOutcome, HarnessConfig
 from eval.shared_stage2 import (leaders_first, rgb_stage2_sha, stage2_done, stage2_donors, stage2_groups,
@@ -216,7 +217,8 @@ def _train_run(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int, dev
         sys.modules["torch"].set_num_threads(threads)
     res = RunResult(scene=spec.scene, variant=spec.variant, seed=spec.seed, status="failed",
                     run_dir=run_dir, config_hash=spec.hash(), dataset=spec.dataset, device=device,
-                    code_digest=spec.code, sources_sha256=sources_sha256(TRAINER_ENTRY))
+                    code_digest=spec.code, sources_sha256=sources_sha256(TRAINER_ENTRY),
+                    float_setup=float_setup())
     t0 = time.perf_counter()
     res.logged_before_s = logged_wall_s(Path(run_dir))
     try:

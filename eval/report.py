@@ -4,6 +4,7 @@ with its error, and the tables themselves, so one file answers "where did this d
 from __future__ import annotations
 
 import platform
+from collections import Counter
 from dataclasses import asdict
 from importlib import metadata
 from pathlib import Path
@@ -103,6 +104,11 @@ def write_report(cfg: HarnessConfig, results: list[RunResult], datasets: list[Da
                   "them (eval/twins.py; their row above shows that run's folder and scores): "
                   + "; ".join(f"{r.scene}/{r.variant}/seed {r.seed} = {r.same_as} ({r.same_as_reason})" for r in twins)
                   + "."]
+    setups = Counter(r.float_setup or "not recorded" for r in results if r.status == "ok" and not r.same_as)
+    if len(setups) > 1:
+        lines += ["", "The runs trained under more than one float setup (harness.json `float_setup`, "
+                  "eval/float_setup.py), so equal settings need not give equal bytes between them: "
+                  + "; ".join(f"{n} under {s}" for s, n in sorted(setups.items())) + "."]
     adopted = [r for r in results if r.adopted_from]
     if adopted:
         lines += ["", f"{len(adopted)} run(s) were trained under another key and adopted (eval/adopt.py; "

@@ -643,3 +643,30 @@ def test_adopt_from_takes_only_runs_that_differ_by_the_python_digest(tmp_path: P
     assert (Path(runs["full"]["run_dir"]) / "metrics.json").read_bytes() == (source_full / "metrics.json").read_bytes()
     assert "1 run(s) were trained under another key and adopted" in (here / "report.md").read_text()
     assert not list(here.rglob(".*.adopting")) and _calls(here) == 0
+
+
+def test_each_run_records_its_float_setup_and_the_report_names_a_mix(tmp_path: Path) -> None:
+    """harness.json says what set the run's rounding here (the CPU's vector flags, torch's CPU
+    capability, the compiler); a cached run keeps what it recorded, and a report over runs of two setups says so."""
+    import torch
+
+    from eval.float_setup import cpu_facts, float_setup
+
+    base = dict(scenes=["alpha", "beta"], methods=["full"], ablations=[], seeds=[0], workers=1)
+    results, paths = regenerate(_cfg(tmp_path, **base), train_fn=identity_train, generate_fn=tiny_generate)
+    here = float_setup()
+    assert f"torch {torch.__version__} {torch.backends.cpu.get_cpu_capability()}" in here
+    model, flags = cpu_facts()
+    assert here.startswith(f"cpu {model} (") and all(f in here for f in flags)
+    assert ("avx2" in flags) == ("avx2" in here.split(";")[0])
+    for r in results:
+        assert json.loads((Path(r.run_dir) / "harness.json").read_text())["float_setup"] == here
+    assert "more than one float setup" not in paths["report.md"].read_text()
+    record = Path(results[0].run_dir) / "harness.json"
+    rec = json.loads(record.read_text())
+    record.write_text(json.dumps({**rec, "float_setup": "cpu Other; torch 2.13.0+cpu AVX2; kernel g++ -O3"}))
+    again, paths = regenerate(_cfg(tmp_path, **base), train_fn=identity_train, generate_fn=tiny_generate)
+    assert all(r.cached for r in again)
+    assert {r.float_setup for r in again} == {here, "cpu Other; torch 2.13.0+cpu AVX2; kernel g++ -O3"}
+    report = paths["report.md"].read_text()
+    assert "more than one float setup" in report and "1 under cpu Other; torch 2.13.0+cpu AVX2" in report
