@@ -140,8 +140,8 @@ class RunResult:
     adopted_from: str = ""
     """Where a run trained under another key came from, and what was checked (eval/adopt.py), or ""."""
     float_setup: str = ""
-    """What set its float rounding where it trained: CPU, torch's CPU capability, the kernel's compiler
-    and flags (eval/float_setup.py); "" in records older than the field."""
+    """What set its float rounding where it trained: the CPU and its vector flags, torch's version and
+    CPU capability, the compiler (eval/float_setup.py); "" in records older than the field."""
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
