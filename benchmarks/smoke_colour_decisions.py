@@ -36,9 +36,14 @@ from smokeseer.stage1.haze_lines import HazeLineSettings, refusal
 REFUSED_COLOUR = re.compile(r"(?:nearest point|smoke colour|at) \[([-\d.]+), ([-\d.]+), ([-\d.]+)\]")
 
 
+def haze_lines(stages: dict) -> dict:
+    """metrics.json ``stages.smoke_colour.haze_lines``, or {} for a run without an estimate."""
+    return (stages.get("smoke_colour") or {}).get("haze_lines") or {}
+
+
 def estimate(stages: dict) -> tuple[list[float] | None, float | None, bool]:
     """The estimate's colour (held, or the refused one), the meeting fraction and whether it was held."""
-    lines = (stages.get("smoke_colour") or {}).get("haze_lines") or {}
+    lines = haze_lines(stages)
     colour = lines.get("colour")
     held = colour is not None
     if colour is None:
@@ -50,8 +55,7 @@ def estimate(stages: dict) -> tuple[list[float] | None, float | None, bool]:
 def decision(stages: dict) -> dict[str, object]:
     """``estimate`` as table columns, with the colour's mean over channels."""
     colour, met, held = estimate(stages)
-    lines = ((stages.get("smoke_colour") or {}).get("haze_lines") or {}).get("lines")
-    return {"held": held, "lines": lines, "meeting_fraction": met,
+    return {"held": held, "lines": haze_lines(stages).get("lines"), "meeting_fraction": met,
             "colour": "" if colour is None else " ".join(f"{c:.3f}" for c in colour),
             "colour_mean": None if colour is None else round(sum(colour) / 3, 3)}
 

@@ -86,23 +86,26 @@ def _metric_values(results: Iterable[RunResult], metric: str) -> dict[int, list[
     return out
 
 
-def stage2_apart(results: list[RunResult], variant: str) -> dict[int, tuple[int, int]]:
-    """Per seed: of ``variant``'s trained runs that have a finished Full of the same scene and seed,
-    how many logged a Stage 2 other than Full's. Table 2's ablations share Full's Stage-2 settings
-    (``TrainConfig.stage2_sha256``), so with the same data, code and seed the two differ only in
-    float rounding, which differs between machines and builds; where they differ, the ablation's
-    difference to Full holds Stage 2's spread besides the ablated term."""
-    full = {(r.scene, r.seed): r.run_dir for r in results if r.variant == "full" and r.status == "ok"}
-    out: dict[int, tuple[int, int]] = {}
+def stage2_apart(results: list[RunResult]) -> dict[str, dict[int, tuple[int, int]]]:
+    """Per ablation and seed: of its trained runs that have a finished Full of the same scene and
+    seed, how many logged a Stage 2 other than Full's, and how many were compared. Table 2's
+    ablations share Full's Stage-2 settings (``TrainConfig.stage2_sha256``), so with the same data,
+    code and seed the two differ only in float rounding, which differs between machines and builds;
+    where they differ, the ablation's difference to Full holds Stage 2's spread besides the ablated
+    term. Each Full log is read once, however many ablations compare with it."""
+    full = {(r.scene, r.seed): stage2_rows(Path(r.run_dir))
+            for r in results if r.variant == "full" and r.status == "ok"}
+    out: dict[str, dict[int, tuple[int, int]]] = {}
     for r in results:
-        if r.variant != variant or r.status != "ok" or r.same_as or (r.scene, r.seed) not in full:
+        if r.variant not in ABLATIONS or r.status != "ok" or r.same_as or full.get((r.scene, r.seed)) is None:
             continue
-        mine, theirs = stage2_rows(Path(r.run_dir)), stage2_rows(Path(full[(r.scene, r.seed)]))
-        if mine is None or theirs is None:
+        mine = stage2_rows(Path(r.run_dir))
+        if mine is None:
             continue
-        apart, compared = out.get(r.seed, (0, 0))
-        out[r.seed] = (apart + (mine != theirs), compared + 1)
-    return dict(sorted(out.items()))
+        per_seed = out.setdefault(r.variant, {})
+        apart, compared = per_seed.get(r.seed, (0, 0))
+        per_seed[r.seed] = (apart + (mine != full[(r.scene, r.seed)]), compared + 1)
+    return {v: dict(sorted(per_seed.items())) for v, per_seed in out.items()}
 
 
 def build_rows(results: list[RunResult], variants: list[str], metrics: Iterable[str]) -> list[Row]:
@@ -110,6 +113,7 @@ def build_rows(results: list[RunResult], variants: list[str], metrics: Iterable[
     metrics = list(metrics)
     scenes = {r.scene for r in results}
     seeds = {r.seed for r in results}
+    apart = stage2_apart(results) if any(k in ABLATIONS for k in variants) else {}
     rows = []
     for key in variants:
         mine = [r for r in results if r.variant == key]
@@ -127,7 +131,7 @@ def build_rows(results: list[RunResult], variants: list[str], metrics: Iterable[
             runs_same_as=sum(bool(r.same_as) for r in mine if r.status == "ok"),
             same_as_reason="; ".join(sorted({r.same_as_reason for r in mine if r.same_as})),
             scenes_by_seed=dict(sorted(Counter(r.seed for r in mine if r.status == "ok").items())),
-            stage2_apart_by_seed=stage2_apart(results, key) if key in ABLATIONS else {},
+            stage2_apart_by_seed=apart.get(key, {}),
         ))
     return rows
 
