@@ -1,18 +1,20 @@
 """The haze-line smoke-colour decision of every finished run of a table, beside its score.
 
     python benchmarks/smoke_colour_decisions.py [--tables data/tables_standard] [--digest PREFIX]
-        [--variants full,rgb-only] [--min-meeting F --max-brightness F] [--datasets data/standard]
+        [--variants full,rgb-only] [--min-meeting F --full-meeting F --max-brightness F --full-brightness F]
+        [--datasets data/standard]
 
 For each finished run of ``--variants`` (default Full and RGB-only; Table 2's ablations decide
 the same way) of one trainer version (``--digest``, default: the version with the most runs)
-this reads ``metrics.json`` → ``stages.smoke_colour``: the haze-line estimate (held, or refused
-with the colour the lines came nearest to), how many observation lines it had, the fraction of
-lines that meet, and whether the run held it; beside the run's final validation and test PSNR. Writes
+this reads ``metrics.json`` → ``stages.smoke_colour``: the haze-line estimate, how many
+observation lines it had, the fraction of lines that meet, and the trust the run gave it (runs
+of trainer f13fe3c1 and older held it, trust 1, or refused it, 0, naming the colour the lines
+came nearest to); beside the run's final validation and test PSNR. Writes
 ``benchmarks/results/standard/smoke_colour_decisions.csv``. Why: the estimate's colour can be
-stable across seeds while its trust test flips, and which runs gain from holding it is a
-question of the colour as much as of the test. ``--min-meeting`` / ``--max-brightness`` add what
-``smokeseer.stage1.haze_lines.refusal`` decides for each run's estimate under those settings
-(``rule_holds``), so a rule can be read against every run before any run retrains with it.
+stable across seeds while its trust moves, and which runs gain from holding it is a question of
+the colour as much as of the trust. The ramp options add the trust
+``smokeseer.stage1.haze_lines.trust`` gives each run's estimate under those settings
+(``rule_trust``), so a rule can be read against every run before any run retrains with it.
 ``--datasets`` adds each scene's true smoke colour, read off the generator's passes (scoring only):
 (smoky − (1 − α)·clean) / α over the pixels of every third RGB frame where α > 0.3, its median
 and the mean 10th-90th percentile spread over channels (how far one colour is from every pixel's).
@@ -31,7 +33,7 @@ from contracts.dataset_format import file_path, load_transforms, pass_file, read
 from contracts.imageio import image01, read_png
 from eval.finished_runs import finished_runs
 from eval.runs import VARIANTS as TABLE_VARIANTS
-from smokeseer.stage1.haze_lines import HazeLineSettings, refusal
+from smokeseer.stage1.haze_lines import HazeLineSettings, trust
 
 REFUSED_COLOUR = re.compile(r"(?:nearest point|smoke colour|at) \[([-\d.]+), ([-\d.]+), ([-\d.]+)\]")
 
@@ -41,21 +43,25 @@ def haze_lines(stages: dict) -> dict:
     return (stages.get("smoke_colour") or {}).get("haze_lines") or {}
 
 
-def estimate(stages: dict) -> tuple[list[float] | None, float | None, bool]:
-    """The estimate's colour (held, or the refused one), the meeting fraction and whether it was held."""
+def estimate(stages: dict) -> tuple[list[float] | None, float | None, float]:
+    """The estimate's colour (for older runs also a refused one), the meeting fraction and the
+    trust the run gave it (older runs: 1 held, 0 refused)."""
     lines = haze_lines(stages)
     colour = lines.get("colour")
+    if "trust" in lines:
+        return colour, lines.get("meeting_fraction"), lines["trust"]
     held = colour is not None
     if colour is None:
         found = REFUSED_COLOUR.search(lines.get("refused") or "")
         colour = [float(v) for v in found.groups()] if found else None
-    return colour, lines.get("meeting_fraction"), held
+    return colour, lines.get("meeting_fraction"), 1.0 if held else 0.0
 
 
 def decision(stages: dict) -> dict[str, object]:
     """``estimate`` as table columns, with the colour's mean over channels."""
-    colour, met, held = estimate(stages)
-    return {"held": held, "lines": haze_lines(stages).get("lines"), "meeting_fraction": met,
+    colour, met, given = estimate(stages)
+    return {"held": given == 1.0, "trust": round(given, 4), "lines": haze_lines(stages).get("lines"),
+            "meeting_fraction": met,
             "colour": "" if colour is None else " ".join(f"{c:.3f}" for c in colour),
             "colour_mean": None if colour is None else round(sum(colour) / 3, 3)}
 
@@ -89,12 +95,14 @@ def main() -> None:
     ap.add_argument("--digest", default=None, help="trainer code digest prefix (default: the one with the most runs)")
     ap.add_argument("--variants", default="full,rgb-only", help="comma-separated table variants")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/standard/smoke_colour_decisions.csv"))
-    ap.add_argument("--min-meeting", type=float, default=None, help="a rule's least meeting fraction (rule_holds)")
-    ap.add_argument("--max-brightness", type=float, default=None, help="a rule's brightest channel mean (rule_holds)")
+    ramps = {"min_meeting_fraction": "--min-meeting", "full_meeting_fraction": "--full-meeting",
+             "max_brightness": "--max-brightness", "full_brightness": "--full-brightness"}
+    for flag in ramps.values():
+        ap.add_argument(flag, type=float, default=None, help="a trust ramp end (rule_trust; haze_lines.HazeLineSettings)")
     ap.add_argument("--datasets", type=Path, default=None, help="the scenes' datasets, for the true smoke colour")
     args = ap.parse_args()
-    given = {k: v for k, v in (("min_meeting_fraction", args.min_meeting), ("max_brightness", args.max_brightness))
-             if v is not None}
+    given = {k: getattr(args, flag[2:].replace("-", "_")) for k, flag in ramps.items()}
+    given = {k: v for k, v in given.items() if v is not None}
     rule = HazeLineSettings(**given) if given else None
     variants = tuple(args.variants.split(","))
     unknown = sorted(set(variants) - set(TABLE_VARIANTS))
@@ -113,8 +121,10 @@ def main() -> None:
                      "val_psnr": round(doc["validation"]["psnr"], 3), "test_psnr": round(doc["metrics"]["psnr"], 3)})
         if rule is not None:
             colour, met, _ = estimate(doc["stages"])
-            rows[-1].update(rule=f"min_meeting {rule.min_meeting_fraction}, max_brightness {rule.max_brightness}",
-                            rule_holds="" if colour is None else not refusal(np.array(colour), met, rule))
+            rows[-1].update(rule=f"meeting {rule.min_meeting_fraction}-{rule.full_meeting_fraction}, brightness "
+                                 f"{rule.max_brightness}-{rule.full_brightness}",
+                            rule_trust=0.0 if colour is None or met is None
+                            else round(trust(np.array(colour), rows[-1]["lines"], met, rule)[0], 4))
         if args.datasets is not None:
             if rec["scene"] not in truth:
                 truth[rec["scene"]] = true_smoke_colour(args.datasets / rec["scene"])
@@ -123,10 +133,9 @@ def main() -> None:
     write_rows_csv(args.out, rows)
     for r in rows:
         print(f"{r['scene']:11s} {r['variant']:14s} {r['seed']}  lines {r['lines']}  meet {fraction(r['meeting_fraction'])}  colour "
-              f"[{r['colour']}] (mean {r['colour_mean']})  {'held   ' if r['held'] else 'learned'}  "
+              f"[{r['colour']}] (mean {r['colour_mean']})  trust {r['trust']:.3f}  "
               f"val {r['val_psnr']:.2f}  test {r['test_psnr']:.2f}"
-              + ("" if rule is None or r["rule_holds"] == r["held"] else
-                 f"  -> rule: {'held' if r['rule_holds'] else 'learned'}"))
+              + ("" if rule is None else f"  -> rule: trust {r['rule_trust']:.3f}"))
     print(f"{len(rows)} runs, trainer {rows[0]['code_digest']}; wrote {args.out}")
 
 

@@ -228,15 +228,15 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
             if note:
                 plan.notes.append(note)
                 ctx.log_line(f"stage 3: {note}")
-        two_surfaces = False
+        rgb_share = 0.0
         if by_colour:
-            two_surfaces, note = surface_start(smoke_colour, plan.use_smoke)
+            rgb_share, note = surface_start(smoke_colour, plan.use_smoke)
             plan.notes.append(note)
             ctx.log_line(f"stage 3: {note}")
-        if two_surfaces:
+        if rgb_share > 0.0:
             t_rgb = time.perf_counter()
             rgb_init = _init_points(scene, scene.rgb, cfg.stage2.init_points, b, np.random.default_rng(cfg.seed))
-            joined = join_surfaces(ctx, scene.rgb, rgb_init, s2, rgb_depth)
+            joined = join_surfaces(ctx, scene.rgb, rgb_init, s2, rgb_depth, rgb_share)
             wall["stage2_rgb"] = time.perf_counter() - t_rgb
             plan.notes.append(joined.describe())
             ctx.log_line(f"stage 3: {joined.describe()} (RGB Stage 2 in {wall['stage2_rgb']:.1f} s)")
@@ -328,10 +328,11 @@ def smoke_colour_record(plan: Stage3Plan, estimate: SmokeColourEstimate | None) 
         return None
     if estimate is None:
         return {"source": "learned", "haze_lines": None}
-    return {"source": "learned" if estimate.colour is None else "haze-lines",
+    return {"source": plan.smoke_colour,
             "haze_lines": {"colour": None if estimate.colour is None else [float(c) for c in estimate.colour],
+                           "trust": plan.trust if plan.smoke_colour == "haze-lines" else 0.0,
                            "lines": estimate.lines, "points": estimate.points,
-                           "meeting_fraction": estimate.meeting_fraction, "refused": estimate.reason or None}}
+                           "meeting_fraction": estimate.meeting_fraction, "limits": estimate.reason or None}}
 
 
 def depth_prior_maps(cfg: TrainConfig, plan: Stage3Plan, geometry: Any, scene: SceneData,

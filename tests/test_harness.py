@@ -437,7 +437,7 @@ def test_ablations_take_fulls_finished_stage2_and_end_as_if_they_trained_it(tmp_
     """The real trainer at a tiny budget: no-mask differs from Full in Stage 3 only, so it takes
     Full's finished Stage 2 (one worker: Full first), and its model and scores are those of a
     no-mask run that trained its own Stage 2; its wall time counts the Stage 2 it took. Stage 3
-    starts from two surfaces here (the haze lines hold no colour), so the RGB Stage 2 comes too."""
+    starts from two surfaces here (the haze lines give no estimate), so the RGB Stage 2 comes too."""
     from tests.test_smokeseer_data import write_splat_dataset
 
     ds = write_splat_dataset(tmp_path / "splat", n_rgb=8, n_thermal=6)

@@ -1,5 +1,6 @@
 """The haze-line smoke colour: line fitting and meeting point against colours made with a known
-smoke colour, the multi-view bookkeeping against an exact pixel shift, and the refusals."""
+smoke colour, the multi-view bookkeeping against an exact pixel shift, the refusals, and the
+trust, which must move with what the images say without a step."""
 from __future__ import annotations
 
 import numpy as np
@@ -8,7 +9,7 @@ import pytest
 from benchmarks.smoke_colour_decisions import decision
 from scenes.cameras import backproject
 from smokeseer.stage1.haze_lines import (HazeLineSettings, estimate_smoke_colour, fit_lines, meeting_point, observations,
-                                         refusal)
+                                         trust)
 
 SMOKE = np.array([0.2, 0.3, 0.25])
 F, W, H = 100.0, 64, 48
@@ -75,31 +76,61 @@ def test_estimate_recovers_the_smoke_colour_of_moving_smoke() -> None:
     rng = np.random.default_rng(3)
     images, depths, valid, vms, ks = _static_frames(rng.uniform(0.2, 0.9, (20, H, W)), rng)
     est = estimate_smoke_colour(images, depths, valid, vms, ks, np.random.default_rng(0))
-    assert est.colour is not None and est.meeting_fraction > 0.9
+    assert est.colour is not None and est.meeting_fraction > 0.9 and est.lines >= 400
     np.testing.assert_allclose(est.colour, SMOKE, atol=0.01)
+    assert est.trust == 1.0 and est.reason == ""   # many lines, meeting, dark: held
 
 
-def test_a_bright_estimate_is_refused_above_the_brightness_bound_only() -> None:
+def test_a_bright_estimate_loses_its_trust_over_the_brightness_ramp_only() -> None:
+    """The same lines under ramps placed around the smoke's channel mean: full trust under the
+    ramp, none over it, and the linear share inside it, with the colour and its meeting kept."""
     rng = np.random.default_rng(3)
     images, depths, valid, vms, ks = _static_frames(rng.uniform(0.2, 0.9, (20, H, W)), rng)
     mean = float(np.mean(SMOKE))
-    below = estimate_smoke_colour(images, depths, valid, vms, ks, np.random.default_rng(0),
-                                  HazeLineSettings(max_brightness=mean - 0.02))
-    assert below.colour is None and below.meeting_fraction > 0.9 and "a bright smoke colour" in below.reason
-    above = estimate_smoke_colour(images, depths, valid, vms, ks, np.random.default_rng(0),
-                                  HazeLineSettings(max_brightness=mean + 0.02))
-    np.testing.assert_allclose(above.colour, SMOKE, atol=0.01)
-    np.testing.assert_array_equal(below.meeting, above.colour)   # refused for its brightness, still met
+    by_ramp = {}
+    for name, (zero, one) in {"over": (mean - 0.04, mean - 0.08), "inside": (mean + 0.01, mean - 0.03),
+                              "under": (mean + 0.08, mean + 0.04)}.items():
+        by_ramp[name] = estimate_smoke_colour(images, depths, valid, vms, ks, np.random.default_rng(0),
+                                              HazeLineSettings(max_brightness=zero, full_brightness=one))
+        np.testing.assert_allclose(by_ramp[name].colour, SMOKE, atol=0.01)
+        np.testing.assert_array_equal(by_ramp[name].meeting, by_ramp[name].colour)
+    assert by_ramp["over"].trust == 0.0 and "channel mean" in by_ramp["over"].reason
+    assert by_ramp["under"].trust == 1.0 and by_ramp["under"].reason == ""
+    got = float(np.mean(by_ramp["inside"].colour))
+    assert by_ramp["inside"].trust == pytest.approx((mean + 0.01 - got) / 0.04, abs=1e-9)
+
+
+def test_trust_moves_without_a_step() -> None:
+    """Along each input (lines, meeting fraction, brightness) the trust changes by at most its
+    ramp's slope times the step: no threshold where one more line or a hair of colour flips the
+    method (the food_plate cliff of docs/experiments/2026-12-01-stage2-rounding-and-the-colour-cliff.md:
+    98 lines learned, 106 held)."""
+    s = HazeLineSettings()
+    dark = np.array([0.3, 0.3, 0.3])
+    by_lines = [trust(dark, n, 0.9, s)[0] for n in range(s.min_lines, s.full_lines + 50)]
+    assert by_lines[0] == 0.0 and by_lines[-1] == 1.0
+    assert np.all(np.diff(by_lines) >= 0) and np.max(np.diff(by_lines)) <= 1.0 / (s.full_lines - s.min_lines) + 1e-12
+    assert trust(dark, 106, 0.9, s)[0] == pytest.approx(6 / 300)
+    mets = np.linspace(0.0, 1.0, 2001)
+    by_met = np.array([trust(dark, 1000, m, s)[0] for m in mets])
+    assert np.max(np.abs(np.diff(by_met))) <= (mets[1] - mets[0]) / (s.full_meeting_fraction - s.min_meeting_fraction) + 1e-9
+    assert by_met[mets <= s.min_meeting_fraction].max() == 0.0 and by_met[mets >= s.full_meeting_fraction].min() == 1.0
+    greys = np.linspace(0.0, 1.0, 2001)
+    by_grey = np.array([trust(np.full(3, g), 1000, 0.9, s)[0] for g in greys])
+    assert np.all(np.diff(by_grey) <= 0) and by_grey[0] == 1.0 and by_grey[-1] == 0.0
+    value, why = trust(np.array([0.45, 0.45, 0.45]), 250, 0.3, s)
+    assert value == pytest.approx(0.5 * 0.5 * 0.5)
+    assert "250 lines" in why and "0.30 of the lines meet" in why and "channel mean 0.45" in why
 
 
 def test_estimate_refuses_smoke_that_never_changes() -> None:
     rng = np.random.default_rng(4)
     images, depths, valid, vms, ks = _static_frames(np.full((20, H, W), 0.5), rng)
     est = estimate_smoke_colour(images, depths, valid, vms, ks, np.random.default_rng(0))
-    assert est.colour is None and est.lines == 0 and "fewer than" in est.reason
+    assert est.colour is None and est.lines == 0 and "fewer than" in est.reason and est.trust == 0.0
 
 
-def test_estimate_refuses_lines_that_do_not_meet() -> None:
+def test_lines_that_do_not_meet_get_no_trust() -> None:
     """Colours that vary along a random direction per pixel (shading, not smoke) meet nowhere."""
     rng = np.random.default_rng(5)
     base = rng.uniform(0.3, 0.7, (H, W, 3))
@@ -108,7 +139,8 @@ def test_estimate_refuses_lines_that_do_not_meet() -> None:
     images = base + rng.uniform(-0.2, 0.2, (20, H, W, 1)) * direction
     est = estimate_smoke_colour(images, np.full((20, H, W), 2.0), np.ones((20, H, W), bool),
                                 np.stack([_viewmat(0.0)] * 20), np.stack([K] * 20), np.random.default_rng(0))
-    assert est.colour is None and est.lines >= 100 and "do not meet" in est.reason and est.meeting is None
+    assert est.lines >= 100 and est.meeting_fraction < 0.2 and est.meeting is None and est.trust == 0.0
+    assert est.colour is not None and "0.02 of the lines meet (full at 0.4): 0.00" in est.reason
 
 
 @pytest.mark.parametrize("spread", [0.0, 1e-4])
@@ -116,20 +148,26 @@ def test_estimate_on_a_smokeless_sequence_is_a_refusal_not_nan(spread: float) ->
     rng = np.random.default_rng(6)
     images, depths, valid, vms, ks = _static_frames(np.ones((20, H, W)) - spread * rng.random((20, H, W)), rng)
     est = estimate_smoke_colour(images, depths, valid, vms, ks, np.random.default_rng(0))
-    assert est.colour is None and est.meeting_fraction is None
+    assert est.colour is None and est.meeting_fraction is None and est.trust == 0.0
 
 
-@pytest.mark.parametrize("colour, met", [((0.7, 0.53, 0.42), 0.3),      # the lines do not meet
-                                         ((0.7, 0.53, 0.42), 0.6),      # bright
-                                         ((1.2, 0.5, 0.4), 0.6)])       # outside the cube
-def test_the_decisions_table_reads_the_colour_back_from_every_refusal(colour: tuple, met: float) -> None:
-    reason = refusal(np.array(colour), met, HazeLineSettings(max_brightness=0.5))
-    assert reason
-    stages = {"smoke_colour": {"haze_lines": {"colour": None, "lines": 120, "meeting_fraction": met, "refused": reason}}}
+@pytest.mark.parametrize("reason", ["the lines do not meet: under 0.2 of them pass within 0.03 of their nearest "
+                                    "point [0.7, 0.53, 0.42]",
+                                    "a bright smoke colour [0.7, 0.53, 0.42] (channel mean 0.55, over 0.5): a "
+                                    "scattering smoke's radiance follows the light and the view",
+                                    "the lines meet outside the colour cube, at [0.7, 0.53, 0.42]"])
+def test_the_decisions_table_reads_the_colour_back_from_an_older_runs_refusal(reason: str) -> None:
+    """Trainer f13fe3c1 and older recorded a refused colour only inside its reason."""
+    stages = {"smoke_colour": {"haze_lines": {"colour": None, "lines": 120, "meeting_fraction": 0.3, "refused": reason}}}
     got = decision(stages)
-    assert not got["held"] and got["lines"] == 120
-    assert [float(c) for c in got["colour"].split()] == pytest.approx(colour, abs=1e-3)
+    assert not got["held"] and got["trust"] == 0.0 and got["lines"] == 120
+    assert [float(c) for c in got["colour"].split()] == pytest.approx((0.7, 0.53, 0.42), abs=1e-3)
+    held = decision({"smoke_colour": {"haze_lines": {"colour": [0.2, 0.2, 0.2], "lines": 900, "meeting_fraction": 0.8,
+                                                      "refused": None}}})
+    assert held["held"] and held["trust"] == 1.0
 
 
-def test_a_dark_colour_whose_lines_meet_is_held() -> None:
-    assert refusal(np.array((0.2, 0.2, 0.22)), 0.6, HazeLineSettings(max_brightness=0.5)) == ""
+def test_the_decisions_table_reads_a_trust() -> None:
+    got = decision({"smoke_colour": {"haze_lines": {"colour": [0.4, 0.4, 0.4], "trust": 0.25, "lines": 250,
+                                                     "meeting_fraction": 0.35, "limits": "250 lines"}}})
+    assert got["trust"] == 0.25 and not got["held"] and got["colour_mean"] == 0.4

@@ -1,4 +1,5 @@
-"""Stage 3's two-surface start: carving RGB Gaussians in front of the thermal surface, and the join."""
+"""Stage 3's two-surface start: how much of the RGB Stage 2 it keeps by the haze-line trust, carving
+RGB Gaussians in front of the thermal surface, and the join."""
 from __future__ import annotations
 
 import numpy as np
@@ -6,7 +7,8 @@ import torch
 
 from smokeseer.model.gaussians import GaussianSet
 from smokeseer.model.scene import add_rgb_sh
-from smokeseer.train.surface_union import carve_in_front, in_holes, union_surface
+from smokeseer.stage1.haze_lines import SmokeColourEstimate
+from smokeseer.train.surface_union import carve_in_front, fade, in_holes, surface_start, union_surface
 
 W, H, F = 40, 30, 20.0
 
@@ -111,3 +113,27 @@ def _grey_dc(n: int) -> torch.Tensor:
     t = {"means": torch.zeros(n, 3)}
     add_rgb_sh(t, 1)
     return t["sh_dc"]
+
+
+def test_the_rgb_share_of_the_start_is_one_minus_the_trust() -> None:
+    dark = np.array([0.2, 0.2, 0.2])
+    shares = [surface_start(SmokeColourEstimate(dark, 500, 900, 0.8, trust=t), True)[0] for t in (0.0, 0.25, 1.0)]
+    assert shares == [1.0, 0.75, 0.0]
+    assert surface_start(None, True)[0] == 1.0 and surface_start(SmokeColourEstimate(None, 12, 900), True)[0] == 1.0
+    assert surface_start(SmokeColourEstimate(dark, 500, 900, 0.8, trust=1.0), False)[0] == 1.0  # no smoke
+    assert "thermal Stage 2 alone" in surface_start(SmokeColourEstimate(dark, 500, 900, 0.8, trust=1.0), True)[1]
+
+
+def test_fade_scales_every_opacity_and_nothing_else() -> None:
+    rng = np.random.default_rng(0)
+    logits = torch.as_tensor(np.concatenate([rng.normal(0, 3, 50), [-30.0, 30.0]]), dtype=torch.float32)
+    g = GaussianSet({"means": torch.as_tensor(rng.normal(size=(52, 3)), dtype=torch.float32),
+                     "quats": torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(52, 1), "log_scales": torch.zeros(52, 3),
+                     "opacity": logits})
+    for share in (0.75, 1e-3):
+        faded = fade(g, share)
+        opacity = torch.sigmoid(faded["opacity"])
+        assert torch.isfinite(faded["opacity"]).all()
+        torch.testing.assert_close(opacity, share * torch.sigmoid(logits), rtol=1e-5, atol=1e-7)
+        torch.testing.assert_close(faded["means"], g["means"], rtol=0, atol=0)
+    assert fade(g, 1.0) is g

@@ -146,8 +146,8 @@ BY_SMOKE_COLOUR = TINY + ["--set", "stage3.smoke_color=haze-lines", "--set", "st
 
 
 def test_two_surface_run_joins_both_stage2s_and_resumes(splat: Path, tmp_path: Path) -> None:
-    """stage3.surface_init=by-smoke-colour without a held colour (this tiny scene's haze lines hold
-    none): a second Stage 2 on the RGB frames, with its own checkpoint and no rows of its own in
+    """stage3.surface_init=by-smoke-colour without a trusted colour (this tiny scene's haze lines give
+    no estimate): a second Stage 2 on the RGB frames, with its own checkpoint and no rows of its own in
     train_log.csv; Stage 3 starts from the kept RGB Gaussians plus the thermal ones in their holes
     (which ones: tests/test_surface_union.py), as metrics.json records; a rerun trains nothing again."""
     run = tmp_path / "run"
@@ -167,12 +167,13 @@ def test_two_surface_run_joins_both_stage2s_and_resumes(splat: Path, tmp_path: P
     assert json.loads((run / "metrics.json").read_text())["metrics"] == doc["metrics"]
 
 
-def test_by_smoke_colour_starts_from_the_thermal_surface_only_under_a_held_colour(
+def test_by_smoke_colour_keeps_the_rgb_stage2_by_one_minus_the_trust(
         splat: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """stage3.surface_init=by-smoke-colour: this tiny scene's haze lines hold no colour, so Stage 3
-    starts from the RGB Stage 2 with the thermal Gaussians in its holes; with a held (dark) colour it
-    starts from the thermal Stage 2 alone and never trains the RGB one. Each says so in its notes.
-    The mask floor then reads the surface Stage 3 starts from (the joined one, for the fill)."""
+    """stage3.surface_init=by-smoke-colour: this tiny scene's haze lines give no estimate, so Stage 3
+    starts from the RGB Stage 2 with the thermal Gaussians in its holes; at trust 0.5 from the same
+    with the RGB opacities halved; at trust 1 (a dark colour whose lines meet) from the thermal
+    Stage 2 alone, never training the RGB one. Each says so in its notes. The mask floor then
+    reads the surface Stage 3 starts from (the joined one, for the fill)."""
     from smokeseer import api
     from smokeseer.stage1.haze_lines import SmokeColourEstimate
 
@@ -181,12 +182,22 @@ def test_by_smoke_colour_starts_from_the_thermal_surface_only_under_a_held_colou
     assert main([str(splat), "--out", str(thin)] + rule) == 0
     stages = _assert_complete(thin)["stages"]
     assert stages["surface_union"]["fill_opaque_share"] == 0.5 and (thin / "checkpoints" / "stage2_rgb.pt").exists()
-    assert any("the haze lines hold no smoke colour" in n for n in stages["notes"])
+    assert stages["surface_union"]["rgb_opacity_share"] == 1.0
+    assert any("at 1.000 × its opacities" in n and "haze-line trust 0.000" in n for n in stages["notes"])
     assert stages["stage3_plan"]["mask_floor"] == "estimated-meeting"
     assert any(n.startswith("mask floor on") for n in stages["notes"])
     colour = np.array([0.21, 0.2, 0.23])
     monkeypatch.setattr(api, "estimate_smoke_colour",
-                        lambda *a, **k: SmokeColourEstimate(colour, 500, 900, 0.8, meeting=colour))
+                        lambda *a, **k: SmokeColourEstimate(colour, 500, 900, 0.8, meeting=colour, trust=0.5))
+    half = tmp_path / "half"
+    assert main([str(splat), "--out", str(half)] + rule) == 0
+    stages = _assert_complete(half)["stages"]
+    assert stages["surface_union"]["rgb_opacity_share"] == 0.5
+    assert stages["surface_union"]["thermal_kept"] >= json.loads((thin / "metrics.json").read_text())[
+        "stages"]["surface_union"]["thermal_kept"]   # a fainter RGB surface has more holes
+    assert any("at 0.500 × its opacities" in n for n in stages["notes"])
+    monkeypatch.setattr(api, "estimate_smoke_colour",
+                        lambda *a, **k: SmokeColourEstimate(colour, 500, 900, 0.8, meeting=colour, trust=1.0))
     dense = tmp_path / "dense"
     assert main([str(splat), "--out", str(dense)] + rule) == 0
     stages = _assert_complete(dense)["stages"]
@@ -534,38 +545,54 @@ def test_dropped_terms_are_said_in_the_log_and_metrics(splat: Path, tmp_path: Pa
         assert any(needle in n for n in notes) and needle in err
 
 
-def test_haze_line_smoke_colour_is_fixed_or_refused_aloud(splat: Path, tmp_path: Path,
-                                                          monkeypatch: pytest.MonkeyPatch,
-                                                          capsys: pytest.CaptureFixture) -> None:
-    """stage3.smoke_color=haze-lines: a trusted estimate becomes every smoke Gaussian's colour
-    (clones included) and stays so through training, with the colour priors off; on this tiny
-    scene the real estimator finds too few lines, and the run says it learns the colours."""
+def test_haze_line_smoke_colour_is_blended_by_its_trust_aloud(splat: Path, tmp_path: Path,
+                                                              monkeypatch: pytest.MonkeyPatch,
+                                                              capsys: pytest.CaptureFixture) -> None:
+    """stage3.smoke_color=haze-lines: a fully trusted estimate becomes every smoke Gaussian's colour
+    (clones included) and stays so through training, with the colour priors off; at trust 0.5 each
+    Gaussian shows half the estimate and half its own colour, which learns, with the priors on; on
+    this tiny scene the real estimator finds too few lines, and the run says it learns the colours."""
     from smokeseer import api
     from smokeseer.stage1.haze_lines import SmokeColourEstimate
 
     refused = tmp_path / "refused"
     assert main([str(splat), "--out", str(refused), "--set", "stage3.smoke_color=haze-lines"] + TINY) == 0
     stages = json.loads((refused / "metrics.json").read_text())["stages"]
-    assert stages["smoke_colour"]["source"] == "learned" and stages["smoke_colour"]["haze_lines"]["refused"]
-    assert any(n.startswith("smoke colour: the haze-line estimate is not trusted") for n in stages["notes"])
-    assert "smoke colour: the haze-line estimate is not trusted" in capsys.readouterr().err
+    lines = stages["smoke_colour"]["haze_lines"]
+    assert stages["smoke_colour"]["source"] == "learned" and lines["limits"] and lines["trust"] == 0.0
+    assert any(n.startswith("smoke colour: the haze-line estimate has no trust") for n in stages["notes"])
+    assert "smoke colour: the haze-line estimate has no trust" in capsys.readouterr().err
 
     colour = np.array([0.21, 0.2, 0.23])
-    monkeypatch.setattr(api, "estimate_smoke_colour", lambda *a, **k: SmokeColourEstimate(colour, 500, 900, 0.8))
+    densify = ["--set", "stage3.smoke_densify.start=0.25", "--set", "stage3.smoke_densify.every=3",
+               "--set", "stage3.smoke_densify.grad_threshold=0"]
+    monkeypatch.setattr(api, "estimate_smoke_colour",
+                        lambda *a, **k: SmokeColourEstimate(colour, 500, 900, 0.8, trust=1.0))
     run = tmp_path / "fixed"
-    assert main([str(splat), "--out", str(run), "--set", "stage3.smoke_color=haze-lines",
-                 "--set", "stage3.smoke_densify.start=0.25", "--set", "stage3.smoke_densify.every=3",
-                 "--set", "stage3.smoke_densify.grad_threshold=0"] + TINY) == 0
+    assert main([str(splat), "--out", str(run), "--set", "stage3.smoke_color=haze-lines"] + densify + TINY) == 0
     doc = json.loads((run / "metrics.json").read_text())
     assert doc["stages"]["smoke_colour"]["source"] == "haze-lines"
+    assert doc["stages"]["smoke_colour"]["haze_lines"]["trust"] == 1.0
     assert "smoke_color and mono terms dropped: the smoke colour is held fixed" in " ".join(doc["stages"]["notes"])
     assert doc["stages"]["smoke_colour"]["haze_lines"]["colour"] == pytest.approx(colour.tolist())
     smoke = torch.load(run / "checkpoints" / "stage3.pt", weights_only=False)["smoke"]
     assert smoke["color"].shape[0] > 120  # densified: the clones carry the colour too
-    torch.testing.assert_close(torch.sigmoid(smoke["color"]), torch.as_tensor(colour, dtype=torch.float32)
-                               .expand_as(smoke["color"]), atol=1e-6, rtol=0)
+    assert torch.count_nonzero(smoke["color"]) == 0   # the learned part never moves: no gradient reaches it
     rows = [r for r in _log_rows(run) if r["stage"] == "3"]
     assert rows and not any(r.get("smoke_color") or r.get("mono") for r in rows)
+
+    monkeypatch.setattr(api, "estimate_smoke_colour",
+                        lambda *a, **k: SmokeColourEstimate(colour, 250, 900, 0.3, trust=0.5))
+    half = tmp_path / "half"
+    assert main([str(splat), "--out", str(half), "--set", "stage3.smoke_color=haze-lines"] + TINY) == 0
+    doc = json.loads((half / "metrics.json").read_text())
+    assert doc["stages"]["smoke_colour"]["haze_lines"]["trust"] == 0.5
+    assert not {"smoke_color", "mono"} & set(doc["stages"]["stage3_plan"]["dropped"])
+    assert any("each smoke Gaussian shows 0.500 × the haze-line estimate" in n for n in doc["stages"]["notes"])
+    smoke = torch.load(half / "checkpoints" / "stage3.pt", weights_only=False)["smoke"]
+    assert torch.count_nonzero(smoke["color"]) > 0   # the learned half trains
+    rows = [r for r in _log_rows(half) if r["stage"] == "3"]
+    assert all(r.get("smoke_color") and r.get("mono") for r in rows)
     assert main([str(splat), "--out", str(tmp_path / "bad"), "--set", "stage3.smoke_color=guessed"] + TINY) == 2
     assert "stage3.smoke_color: 'guessed' is not one of learned, haze-lines" in capsys.readouterr().err
     assert not (tmp_path / "bad").exists()

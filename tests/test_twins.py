@@ -29,9 +29,10 @@ def test_colour_prior_ablations_train_like_full_when_the_colour_is_fixed(tmp_pat
     import smokeseer.api as api
     from smokeseer.stage1.haze_lines import SmokeColourEstimate
 
-    # The estimate itself is not under test here (tests/test_haze_lines.py): a trusted one is given.
+    # The estimate itself is not under test here (tests/test_haze_lines.py): a fully trusted one is given.
     monkeypatch.setattr(api, "haze_line_smoke_colour",
-                        lambda cfg, depth, rgb: SmokeColourEstimate(np.array([0.8, 0.8, 0.82]), 500, 900, 0.9))
+                        lambda cfg, depth, rgb: SmokeColourEstimate(np.array([0.8, 0.8, 0.82]), 500, 900, 0.9,
+                                                                                trust=1.0))
     ds = write_splat_dataset(tmp_path / "splat", n_rgb=8, n_thermal=6)
     plys, psnr, docs = {}, {}, {}
     for mode in ("full", "no-smoke-color", "no-mono", "no-mask"):

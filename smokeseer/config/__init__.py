@@ -186,28 +186,32 @@ class Stage3Config:
     """Where the RGB smoke colour comes from. "learned": every smoke Gaussian learns its own from
     grey, held together by the smoke-colour and monochromaticity priors (the paper). "haze-lines":
     one colour read off the smoky training frames before Stage 3 (``smokeseer.stage1.haze_lines``, with
-    Stage 2's geometry) and held fixed; where the estimate is not trusted (thin smoke: the lines
-    do not meet) the run learns it as the paper does and says so. Under dense smoke the images
+    Stage 2's geometry), with a trust t in [0, 1]: each smoke Gaussian shows t × that colour +
+    (1 − t) × its own learned one. t = 1 holds the colour; t = 0 (thin smoke: the lines do not
+    meet; or a bright, scattering smoke) learns it as the paper does. Under dense smoke the images
     alone let a brighter, denser smoke stand in for a darker surface (docs/method.md)."""
-    smoke_color_min_meeting: float = 0.5
-    """With smoke_color=haze-lines: the estimate is held when at least this fraction of the
-    observation lines pass near it. 0.5 was set on the first four standard datasets: the lines
-    meet under dense smoke (room 0.76, the dense excavator 0.91) and not under thin smoke (house
-    0.07, forest 0.10). The standard profile holds a dark colour from 0.2: at 0.5 machine's was
-    held at one seed of three (docs/method.md, "Smoke colour")."""
-    smoke_color_max_brightness: float = 1.0
-    """With smoke_color=haze-lines: an estimate whose channel mean exceeds this is learned, not
-    held. A scattering (bright) smoke's radiance follows the light and the viewing angle, so no
-    single colour fits it from every view, while an absorbing (dark) one adds little light of its
-    own. 1.0 holds every colour."""
+    smoke_color_min_meeting: float = 0.2
+    """With smoke_color=haze-lines: the trust's meeting factor is 0 at or under this fraction of
+    observation lines passing near the estimate ..."""
+    smoke_color_full_meeting: float = 0.4
+    """... and 1 at or over this one. The lines meet under dense smoke (room 0.81-0.83, excavator
+    0.66, machine 0.46-0.67) and not under thin smoke (house 0.03-0.08, forest 0.04-0.05)
+    (docs/method.md, "Smoke colour")."""
+    smoke_color_max_brightness: float = 0.5
+    """With smoke_color=haze-lines: the trust's darkness factor is 0 for an estimate whose channel
+    mean is at or over this ... A scattering (bright) smoke's radiance follows the light and the
+    viewing angle, so no single colour fits it from every view, while an absorbing (dark) one adds
+    little light of its own."""
+    smoke_color_full_brightness: float = 0.4
+    """... and 1 at or under this one."""
     surface_init: str = "thermal"
     """Where Stage 3's surface starts. "thermal": the thermal Stage 2 (the paper).
-    "by-smoke-colour": the thermal Stage 2 where the haze lines hold a (dark) smoke colour: dense
-    absorbing smoke, which a Stage 2 on the RGB frames takes for surface. Where they hold none
-    (thin or scattering smoke the RGB sees through): a Stage 2 on the smoky RGB frames
-    (RGB-only's), carved where it lies in front of the thermal surface and joined by the thermal
-    Gaussians in its holes (``smokeseer.train.surface_union``), so that where the RGB sees the
-    surface Stage 3 starts as RGB-only does. Needs smoke_color=haze-lines."""
+    "by-smoke-colour": by the haze-line trust t. At t = 1 (dense absorbing smoke, which a Stage 2
+    on the RGB frames takes for surface) the thermal Stage 2 alone. Under t < 1 a Stage 2 on the
+    smoky RGB frames (RGB-only's) with its opacities scaled by 1 − t, carved where it lies in front
+    of the thermal surface and joined by the thermal Gaussians in its holes
+    (``smokeseer.train.surface_union``), so that where the RGB sees the surface through thin or
+    scattering smoke Stage 3 starts as RGB-only does. Needs smoke_color=haze-lines."""
     carve_tolerance: float = 0.05
     """With two surfaces: an RGB Gaussian nearer than (1 − this) × the thermal
     surface's depth in most views that see it is smoke taken for surface, and is dropped."""
@@ -296,9 +300,17 @@ class TrainConfig:
                              f"{', '.join(SMOKE_COLOR_SOURCES)}")
         if self.stage3.surface_init not in SURFACE_INITS:
             raise ValueError(f"stage3.surface_init: {self.stage3.surface_init!r} is not one of {', '.join(SURFACE_INITS)}")
-        for name in ("smoke_color_min_meeting", "smoke_color_max_brightness"):
-            if not 0.0 < getattr(self.stage3, name) <= 1.0:
-                raise ValueError(f"stage3.{name}: must be in (0, 1], got {getattr(self.stage3, name)}")
+        for name in ("smoke_color_min_meeting", "smoke_color_full_meeting", "smoke_color_max_brightness",
+                     "smoke_color_full_brightness"):
+            if not 0.0 <= getattr(self.stage3, name) <= 1.0:
+                raise ValueError(f"stage3.{name}: must be in [0, 1], got {getattr(self.stage3, name)}")
+        s3 = self.stage3
+        if not s3.smoke_color_min_meeting < s3.smoke_color_full_meeting:
+            raise ValueError("stage3.smoke_color_full_meeting: must exceed stage3.smoke_color_min_meeting "
+                             f"({s3.smoke_color_full_meeting} <= {s3.smoke_color_min_meeting})")
+        if not s3.smoke_color_full_brightness < s3.smoke_color_max_brightness:
+            raise ValueError("stage3.smoke_color_full_brightness: must be under stage3.smoke_color_max_brightness "
+                             f"({s3.smoke_color_full_brightness} >= {s3.smoke_color_max_brightness})")
         if self.stage3.surface_init == "by-smoke-colour" and self.stage3.smoke_color != "haze-lines":
             raise ValueError("stage3.surface_init: by-smoke-colour reads the haze lines; it needs "
                              "stage3.smoke_color=haze-lines")
@@ -404,8 +416,8 @@ def _standard() -> TrainConfig:
     60 frames, 200x150 RGB, 80x60 thermal): full resolution, 3000 + 3000 iterations with the
     3DGS schedules scaled to them (densification 300-2400, warm-up 500), and a validation split
     for every choice. No opacity reset, a gated surface refinement, no depth term, a
-    half-equalised thermal curve, the haze-line smoke colour where it is dark and the lines meet,
-    Stage 3's surface chosen by that colour, and the mask floor where the images say the smoke may
+    half-equalised thermal curve, the haze-line smoke colour weighted by its trust (many lines,
+    meeting, dark), Stage 3's surface chosen by the same trust, and the mask floor where the images say the smoke may
     be dense: each chosen on the validation views, with its measurements in docs/method.md,
     "Profiles"."""
     s2 = Stage2Config(
@@ -424,8 +436,6 @@ def _standard() -> TrainConfig:
         surface_densify=DensifyConfig(start=0.1, stop=0.8, every=100, opacity_reset_every=0.0,
                                       max_gaussians=80_000),
         smoke_color="haze-lines",
-        smoke_color_min_meeting=0.2,
-        smoke_color_max_brightness=0.5,
         surface_init="by-smoke-colour",
         test_every=250,
     )

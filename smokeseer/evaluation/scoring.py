@@ -205,7 +205,7 @@ def write_plys(model: SceneModel, out: Path, times: tuple[float, ...]) -> list[P
                 placed, o_rgb, _ = model.smoke_at(t)
                 path = d / f"smoke_t{t:.2f}.ply"
                 write_ply(path, _ply(placed.means, placed.quats, placed.log_scales, o_rgb,
-                                     smoke_sh(model.smoke, k)))
+                                     smoke_sh(model.smoke_colours(), k)))
                 written.append(path)
     return written
 

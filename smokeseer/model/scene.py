@@ -77,8 +77,8 @@ def add_rgb_sh(tensors: dict[str, Tensor], sh_degree: int, init_rgb: Tensor | No
 
 
 def make_smoke(points: np.ndarray, opacity: float, scale: float, max_scale: float,
-               rng: np.random.Generator, device: torch.device, color: np.ndarray | None = None) -> GaussianSet:
-    """Smoke Gaussians at random positions, grey unless ``color`` (RGB in (0, 1)) is given, faint
+               rng: np.random.Generator, device: torch.device) -> GaussianSet:
+    """Smoke Gaussians at random positions, grey, faint
     (opacity and kNN scale × ``scale`` chosen so the initial cloud hides little of the surface),
     with random temporal windows."""
     base = init_gaussians(points, opacity, max_scale, device)
@@ -86,8 +86,7 @@ def make_smoke(points: np.ndarray, opacity: float, scale: float, max_scale: floa
     n = len(points)
     base["opacity_rgb"] = base.pop("opacity")
     base["opacity_thermal"] = torch.full((n,), logit(opacity), device=device)
-    base["color"] = (torch.zeros((n, 3), device=device) if color is None
-                     else torch.logit(torch.as_tensor(color, dtype=torch.float32, device=device)).expand(n, 3).clone())
+    base["color"] = torch.zeros((n, 3), device=device)
     base["thermal"] = torch.zeros((n, 1), device=device)
     centre = torch.as_tensor(rng.uniform(0.0, 1.0, n), dtype=torch.float32, device=device)
     half = torch.as_tensor(rng.uniform(0.25, 0.5, n), dtype=torch.float32, device=device)
@@ -140,10 +139,23 @@ def sh_coeffs(g: GaussianSet) -> Tensor:
     return torch.cat([g["sh_dc"], g["sh_rest"]], dim=1)
 
 
-def smoke_sh(smoke: GaussianSet, k: int) -> Tensor:
-    """Smoke's view-independent colour as SH (DC only) so it joins the surface's SH pass."""
-    dc = rgb_to_sh_dc(torch.sigmoid(smoke["color"]))[:, None, :]
-    return torch.cat([dc, torch.zeros(smoke.n, k - 1, 3, device=dc.device)], dim=1)
+def smoke_sh(colours: Tensor, k: int) -> Tensor:
+    """Smoke's view-independent RGB ``colours`` as SH (DC only) so they join the surface's SH pass."""
+    dc = rgb_to_sh_dc(colours)[:, None, :]
+    return torch.cat([dc, torch.zeros(colours.shape[0], k - 1, 3, device=dc.device)], dim=1)
+
+
+@dataclass(frozen=True)
+class SmokeAnchor:
+    """The haze-line smoke colour and its trust: each smoke Gaussian shows trust × ``colour`` +
+    (1 − trust) × its own learned colour. Why a blend and not a switch: an estimate just under or
+    over a threshold would otherwise train a different method (docs/method.md, "Smoke colour")."""
+
+    colour: Tensor
+    trust: float
+
+    def blend(self, own: Tensor) -> Tensor:
+        return self.trust * self.colour + (1.0 - self.trust) * own
 
 
 def render(view: View, parts: list[tuple[Placed, Tensor, Tensor]], sh_degree: int | None,
@@ -209,6 +221,14 @@ class SceneModel:
     surface_deform: DeformNetwork | None = None
     background_rgb: EnvironmentBackground | None = None
     background_thermal: EnvironmentBackground | None = None
+    smoke_anchor: SmokeAnchor | None = None
+
+    def smoke_colours(self) -> Tensor:
+        """Each smoke Gaussian's RGB colour: its own, blended with the anchor where there is one."""
+        if self.smoke is None:
+            raise ValueError("smoke_colours: this model has no smoke Gaussians")
+        own = torch.sigmoid(self.smoke["color"])
+        return own if self.smoke_anchor is None else self.smoke_anchor.blend(own)
 
     def surface_at(self, t: float) -> Placed:
         """Surface Gaussians are static, except in the deformable-3dgs baseline."""
@@ -242,7 +262,7 @@ class SceneModel:
         use_smoke = smoke and self.smoke is not None
         if use_smoke:
             placed, o_rgb, _ = self.smoke_at(view.time, deform_active)
-            parts.append((placed, o_rgb, smoke_sh(self.smoke, k)))
+            parts.append((placed, o_rgb, smoke_sh(self.smoke_colours(), k)))
         subset = len(parts) - 1 if use_smoke else None
         if not parts:
             raise ValueError("render_rgb: nothing to render (no surface and no smoke)")

@@ -6,6 +6,12 @@ the lines of many points meet at k. The surface geometry (Stage 2's, rendered as
 cameras) says which pixels of which frames see the same point; k is the least-squares meeting
 point of the lines. This matters because under dense smoke the images alone let Stage 3 trade a
 brighter, denser smoke against a darker surface (docs/method.md, "Smoke colour").
+
+How far the estimate is trusted is a number in [0, 1] (``trust``), not a yes or no: it grows
+with the number of lines, the share of them that meet, and how dark the colour is (an absorbing
+smoke adds little light of its own; a scattering one's radiance follows the light and the view).
+Each factor rises linearly between two settings, so two runs whose estimates differ a little
+train a little differently, never across a step.
 """
 from __future__ import annotations
 
@@ -32,55 +38,82 @@ class HazeLineSettings:
     min_spread: float = 0.03
     """Least standard deviation of a point's colours along its line (colours in [0, 1])."""
     min_lines: int = 100
+    """Fewer lines give no estimate; the trust's line factor rises from 0 here ..."""
+    full_lines: int = 400
+    """... to 1 here."""
     meet_tolerance: float = 0.03
     min_meeting_fraction: float = Stage3Config.smoke_color_min_meeting
-    """The fraction of lines that must pass within ``meet_tolerance`` of the estimate."""
+    """The fraction of lines passing within ``meet_tolerance`` of the estimate where the meeting
+    factor leaves 0 ..."""
+    full_meeting_fraction: float = Stage3Config.smoke_color_full_meeting
+    """... and where it reaches 1."""
     max_brightness: float = Stage3Config.smoke_color_max_brightness
-    """The brightest channel mean that is held (why: ``Stage3Config``)."""
+    """The channel mean where the brightness factor reaches 0 (why: ``Stage3Config``) ..."""
+    full_brightness: float = Stage3Config.smoke_color_full_brightness
+    """... and the darker one where it is 1."""
 
     @classmethod
     def of(cls, stage3: Stage3Config) -> "HazeLineSettings":
-        """The settings a run's Stage 3 uses (its meeting fraction and brightness bound)."""
-        return cls(min_meeting_fraction=stage3.smoke_color_min_meeting, max_brightness=stage3.smoke_color_max_brightness)
+        """The settings a run's Stage 3 uses (its meeting and brightness ramps)."""
+        return cls(min_meeting_fraction=stage3.smoke_color_min_meeting,
+                   full_meeting_fraction=stage3.smoke_color_full_meeting,
+                   max_brightness=stage3.smoke_color_max_brightness,
+                   full_brightness=stage3.smoke_color_full_brightness)
 
 
 @dataclass
 class SmokeColourEstimate:
-    """The meeting point, or None with the reason it could not be trusted."""
+    """The meeting point and how far it is trusted, or None with the reason there is none."""
 
     colour: np.ndarray | None
+    """The point nearest to all lines, inside the colour cube; None: no estimate (``reason``)."""
     lines: int
     points: int
     meeting_fraction: float | None = None
     reason: str = ""
+    """Why there is no estimate, or what keeps its trust under 1 ("" at full trust)."""
     meeting: np.ndarray | None = None
-    """Where the lines meet when they do (inside the colour cube), held or not: a bright smoke's
-    colour too view-dependent to hold still places its density (``loss.mask_floor_where``)."""
+    """``colour`` when at least ``min_meeting_fraction`` of the lines meet, trusted or not: a bright
+    smoke's colour too view-dependent to hold still places its density (``loss.mask_floor_where``)."""
+    trust: float = 0.0
+    """In [0, 1]: each smoke Gaussian shows trust × ``colour`` + (1 − trust) × its own (``trust``)."""
 
     def describe(self) -> str:
         met = "" if self.meeting_fraction is None else f", {self.meeting_fraction:.2f} of them meeting"
-        found = (f"{np.round(self.colour, 3).tolist()}" if self.colour is not None else f"none: {self.reason}")
+        if self.colour is None:
+            found = f"none: {self.reason}"
+        else:
+            found = f"{np.round(self.colour, 3).tolist()}, trust {self.trust:.3f}" + (f" ({self.reason})" if self.reason else "")
         return f"{found} ({self.lines} observation lines from {self.points} points{met})"
 
 
-def lines_meet(colour: np.ndarray, met: float, settings: HazeLineSettings) -> bool:
-    """The lines meet: at fraction ``met`` of at least the trust threshold, inside the colour cube."""
-    return met >= settings.min_meeting_fraction and not (np.any(colour < -0.05) or np.any(colour > 1.05))
+def ramp(value: float, zero: float, one: float) -> float:
+    """0 at ``zero``, 1 at ``one``, linear between and flat outside (either direction)."""
+    return float(np.clip((value - zero) / (one - zero), 0.0, 1.0))
 
 
-def refusal(colour: np.ndarray, met: float, settings: HazeLineSettings) -> str:
-    """Why a meeting point ``colour`` whose lines meet at fraction ``met`` is not held, or "" when
-    it is: the trust test, the colour cube, then the brightness rule (reasons: ``Stage3Config``)."""
-    if met < settings.min_meeting_fraction:
-        return (f"the lines do not meet: under {settings.min_meeting_fraction} of them pass within "
-                f"{settings.meet_tolerance} of their nearest point {np.round(colour, 3).tolist()}")
-    if not lines_meet(colour, met, settings):
-        return f"the lines meet outside the colour cube, at {np.round(colour, 3).tolist()}"
-    if float(np.mean(colour)) > settings.max_brightness:
-        return (f"a bright smoke colour {np.round(colour, 3).tolist()} (channel mean {float(np.mean(colour)):.2f}, "
-                f"over {settings.max_brightness}): a scattering smoke's radiance follows the light and the view, "
-                "so each smoke Gaussian learns its own")
-    return ""
+def trust_factors(colour: np.ndarray, lines: int, met: float, settings: HazeLineSettings) -> dict[str, float]:
+    """The three factors of the trust in an estimate ``colour`` from ``lines`` lines meeting at
+    fraction ``met``: enough lines, lines that meet, and a dark colour."""
+    return {"lines": ramp(lines, settings.min_lines, settings.full_lines),
+            "meeting": ramp(met, settings.min_meeting_fraction, settings.full_meeting_fraction),
+            "darkness": ramp(float(np.mean(colour)), settings.max_brightness, settings.full_brightness)}
+
+
+def trust(colour: np.ndarray, lines: int, met: float, settings: HazeLineSettings) -> tuple[float, str]:
+    """The product of ``trust_factors``, and what holds it under 1 ("" at 1)."""
+    factors = trust_factors(colour, lines, met, settings)
+    value = float(np.prod(list(factors.values())))
+    why = {"lines": f"{lines} lines (full at {settings.full_lines})",
+           "meeting": f"{met:.2f} of the lines meet (full at {settings.full_meeting_fraction})",
+           "darkness": f"channel mean {float(np.mean(colour)):.2f} (full at {settings.full_brightness} or darker: "
+                       "a scattering smoke's radiance follows the light and the view)"}
+    limits = [f"{why[name]}: {f:.2f}" for name, f in factors.items() if f < 1.0]
+    return value, "; ".join(limits)
+
+
+def in_cube(colour: np.ndarray) -> bool:
+    return not (np.any(colour < -0.05) or np.any(colour > 1.05))
 
 
 def observations(points: np.ndarray, images: np.ndarray, depths: np.ndarray, valid: np.ndarray,
@@ -167,6 +200,10 @@ def estimate_smoke_colour(images: np.ndarray, depths: np.ndarray, valid: np.ndar
     if colour is None:
         return SmokeColourEstimate(None, lines, n_points, reason="the observation lines are parallel")
     met = float((line_distances(colour, means, dirs) <= settings.meet_tolerance).mean())
-    reason = refusal(colour, met, settings)
-    meeting = np.clip(colour, 0.01, 0.99) if lines_meet(colour, met, settings) else None
-    return SmokeColourEstimate(None if reason else meeting, lines, n_points, met, reason, meeting)
+    if not in_cube(colour):
+        return SmokeColourEstimate(None, lines, n_points, met,
+                                   f"the lines meet outside the colour cube, at {np.round(colour, 3).tolist()}")
+    colour = np.clip(colour, 0.01, 0.99)
+    value, limits = trust(colour, lines, met, settings)
+    meeting = colour if met >= settings.min_meeting_fraction else None
+    return SmokeColourEstimate(colour, lines, n_points, met, limits, meeting, value)

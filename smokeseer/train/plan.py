@@ -2,10 +2,11 @@
 
 ``plan_stage3`` takes the config, the loaded scene and where Stage 1's masks came from, and
 decides the inputs (thermal, smoke Gaussians, deformation, masks), the smoke colour (learned,
-or held at the haze-line estimate), where the mask floor acts, the depth prior and its camera,
-and the loss weights that follow from all of them. The haze-line estimate needs Stage 2's
-geometry, so ``Stage3Plan.settle_colour`` applies it then, by the same rule: a colour held fixed
-leaves the smoke_color and mono priors nothing to act on, so they leave the loss.
+or anchored to the haze-line estimate by its trust), where the mask floor acts, the depth prior
+and its camera, and the loss weights that follow from all of them. The haze-line estimate needs
+Stage 2's geometry, so ``Stage3Plan.settle_colour`` applies it then, by the same rule: a colour
+held fixed (trust 1) leaves the smoke_color and mono priors nothing to act on, so they leave the
+loss; under trust 1 they act on the blended colours.
 
 Stage 3 takes its weights from the plan; every term the mode asks for that the plan drops is
 named with the reason (``dropped``), and the notes say it in the log and metrics.json.
@@ -76,8 +77,8 @@ class Stage3Plan:
     deformable-3dgs baseline's single set. A run without smoke Gaussians has none."""
     use_masks: bool
     smoke_colour: str
-    """"none" (no smoke Gaussians), "learned", or "haze-lines": held at ``colour``, the estimate
-    made once Stage 2 has given the geometry (``settle_colour``)."""
+    """"none" (no smoke Gaussians), "learned", or "haze-lines": anchored to ``colour``, the estimate
+    made once Stage 2 has given the geometry, by ``trust`` (``settle_colour``)."""
     mask_floor: str
     """Where the mask term's floor acts: "all", "never-clear" or "estimated-meeting"
     (``loss.mask_floor_where``)."""
@@ -90,7 +91,9 @@ class Stage3Plan:
     """Terms the mode asks for that the plan leaves out, with the reason."""
     notes: list[str] = field(default_factory=list)
     colour: np.ndarray | None = None
-    """The fixed RGB smoke colour, or None when the smoke Gaussians learn their colours."""
+    """The haze-line RGB smoke colour, or None when the smoke Gaussians learn theirs freely."""
+    trust: float = 0.0
+    """Each smoke Gaussian shows trust × ``colour`` + (1 − trust) × its own learned colour."""
     floor_pixels: np.ndarray | None = None
     """(training RGB frames, H, W) bool: where the mask floor acts (never-clear or estimated-meeting, set
     once Stage 2 has given the geometry and the smoke colour is settled); None: everywhere."""
@@ -102,13 +105,18 @@ class Stage3Plan:
         self.weights[term] = 0.0
 
     def settle_colour(self, estimate: SmokeColourEstimate) -> str | None:
-        """Apply the haze-line estimate: a trusted colour is held fixed, so the colour priors leave
-        the loss; a refused one leaves the colours learned, as in the paper. Returns the note."""
-        if estimate.colour is None:
+        """Apply the haze-line estimate by its trust: at 0 (or without an estimate) the colours are
+        learned as in the paper; between 0 and 1 each smoke Gaussian blends the estimate with its
+        own colour; at 1 the colour is held, so the colour priors leave the loss. Returns the note."""
+        if estimate.colour is None or estimate.trust == 0.0:
             self.smoke_colour = "learned"
-            return ("smoke colour: the haze-line estimate is not trusted, so the smoke Gaussians learn "
+            return ("smoke colour: the haze-line estimate has no trust, so the smoke Gaussians learn "
                     f"their colours as in the paper ({estimate.reason})")
-        self.colour = estimate.colour
+        self.colour, self.trust = estimate.colour, estimate.trust
+        if estimate.trust < 1.0:
+            return (f"smoke colour: each smoke Gaussian shows {estimate.trust:.3f} × the haze-line estimate "
+                    f"{np.round(estimate.colour, 3).tolist()} + {1 - estimate.trust:.3f} × its own learned colour "
+                    f"({estimate.reason})")
         dropped = [name for name in COLOUR_TERMS if self.weights[name] > 0]
         for name in COLOUR_TERMS:
             self.drop(name, COLOUR_FIXED)

@@ -19,7 +19,7 @@ from smokeseer.config import TrainConfig, at_iteration
 from smokeseer.model.deform import DeformNetwork, motion_tensors
 from smokeseer.model.gaussians import DensifyStrategy, GaussianSet, make_optimizer
 from smokeseer.model.optim import Adam
-from smokeseer.model.scene import SceneModel, add_rgb_sh, make_smoke
+from smokeseer.model.scene import SceneModel, SmokeAnchor, add_rgb_sh, make_smoke
 from smokeseer.raster.output import RasterOutput
 from smokeseer.train.depth_prior import DepthPriorMaps
 from smokeseer.train.loop import IterationOutput, StageProblem, StageSchedule, run_stage
@@ -49,8 +49,7 @@ def build_scene_model(ctx: RunContext, s2: Stage2Result, plan: Stage3Plan,
     deform = None
     if plan.use_smoke and smoke_points is not None:
         smoke = make_smoke(smoke_points, cfg.stage3.smoke_init_opacity, cfg.stage3.smoke_init_scale,
-                           cfg.stage2.init_scale_max * ctx.extent, np.random.default_rng(cfg.seed + 1), ctx.device,
-                           plan.colour)
+                           cfg.stage2.init_scale_max * ctx.extent, np.random.default_rng(cfg.seed + 1), ctx.device)
         if plan.use_deform and cfg.deform.kind == "mlp":
             deform = DeformNetwork(cfg.deform, ctx.extent, ctx.device)
         elif plan.use_deform:
@@ -59,8 +58,10 @@ def build_scene_model(ctx: RunContext, s2: Stage2Result, plan: Stage3Plan,
     bg_rgb = (rgb_s2.background if rgb_s2 is not None else make_background(cfg, 3, ctx.device)) \
         if thermal_geometry else s2.background
     bg_thermal = s2.background if thermal_geometry else None
+    anchor = (SmokeAnchor(torch.as_tensor(plan.colour, dtype=torch.float32, device=ctx.device), plan.trust)
+              if smoke is not None and plan.colour is not None else None)
     return SceneModel(surface, smoke, deform, smoke_static or not plan.use_deform, ctx.center, cfg.sh_degree,
-                      background_rgb=bg_rgb, background_thermal=bg_thermal)
+                      background_rgb=bg_rgb, background_thermal=bg_thermal, smoke_anchor=anchor)
 
 
 def _backgrounds(model: SceneModel) -> dict[str, torch.nn.Module]:
@@ -77,10 +78,10 @@ def _surface_lrs(cfg: TrainConfig, g: GaussianSet, extent: float) -> dict[str, f
     return {k: table[k] for k in g.params}
 
 
-def _smoke_lrs(cfg: TrainConfig, extent: float, colour_fixed: bool) -> dict[str, float]:
+def _smoke_lrs(cfg: TrainConfig, extent: float) -> dict[str, float]:
     lr = cfg.lr
     table = {"means": lr.means_init * extent, "quats": lr.quats, "log_scales": lr.scales,
-             "opacity_rgb": lr.opacity, "opacity_thermal": lr.opacity, "color": 0.0 if colour_fixed else lr.sh_dc * 4,
+             "opacity_rgb": lr.opacity, "opacity_thermal": lr.opacity, "color": lr.sh_dc * 4,
              "thermal": lr.thermal, "t_lo": lr.temporal, "t_hi": lr.temporal, "t_log_sigma": lr.temporal}
     return {**table, **{f"motion_{k}": table[k] * cfg.deform.fourier_lr_scale for k in ("means", "quats", "log_scales")}}
 
@@ -98,7 +99,6 @@ class Stage3Problem(StageProblem):
         cfg, dev = ctx.cfg, ctx.device
         self.ctx, self.cfg, self.model, self.prior, self.heldout_fn = ctx, cfg, model, prior, heldout_psnr
         self.weights = plan.weights
-        self.colour_fixed = plan.colour is not None
         self._make_optimizers()
         self.strategy = DensifyStrategy(cfg.stage3.smoke_densify, cfg.stage3.iterations, ("opacity_rgb", "opacity_thermal"),
                                         ctx.extent)
@@ -127,7 +127,7 @@ class Stage3Problem(StageProblem):
     def _make_optimizers(self) -> None:
         cfg, model = self.cfg, self.model
         self.surface_optimizer = make_optimizer(model.surface, _surface_lrs(cfg, model.surface, self.ctx.extent))
-        self.smoke_optimizer = (make_optimizer(model.smoke, _smoke_lrs(cfg, self.ctx.extent, self.colour_fixed))
+        self.smoke_optimizer = (make_optimizer(model.smoke, _smoke_lrs(cfg, self.ctx.extent))
                                 if model.smoke is not None else None)
         self.deform_optimizer = (Adam(model.deform.parameters(), lr=cfg.deform.lr_init)
                                  if model.deform else None)
@@ -153,7 +153,7 @@ class Stage3Problem(StageProblem):
                 depth_source = (tout, j)
         if model.smoke is not None:
             o_rgb = torch.sigmoid(model.smoke["opacity_rgb"])
-            col = torch.sigmoid(model.smoke["color"])
+            col = model.smoke_colours()
             if weights["smoke_alpha"] > 0:
                 terms["smoke_alpha"] = smoke_alpha_variance(o_rgb)
             if weights["smoke_color"] > 0:

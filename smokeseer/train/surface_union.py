@@ -8,6 +8,10 @@ and is carved away. Only the thermal Gaussians that fall in the carved RGB surfa
 it: where the RGB sees the surface, the coarse thermal Gaussians (their RGB colour borrowed from
 a neighbour) would blur it, and Stage 3 would start far below RGB-only's. Each set takes the
 other's colour from its nearest neighbour in the other set.
+
+How much the RGB Stage 2 is believed follows the haze-line trust t (``surface_start``): its
+opacities are scaled by 1 − t before the carving, so under dense absorbing smoke (t = 1) the
+thermal Stage 2 stands alone, and a small change in what the images say moves the start a little.
 """
 from __future__ import annotations
 
@@ -35,19 +39,30 @@ FILL_OPAQUE_SHARE = 0.5
 centre lands in more than this share of the RGB training views that see it."""
 
 
-def surface_start(colour: SmokeColourEstimate | None, smoke: bool) -> tuple[bool, str]:
-    """Whether Stage 3 starts from two surfaces, and the note saying why: a held haze-line colour
-    (``colour``) means dense absorbing smoke, and the thermal Stage 2 alone; without smoke
-    Gaussians (``smoke`` false) the RGB sees the surface everywhere."""
+def surface_start(colour: SmokeColourEstimate | None, smoke: bool) -> tuple[float, str]:
+    """The share of its opacity each RGB Stage-2 Gaussian keeps in Stage 3's start (1 − the
+    haze-line trust; 0: the thermal Stage 2 alone), and the note saying why. The trust is high for
+    dense absorbing smoke, which the RGB Stage 2 takes for surface; without smoke Gaussians
+    (``smoke`` false) the RGB sees the surface everywhere."""
     if not smoke:
-        return True, ("surface from the RGB Stage 2 and the thermal Gaussians in its holes (stage3.surface_init="
-                      "by-smoke-colour): the run has no smoke, so the RGB sees the surface")
-    if colour is not None and colour.colour is not None:
-        return False, ("surface from the thermal Stage 2 alone (stage3.surface_init=by-smoke-colour): the haze "
-                       "lines hold a dark smoke colour, so the smoke is dense and the RGB Stage 2 takes it for surface")
-    return True, ("surface from the RGB Stage 2 and the thermal Gaussians in its holes (stage3.surface_init="
-                  "by-smoke-colour): the haze lines hold no smoke colour, so the smoke is thin or scattering "
-                  "and the RGB sees the surface through it")
+        return 1.0, ("surface from the RGB Stage 2 and the thermal Gaussians in its holes (stage3.surface_init="
+                     "by-smoke-colour): the run has no smoke, so the RGB sees the surface")
+    trust = 0.0 if colour is None or colour.colour is None else colour.trust
+    if trust == 1.0:
+        return 0.0, ("surface from the thermal Stage 2 alone (stage3.surface_init=by-smoke-colour): the haze "
+                     "lines are fully trusted (dense, dark smoke), so the RGB Stage 2 would take the smoke for surface")
+    return 1.0 - trust, (f"surface from the RGB Stage 2 at {1.0 - trust:.3f} × its opacities and the thermal Gaussians "
+                         f"in its holes (stage3.surface_init=by-smoke-colour): haze-line trust {trust:.3f}, so the "
+                         "RGB sees the surface through the smoke that far")
+
+
+def fade(g: GaussianSet, share: float) -> GaussianSet:
+    """``g`` with every opacity scaled by ``share`` in (0, 1] (a copy; at 1 the same tensors)."""
+    if share == 1.0:
+        return g
+    tensors = {k: v.detach() for k, v in g.state_dict().items()}
+    tensors["opacity"] = torch.logit(share * torch.sigmoid(tensors["opacity"]))
+    return GaussianSet(tensors)
 
 
 @dataclass
@@ -134,30 +149,33 @@ class TwoSurfaces:
         r = self.record
         return (f"surface from both Stage 2s: the {r['thermal_kept']} of {r['thermal']} thermal Gaussians in the RGB "
                 f"surface's holes + {r['rgb_kept']} of {r['rgb']} "
-                f"RGB Gaussians ({r['rgb'] - r['rgb_kept']} in front of the thermal surface carved, tolerance "
+                f"RGB Gaussians at {r['rgb_opacity_share']:.3g} × their opacities ({r['rgb'] - r['rgb_kept']} in front of the thermal surface carved, tolerance "
                 f"{r['tolerance']:g}; {r['rgb_unchecked']} no view could check kept)")
 
 
 def join_surfaces(ctx: RunContext, rgb: ModalityData, init_points: np.ndarray, thermal: Stage2Result,
-                  thermal_depth: DepthPriorMaps) -> TwoSurfaces:
-    """Train RGB-only's Stage 2 (checkpoint ``stage2_rgb``, keyed as RGB-only's Stage 2 is), carve it
-    with the thermal surface's depth at the RGB training cameras (``thermal_depth``), and join it
-    with the thermal Gaussians in the carved surface's holes."""
+                  thermal_depth: DepthPriorMaps, rgb_share: float) -> TwoSurfaces:
+    """Train RGB-only's Stage 2 (checkpoint ``stage2_rgb``, keyed as RGB-only's Stage 2 is), scale
+    its opacities by ``rgb_share`` (``surface_start``), carve it with the thermal surface's depth at
+    the RGB training cameras (``thermal_depth``), and join it with the thermal Gaussians in the
+    carved surface's holes."""
     cfg = ctx.cfg
     rgb_s2 = train_stage2(ctx, rgb, init_points, deformable=False, checkpoint="stage2_rgb",
                           sha=replace(cfg, mode="rgb-only").stage2_sha256())
-    carve = carve_in_front(rgb_s2.gaussians["means"].detach().cpu().numpy().astype(np.float64),
+    rgb_set = fade(rgb_s2.gaussians, rgb_share)
+    carve = carve_in_front(rgb_set["means"].detach().cpu().numpy().astype(np.float64),
                            thermal_depth.maps.cpu().numpy(), thermal_depth.valid.cpu().numpy(), *rgb.cameras("train"),
                            cfg.stage3.carve_tolerance)
-    dev = rgb_s2.gaussians["means"].device
+    dev = rgb_set["means"].device
     keep = torch.as_tensor(carve.keep, device=dev)
-    carved = GaussianSet({k: v.detach()[keep] for k, v in rgb_s2.gaussians.state_dict().items()})
+    carved = GaussianSet({k: v.detach()[keep] for k, v in rgb_set.state_dict().items()})
     opaque = rendered_depth_prior(carved, views_of(rgb, rgb.indices("train"), dev), "rgb").valid.cpu().numpy()
     holes = in_holes(thermal.gaussians["means"].detach().cpu().numpy().astype(np.float64), opaque,
                      *rgb.cameras("train"), FILL_OPAQUE_SHARE)
     thermal_keep = torch.as_tensor(holes, device=dev)
-    surface = union_surface(thermal.gaussians, rgb_s2.gaussians, keep, thermal_keep, cfg.sh_degree)
-    record = {"thermal": thermal.gaussians.n, "rgb": rgb_s2.gaussians.n, "rgb_kept": int(carve.keep.sum()),
+    surface = union_surface(thermal.gaussians, rgb_set, keep, thermal_keep, cfg.sh_degree)
+    record = {"thermal": thermal.gaussians.n, "rgb": rgb_s2.gaussians.n, "rgb_opacity_share": rgb_share,
+              "rgb_kept": int(carve.keep.sum()),
               "rgb_unchecked": int((carve.seen == 0).sum()), "tolerance": cfg.stage3.carve_tolerance,
               "thermal_kept": int(holes.sum()), "fill_opaque_share": FILL_OPAQUE_SHARE}
     return TwoSurfaces(surface, rgb_s2, record)
