@@ -17,6 +17,7 @@ import torch
 
 from contracts.imageio import read_exr
 from contracts.metrics import psnr
+from contracts.recorded_paths import recorded_location
 from scenes.load import load_scene
 from smokeseer.api import prepare
 from smokeseer.model.scene import make_view
@@ -29,7 +30,7 @@ def rebuild(run: Path, overrides: dict, tmp: Path):
     """The run's finished model, through the trainer's own resume (which checks the config)."""
     cfg_doc = json.loads((run / "config.json").read_text())
     metrics = json.loads((run / "metrics.json").read_text())
-    prep = prepare(Path(metrics["dataset"]), cfg_doc["mode"], cfg_doc["profile"], cfg_doc["seed"], overrides)
+    prep = prepare(recorded_location(metrics["dataset"]), cfg_doc["mode"], cfg_doc["profile"], cfg_doc["seed"], overrides)
     shutil.copytree(run / "checkpoints", tmp / "checkpoints")
     cfg, scene, b = prep.cfg, prep.scene, prep.report.bounds
     ctx = RunContext(cfg, tmp, RunLog(tmp / "log.csv"), torch.as_tensor(b.center, dtype=torch.float32), b.extent)

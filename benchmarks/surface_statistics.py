@@ -32,6 +32,7 @@ if str(ROOT) not in sys.path:
 
 from contracts.atomic import write_rows_csv  # noqa: E402
 from contracts.metrics import psnr  # noqa: E402
+from contracts.recorded_paths import recorded_location  # noqa: E402
 from scenes.load import load_scene  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
@@ -46,7 +47,7 @@ def view_rows(label: str, run: Path) -> tuple[list[dict[str, object]], list[tupl
     """One row of statistics and one strip of images per test view of ``run``."""
     doc = json.loads((run / "metrics.json").read_text())
     cfg = json.loads((run / "config.json").read_text())
-    scene = load_scene(Path(doc["dataset"]), int(cfg.get("max_width", 0)), all_ground_truth=True)
+    scene = load_scene(recorded_location(doc["dataset"]), int(cfg.get("max_width", 0)), all_ground_truth=True)
     rgb = scene.rgb
     by_stem = {f.file_stem: i for i, f in enumerate(rgb.frames)}
     rows, strips = [], []

@@ -7,6 +7,7 @@ import platform
 import subprocess
 from importlib import metadata
 
+from contracts.float_setup import float_setup
 from contracts.source import PROJECT_ROOT, code_digest
 
 
@@ -33,7 +34,7 @@ def code_version() -> dict[str, object]:
 def machine() -> dict[str, object]:
     return {"host": platform.node(), "system": platform.system(), "arch": platform.machine(),
             "processor": platform.processor() or "unknown", "cpu_count": os.cpu_count(),
-            "python": platform.python_version()}
+            "python": platform.python_version(), "float_setup": float_setup()}
 
 
 def provenance(entry_module: str, threads: int) -> dict[str, object]:

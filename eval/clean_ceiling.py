@@ -18,6 +18,7 @@ from pathlib import Path
 
 from contracts.atomic import write_json
 from contracts.dataset_format import PASS_FILES, validate_dataset
+from contracts.recorded_paths import recorded_path
 from contracts.results_format import read_metrics
 
 SWAPPED = {modality: dict(zip((pf.folder for pf in PASS_FILES[(modality, "smoky")]),
@@ -55,7 +56,7 @@ def derive_clean_dataset(src: Path, dst: Path) -> Path:
         meta["passes"][modality] = [p for p in meta["passes"][modality] if p != "smoke_alpha"]
     meta.setdefault("smoke", {})["present"] = False
     meta["derived_from"] = {
-        "dataset": str(src), "spec_sha256": meta.get("spec_sha256"),
+        "dataset": recorded_path(src), "spec_sha256": meta.get("spec_sha256"),
         "change": "; ".join(f"{smoky} links to {clean}" for smoky, clean in swapped.items())
                   + "; the smoke_alpha passes are dropped and smoke.present is false: the smoke-free ceiling "
                     "of eval/clean_ceiling.py"}

@@ -35,7 +35,7 @@ from contracts.results_format import ResultsFormatError, read_metrics
 from contracts.source import code_digest
 from contracts.train_log import read_train_log
 from eval.dehaze import dehaze_dataset, get_dehazer
-from eval.float_setup import float_setup
+from contracts.float_setup import float_setup
 from eval.runs import VARIANTS, RunResult, RunSpec, config_hash
 from eval.settings import DatasetOutcome, HarnessConfig
 from eval.shared_stage2 import (leaders_first, rgb_stage2_sha, stage2_done, stage2_donors, stage2_groups,

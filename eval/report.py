@@ -107,7 +107,7 @@ def write_report(cfg: HarnessConfig, results: list[RunResult], datasets: list[Da
     setups = Counter(r.float_setup or "not recorded" for r in results if r.status == "ok" and not r.same_as)
     if len(setups) > 1:
         lines += ["", "The runs trained under more than one float setup (harness.json `float_setup`, "
-                  "eval/float_setup.py), so equal settings need not give equal bytes between them: "
+                  "contracts/float_setup.py), so equal settings need not give equal bytes between them: "
                   + "; ".join(f"{n} under {s}" for s, n in sorted(setups.items())) + "."]
     adopted = [r for r in results if r.adopted_from]
     if adopted:

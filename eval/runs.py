@@ -9,6 +9,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from contracts.recorded_paths import recorded_path
+
 
 @dataclass(frozen=True)
 class Variant:
@@ -141,10 +143,14 @@ class RunResult:
     """Where a run trained under another key came from, and what was checked (eval/adopt.py), or ""."""
     float_setup: str = ""
     """What set its float rounding where it trained: the CPU and its vector flags, torch's version and
-    CPU capability, the compiler (eval/float_setup.py); "" in records older than the field."""
+    CPU capability, the compiler (contracts/float_setup.py); "" in records older than the field."""
 
     def to_json(self) -> dict[str, Any]:
-        return asdict(self)
+        """The record as harness.json holds it: its paths as ``contracts.recorded_paths`` writes them."""
+        d = asdict(self)
+        for key in ("run_dir", "dataset", "stage2_from"):
+            d[key] = recorded_path(d[key])
+        return d
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> "RunResult":

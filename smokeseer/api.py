@@ -17,6 +17,7 @@ import torch
 
 from contracts.atomic import write_json
 from contracts.provenance import provenance
+from contracts.recorded_paths import recorded_path
 from contracts.results_format import RESULTS_FORMAT, RESULTS_FORMAT_VERSION
 from scenes.cameras import sample_in_view
 from scenes.load import load_scene
@@ -58,7 +59,7 @@ def _init_points(scene: SceneData, mod: ModalityData, n: int, bounds: Any, rng: 
 def _metrics_doc(prep: PreparedRun, status: str) -> dict[str, Any]:
     cfg = prep.cfg
     return {"format": RESULTS_FORMAT, "format_version": RESULTS_FORMAT_VERSION, "scene": prep.scene.name,
-            "dataset": str(Path(prep.dataset).resolve()), "method": cfg.mode, "profile": cfg.profile,
+            "dataset": recorded_path(prep.dataset), "method": cfg.mode, "profile": cfg.profile,
             "seed": cfg.seed, "status": status, "versions": _versions(), "config_sha256": cfg.sha256(),
             "provenance": prep.provenance}
 
@@ -228,15 +229,16 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
             if note:
                 plan.notes.append(note)
                 ctx.log_line(f"stage 3: {note}")
-        rgb_share = 0.0
         if by_colour:
-            rgb_share, note = surface_start(smoke_colour, plan.use_smoke)
+            trust, note = surface_start(smoke_colour, plan.use_smoke)
             plan.notes.append(note)
             ctx.log_line(f"stage 3: {note}")
-        if rgb_share > 0.0:
             t_rgb = time.perf_counter()
+            # Where the smoke reads dense: the mask floor's rule, on the thermal surface's depth.
+            dense = (mask_floor_pixels(plan, scene.rgb, rgb_depth, cfg.loss.mask_alpha_floor, smoke_colour)
+                     if trust > 0.0 and plan.mask_floor != "all" else None)
             rgb_init = _init_points(scene, scene.rgb, cfg.stage2.init_points, b, np.random.default_rng(cfg.seed))
-            joined = join_surfaces(ctx, scene.rgb, rgb_init, s2, rgb_depth, rgb_share)
+            joined = join_surfaces(ctx, scene.rgb, rgb_init, s2, rgb_depth, trust, dense)
             wall["stage2_rgb"] = time.perf_counter() - t_rgb
             plan.notes.append(joined.describe())
             ctx.log_line(f"stage 3: {joined.describe()} (RGB Stage 2 in {wall['stage2_rgb']:.1f} s)")

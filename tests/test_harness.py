@@ -650,7 +650,7 @@ def test_each_run_records_its_float_setup_and_the_report_names_a_mix(tmp_path: P
     capability, the compiler); a cached run keeps what it recorded, and a report over runs of two setups says so."""
     import torch
 
-    from eval.float_setup import cpu_facts, float_setup
+    from contracts.float_setup import cpu_facts, float_setup
 
     base = dict(scenes=["alpha", "beta"], methods=["full"], ablations=[], seeds=[0], workers=1)
     results, paths = regenerate(_cfg(tmp_path, **base), train_fn=identity_train, generate_fn=tiny_generate)

@@ -1,11 +1,11 @@
-"""What sets a run's float rounding on this machine, for its harness record.
+"""What sets a run's float rounding on this machine, for its provenance and its harness record.
 
 The same settings, data, code and seed train to the same bytes only where the arithmetic is the
 same. Between machines it need not be. torch dispatches its CPU kernels by the instruction set it
 finds (``torch.backends.cpu.get_cpu_capability``). The tile rasterizer is compiled here, with AVX2
 and FMA where the CPU lists both. Two runs whose Stage 2 ends apart (Table 2's footnote,
-``eval.tables.stage2_apart``) can be told apart by this line, which the run's provenance in
-metrics.json does not give.
+``eval.tables.stage2_apart``) can be told apart by this line (metrics.json
+``provenance.machine.float_setup``, harness.json ``float_setup``).
 """
 from __future__ import annotations
 
