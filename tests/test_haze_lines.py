@@ -118,9 +118,9 @@ def test_trust_moves_without_a_step() -> None:
     greys = np.linspace(0.0, 1.0, 2001)
     by_grey = np.array([trust(np.full(3, g), 1000, 0.9, s)[0] for g in greys])
     assert np.all(np.diff(by_grey) <= 0) and by_grey[0] == 1.0 and by_grey[-1] == 0.0
-    value, why = trust(np.array([0.45, 0.45, 0.45]), 250, 0.3, s)
+    value, why = trust(np.array([0.45, 0.45, 0.45]), 250, 0.25, s)
     assert value == pytest.approx(0.5 * 0.5 * 0.5)
-    assert "250 lines" in why and "0.30 of the lines meet" in why and "channel mean 0.45" in why
+    assert "250 lines" in why and "0.25 of the lines meet" in why and "channel mean 0.45" in why
 
 
 def test_estimate_refuses_smoke_that_never_changes() -> None:
@@ -140,7 +140,7 @@ def test_lines_that_do_not_meet_get_no_trust() -> None:
     est = estimate_smoke_colour(images, np.full((20, H, W), 2.0), np.ones((20, H, W), bool),
                                 np.stack([_viewmat(0.0)] * 20), np.stack([K] * 20), np.random.default_rng(0))
     assert est.lines >= 100 and est.meeting_fraction < 0.2 and est.meeting is None and est.trust == 0.0
-    assert est.colour is not None and "0.02 of the lines meet (full at 0.4): 0.00" in est.reason
+    assert est.colour is not None and "0.02 of the lines meet (full at 0.3): 0.00" in est.reason
 
 
 @pytest.mark.parametrize("spread", [0.0, 1e-4])

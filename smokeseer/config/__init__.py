@@ -193,10 +193,11 @@ class Stage3Config:
     smoke_color_min_meeting: float = 0.2
     """With smoke_color=haze-lines: the trust's meeting factor is 0 at or under this fraction of
     observation lines passing near the estimate ..."""
-    smoke_color_full_meeting: float = 0.4
-    """... and 1 at or over this one. The lines meet under dense smoke (room 0.81-0.83, excavator
-    0.66, machine 0.46-0.67) and not under thin smoke (house 0.03-0.08, forest 0.04-0.05)
-    (docs/method.md, "Smoke colour")."""
+    smoke_color_full_meeting: float = 0.3
+    """... and 1 at or over this one. The lines meet under dense smoke (room 0.79-0.83, excavator
+    0.65-0.66, machine 0.33-0.67) and not under thin smoke (house 0.03-0.08, forest 0.04-0.05). At
+    0.4, machine's estimate meeting at 0.33 had trust 0.63 and its validation PSNR fell from
+    13.5 to 9.7, RGB-only's level (docs/experiments/2026-12-02-haze-line-trust.md)."""
     smoke_color_max_brightness: float = 0.5
     """With smoke_color=haze-lines: the trust's darkness factor is 0 for an estimate whose channel
     mean is at or over this ... A scattering (bright) smoke's radiance follows the light and the
