@@ -6,7 +6,7 @@ or anchored to the haze-line estimate by its trust), where the mask floor acts, 
 and its camera, and the loss weights that follow from all of them. The haze-line estimate needs
 Stage 2's geometry, so ``Stage3Plan.settle_colour`` applies it then, by the same rule: a colour
 held fixed (trust 1) leaves the smoke_color and mono priors nothing to act on, so they leave the
-loss; under trust 1 they act on the blended colours.
+loss; under trust below 1 they act on the blended colours.
 
 Stage 3 takes its weights from the plan; every term the mode asks for that the plan drops is
 named with the reason (``dropped``), and the notes say it in the log and metrics.json.
