@@ -229,16 +229,15 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
             if note:
                 plan.notes.append(note)
                 ctx.log_line(f"stage 3: {note}")
+        rgb_share = 0.0
         if by_colour:
-            trust, note = surface_start(smoke_colour, plan.use_smoke)
+            rgb_share, note = surface_start(smoke_colour, plan.use_smoke)
             plan.notes.append(note)
             ctx.log_line(f"stage 3: {note}")
+        if rgb_share > 0.0:
             t_rgb = time.perf_counter()
-            # Where the smoke reads dense: the mask floor's rule, on the thermal surface's depth.
-            dense = (mask_floor_pixels(plan, scene.rgb, rgb_depth, cfg.loss.mask_alpha_floor, smoke_colour)
-                     if trust > 0.0 and plan.mask_floor != "all" else None)
             rgb_init = _init_points(scene, scene.rgb, cfg.stage2.init_points, b, np.random.default_rng(cfg.seed))
-            joined = join_surfaces(ctx, scene.rgb, rgb_init, s2, rgb_depth, trust, dense)
+            joined = join_surfaces(ctx, scene.rgb, rgb_init, s2, rgb_depth, rgb_share)
             wall["stage2_rgb"] = time.perf_counter() - t_rgb
             plan.notes.append(joined.describe())
             ctx.log_line(f"stage 3: {joined.describe()} (RGB Stage 2 in {wall['stage2_rgb']:.1f} s)")

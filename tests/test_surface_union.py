@@ -8,7 +8,7 @@ import torch
 from smokeseer.model.gaussians import GaussianSet
 from smokeseer.model.scene import add_rgb_sh
 from smokeseer.stage1.haze_lines import SmokeColourEstimate
-from smokeseer.train.surface_union import carve_in_front, fade, in_holes, surface_start, union_surface, view_share
+from smokeseer.train.surface_union import carve_in_front, fade, in_holes, surface_start, union_surface
 
 W, H, F = 40, 30, 20.0
 
@@ -115,25 +115,13 @@ def _grey_dc(n: int) -> torch.Tensor:
     return t["sh_dc"]
 
 
-def test_the_start_fades_by_the_trust_and_without_smoke_not_at_all() -> None:
+def test_the_rgb_share_of_the_start_is_one_minus_the_trust() -> None:
     dark = np.array([0.2, 0.2, 0.2])
-    trusts = [surface_start(SmokeColourEstimate(dark, 500, 900, 0.8, trust=t), True)[0] for t in (0.0, 0.25, 1.0)]
-    assert trusts == [0.0, 0.25, 1.0]
-    assert surface_start(None, True)[0] == 0.0 and surface_start(SmokeColourEstimate(None, 12, 900), True)[0] == 0.0
-    assert surface_start(SmokeColourEstimate(dark, 500, 900, 0.8, trust=1.0), False)[0] == 0.0  # no smoke
-    assert "haze-line trust 1.000" in surface_start(SmokeColourEstimate(dark, 500, 900, 0.8, trust=1.0), True)[1]
-
-
-def test_view_share_counts_the_views_that_mark_each_centre() -> None:
-    """Three cameras over a point at depth 5: the middle pixel is marked in the first two views."""
-    vms, ks = _cameras([0.0, 0.5, 1.0])
-    means = np.array([[0.5, 0.0, 5.0], [0.5, 0.0, -5.0]])   # the second is behind every camera
-    marked = np.zeros((3, H, W), dtype=bool)
-    for f, shift in enumerate([0.0, 0.5, 1.0]):
-        u = int(np.floor(F * (0.5 - shift) / 5.0 + W / 2))
-        if f < 2:
-            marked[f, H // 2, u] = True
-    np.testing.assert_allclose(view_share(means, marked, vms, ks), [2 / 3, 0.0])
+    shares = [surface_start(SmokeColourEstimate(dark, 500, 900, 0.8, trust=t), True)[0] for t in (0.0, 0.25, 1.0)]
+    assert shares == [1.0, 0.75, 0.0]
+    assert surface_start(None, True)[0] == 1.0 and surface_start(SmokeColourEstimate(None, 12, 900), True)[0] == 1.0
+    assert surface_start(SmokeColourEstimate(dark, 500, 900, 0.8, trust=1.0), False)[0] == 1.0  # no smoke
+    assert "thermal Stage 2 alone" in surface_start(SmokeColourEstimate(dark, 500, 900, 0.8, trust=1.0), True)[1]
 
 
 def test_fade_scales_every_opacity_and_nothing_else() -> None:
@@ -142,11 +130,10 @@ def test_fade_scales_every_opacity_and_nothing_else() -> None:
     g = GaussianSet({"means": torch.as_tensor(rng.normal(size=(52, 3)), dtype=torch.float32),
                      "quats": torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(52, 1), "log_scales": torch.zeros(52, 3),
                      "opacity": logits})
-    shares = torch.as_tensor(rng.uniform(1e-3, 1.0, 52), dtype=torch.float32)
-    shares[-1] = 1.0   # an opaque Gaussian kept whole stays finite
-    faded = fade(g, shares)
-    assert torch.isfinite(faded["opacity"]).all()
-    torch.testing.assert_close(torch.sigmoid(faded["opacity"]), shares * torch.sigmoid(logits), rtol=1e-5, atol=1e-7)
-    torch.testing.assert_close(faded["means"], g["means"], rtol=0, atol=0)
-    whole = fade(g, torch.ones(52))
-    torch.testing.assert_close(whole["opacity"], logits, rtol=1e-6, atol=1e-6)
+    for share in (0.75, 1e-3):
+        faded = fade(g, share)
+        opacity = torch.sigmoid(faded["opacity"])
+        assert torch.isfinite(faded["opacity"]).all()
+        torch.testing.assert_close(opacity, share * torch.sigmoid(logits), rtol=1e-5, atol=1e-7)
+        torch.testing.assert_close(faded["means"], g["means"], rtol=0, atol=0)
+    assert fade(g, 1.0) is g

@@ -207,12 +207,12 @@ class Stage3Config:
     """... and 1 at or under this one."""
     surface_init: str = "thermal"
     """Where Stage 3's surface starts. "thermal": the thermal Stage 2 (the paper).
-    "by-smoke-colour": a Stage 2 on the smoky RGB frames (RGB-only's) as well, each of its
-    Gaussians at 1 − t × d of its opacity (t the haze-line trust, d its share of views where the
-    smoke reads dense by the mask floor's rule), carved where it lies in front of the thermal
-    surface and joined by the thermal Gaussians in its holes (``smokeseer.train.surface_union``):
-    where the RGB sees the surface through thin or scattering smoke Stage 3 starts as RGB-only
-    does, and under dense absorbing smoke from the thermal Stage 2. Needs smoke_color=haze-lines."""
+    "by-smoke-colour": by the haze-line trust t. At t = 1 (dense absorbing smoke, which a Stage 2
+    on the RGB frames takes for surface) the thermal Stage 2 alone. Under t < 1 a Stage 2 on the
+    smoky RGB frames (RGB-only's) with its opacities scaled by 1 − t, carved where it lies in front
+    of the thermal surface and joined by the thermal Gaussians in its holes
+    (``smokeseer.train.surface_union``), so that where the RGB sees the surface through thin or
+    scattering smoke Stage 3 starts as RGB-only does. Needs smoke_color=haze-lines."""
     carve_tolerance: float = 0.05
     """With two surfaces: an RGB Gaussian nearer than (1 − this) × the thermal
     surface's depth in most views that see it is smoke taken for surface, and is dropped."""

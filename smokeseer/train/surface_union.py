@@ -9,15 +9,15 @@ it: where the RGB sees the surface, the coarse thermal Gaussians (their RGB colo
 a neighbour) would blur it, and Stage 3 would start far below RGB-only's. Each set takes the
 other's colour from its nearest neighbour in the other set.
 
-How much of the RGB Stage 2 is believed follows the haze-line trust t and where the images say
-the smoke is dense (the mask floor's reading, ``smokeseer.train.mask_floor.estimated_dense``):
-each RGB Gaussian keeps 1 − t × (the share of the views seeing its centre in which that pixel
-reads dense) of its opacity. Under dense absorbing smoke everywhere (room) the thermal Stage 2
-all but stands alone; under a dense plume over part of a scene the RGB Stage 2 stays where the
-smoke is thin; and a small change in what the images say moves the start a little.
+How much the RGB Stage 2 is believed follows the haze-line trust t (``surface_start``): its
+opacities are scaled by 1 − t before the carving, and under dense absorbing smoke (t = 1) the
+thermal Stage 2 stands alone. Scaling the whole set, not the Gaussians where the smoke reads
+dense, was chosen on the validation views: the local fade lost 3.6 dB on machine
+(docs/experiments/2026-12-02-haze-line-trust.md).
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from typing import Any
@@ -43,37 +43,32 @@ centre lands in more than this share of the RGB training views that see it."""
 
 
 def surface_start(colour: SmokeColourEstimate | None, smoke: bool) -> tuple[float, str]:
-    """The haze-line trust that fades the RGB Stage 2 where the smoke reads dense (0: it is kept
-    whole), and the note saying why. Without smoke Gaussians (``smoke`` false) the RGB sees the
-    surface everywhere."""
+    """The share of its opacity each RGB Stage-2 Gaussian keeps in Stage 3's start (1 − the
+    haze-line trust; 0: the thermal Stage 2 alone), and the note saying why. The trust is high for
+    dense absorbing smoke, which the RGB Stage 2 takes for surface; without smoke Gaussians
+    (``smoke`` false) the RGB sees the surface everywhere."""
     if not smoke:
-        return 0.0, ("surface from the RGB Stage 2 and the thermal Gaussians in its holes (stage3.surface_init="
+        return 1.0, ("surface from the RGB Stage 2 and the thermal Gaussians in its holes (stage3.surface_init="
                      "by-smoke-colour): the run has no smoke, so the RGB sees the surface")
     trust = 0.0 if colour is None or colour.colour is None else colour.trust
-    return trust, ("surface from the RGB Stage 2, each Gaussian at 1 − trust × (its share of views reading dense "
-                   "smoke) of its opacity, and the thermal Gaussians in its holes (stage3.surface_init="
-                   f"by-smoke-colour): haze-line trust {trust:.3f}")
+    if trust == 1.0:
+        return 0.0, ("surface from the thermal Stage 2 alone (stage3.surface_init=by-smoke-colour): the haze "
+                     "lines are fully trusted (dense, dark smoke), so the RGB Stage 2 would take the smoke for surface")
+    return 1.0 - trust, (f"surface from the RGB Stage 2 at {1.0 - trust:.3f} × its opacities and the thermal Gaussians "
+                         f"in its holes (stage3.surface_init=by-smoke-colour): haze-line trust {trust:.3f}, so the "
+                         "RGB sees the surface through the smoke that far")
 
 
-def view_share(means: np.ndarray, marked: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray) -> np.ndarray:
-    """Per point: the share of the views whose image its centre lands in where it lands on a
-    ``marked`` pixel ((views, H, W) bool at the cameras ``viewmats``, ``Ks``); 0 where no view sees it."""
-    seen = np.zeros(len(means), dtype=np.int64)
-    hits = np.zeros_like(seen)
-    for f, idx, iu, iv, _ in _landings(means, viewmats, Ks, marked.shape):
-        seen[idx] += 1
-        hits[idx[marked[f, iv, iu]]] += 1
-    return hits / np.maximum(seen, 1)
-
-
-def fade(g: GaussianSet, shares: Tensor) -> GaussianSet:
-    """A copy of ``g`` with each opacity scaled by its share in (0, 1]."""
+def fade(g: GaussianSet, share: float) -> GaussianSet:
+    """``g`` with every opacity scaled by ``share`` in (0, 1] (a copy; at 1 the same tensors)."""
+    if share == 1.0:
+        return g
     tensors = {k: v.detach().clone() for k, v in g.state_dict().items()}
-    o, s = tensors["opacity"].double(), shares.double()
+    o = tensors["opacity"].double()
     log_on = torch.nn.functional.logsigmoid(o)
-    # logit(s σ(o)) = log s + log σ(o) − log(σ(−o) + (1 − s) σ(o)), exact at s = 1 and for opaque o
-    off = torch.logaddexp(torch.nn.functional.logsigmoid(-o), torch.log1p(-s) + log_on)
-    tensors["opacity"] = (torch.log(s) + log_on - off).to(tensors["opacity"].dtype)
+    # logit(s σ(o)) = log s + log σ(o) − log(σ(−o) + (1 − s) σ(o)): finite for opaque o
+    off = torch.logaddexp(torch.nn.functional.logsigmoid(-o), math.log1p(-share) + log_on)
+    tensors["opacity"] = (math.log(share) + log_on - off).to(tensors["opacity"].dtype)
     return GaussianSet(tensors)
 
 
@@ -160,45 +155,34 @@ class TwoSurfaces:
     def describe(self) -> str:
         r = self.record
         return (f"surface from both Stage 2s: the {r['thermal_kept']} of {r['thermal']} thermal Gaussians in the RGB "
-                f"surface's holes + {r['rgb_kept']} of {r['rgb']} RGB Gaussians (trust {r['trust']:.3f}: "
-                f"{r['rgb_faded_out']} faded under opacity {r['prune_opacity']:g} left out, mean opacity share "
-                f"{r['rgb_opacity_share']:.3f}; {r['rgb'] - r['rgb_faded_out'] - r['rgb_kept']} in front of the thermal "
-                f"surface carved, tolerance {r['tolerance']:g}; {r['rgb_unchecked']} no view could check kept)")
+                f"surface's holes + {r['rgb_kept']} of {r['rgb']} "
+                f"RGB Gaussians at {r['rgb_opacity_share']:.3g} × their opacities ({r['rgb'] - r['rgb_kept']} in front of the thermal surface carved, tolerance "
+                f"{r['tolerance']:g}; {r['rgb_unchecked']} no view could check kept)")
 
 
 def join_surfaces(ctx: RunContext, rgb: ModalityData, init_points: np.ndarray, thermal: Stage2Result,
-                  thermal_depth: DepthPriorMaps, trust: float, dense: np.ndarray | None) -> TwoSurfaces:
-    """Train RGB-only's Stage 2 (checkpoint ``stage2_rgb``, keyed as RGB-only's Stage 2 is), fade
-    each Gaussian to 1 − ``trust`` × its share of the training views where ``dense`` (the RGB
-    training frames' pixels whose smoke reads dense; None: every pixel) marks its centre, leave out
-    those faded under the surface's prune opacity (its first densification would prune them),
-    carve the rest with the thermal surface's depth at the RGB training cameras
-    (``thermal_depth``), and join it with the thermal Gaussians in the carved surface's holes."""
+                  thermal_depth: DepthPriorMaps, rgb_share: float) -> TwoSurfaces:
+    """Train RGB-only's Stage 2 (checkpoint ``stage2_rgb``, keyed as RGB-only's Stage 2 is), scale
+    its opacities by ``rgb_share`` (``surface_start``), carve it with the thermal surface's depth at
+    the RGB training cameras (``thermal_depth``), and join it with the thermal Gaussians in the
+    carved surface's holes."""
     cfg = ctx.cfg
     rgb_s2 = train_stage2(ctx, rgb, init_points, deformable=False, checkpoint="stage2_rgb",
                           sha=replace(cfg, mode="rgb-only").stage2_sha256())
-    means = rgb_s2.gaussians["means"].detach().cpu().numpy().astype(np.float64)
-    cameras = rgb.cameras("train")
-    dense_share = (np.zeros(len(means)) if trust == 0.0 else np.ones(len(means)) if dense is None
-                   else view_share(means, dense, *cameras))
-    dev = rgb_s2.gaussians["means"].device
-    shares = torch.as_tensor(1.0 - trust * dense_share, dtype=torch.float32, device=dev)
-    prune = cfg.stage3.surface_densify.prune_opacity
-    bright = (shares * torch.sigmoid(rgb_s2.gaussians["opacity"].detach()) >= prune).cpu().numpy()
-    idx = torch.as_tensor(np.nonzero(bright)[0], device=dev)
-    rgb_set = fade(GaussianSet({k: v.detach()[idx] for k, v in rgb_s2.gaussians.state_dict().items()}), shares[idx])
-    carve = carve_in_front(means[bright], thermal_depth.maps.cpu().numpy(), thermal_depth.valid.cpu().numpy(),
-                           *cameras, cfg.stage3.carve_tolerance)
+    rgb_set = fade(rgb_s2.gaussians, rgb_share)
+    carve = carve_in_front(rgb_set["means"].detach().cpu().numpy().astype(np.float64),
+                           thermal_depth.maps.cpu().numpy(), thermal_depth.valid.cpu().numpy(), *rgb.cameras("train"),
+                           cfg.stage3.carve_tolerance)
+    dev = rgb_set["means"].device
     keep = torch.as_tensor(carve.keep, device=dev)
     carved = GaussianSet({k: v.detach()[keep] for k, v in rgb_set.state_dict().items()})
     opaque = rendered_depth_prior(carved, views_of(rgb, rgb.indices("train"), dev), "rgb").valid.cpu().numpy()
     holes = in_holes(thermal.gaussians["means"].detach().cpu().numpy().astype(np.float64), opaque,
-                     *cameras, FILL_OPAQUE_SHARE)
+                     *rgb.cameras("train"), FILL_OPAQUE_SHARE)
     thermal_keep = torch.as_tensor(holes, device=dev)
     surface = union_surface(thermal.gaussians, rgb_set, keep, thermal_keep, cfg.sh_degree)
-    record = {"thermal": thermal.gaussians.n, "rgb": rgb_s2.gaussians.n, "trust": trust,
-              "rgb_opacity_share": round(float(shares.mean()), 4), "rgb_faded_out": int((~bright).sum()),
-              "prune_opacity": prune, "rgb_kept": int(carve.keep.sum()),
+    record = {"thermal": thermal.gaussians.n, "rgb": rgb_s2.gaussians.n, "rgb_opacity_share": rgb_share,
+              "rgb_kept": int(carve.keep.sum()),
               "rgb_unchecked": int((carve.seen == 0).sum()), "tolerance": cfg.stage3.carve_tolerance,
               "thermal_kept": int(holes.sum()), "fill_opaque_share": FILL_OPAQUE_SHARE}
     return TwoSurfaces(surface, rgb_s2, record)
