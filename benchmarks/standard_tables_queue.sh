@@ -17,8 +17,9 @@
 # first, each into data/tables_density_kK (benchmarks/density_sweep_plan.sh, shared with
 # density_sweep_train.sh, which run with --finished-only afterwards writes the tables and curves).
 # A worker claims a step by creating its folder under CLAIMS (mkdir is atomic; the step's log
-# goes there) and writing its process id and start time into it, so two workers never train the
-# same run; cached steps cost seconds. A step's folder gets a `done` file when its call returns.
+# goes there) and writing its process id and start time (clock ticks after boot, which a reset
+# of the wall clock does not move) into it, so two workers never train the same run; cached
+# steps cost seconds. A step's folder gets a `done` file when its call returns.
 # A claim without `done` whose owner has gone (the machine restarted, the worker was killed) is
 # stale: the next worker to reach it renames it away (rename is atomic, so only one worker
 # succeeds), says so, and claims the step afresh; the run resumes from its checkpoint.
@@ -39,11 +40,19 @@ sweep=data/density_sweep
 sweep_tables=data/tables_density
 ceilings=data/clean_ceiling_standard
 mkdir -p "$claims"
-me="$$ $(ps -o lstart= -p $$)"
-alive() {  # alive CLAIM: its owner process still runs (same pid and start time)
+started_ticks() {  # started_ticks PID: its start in clock ticks after boot (/proc/PID/stat field 22);
+    # unlike ps's lstart, which is derived from the wall clock, it does not move when the clock is set
+    local stat
+    stat=$(cat "/proc/$1/stat" 2>/dev/null) || return 1
+    stat=${stat##*) }  # the fields after the command name, which may hold spaces
+    read -r -a fields <<< "$stat"
+    echo "${fields[19]}"
+}
+me="$$ $(started_ticks $$)"
+alive() {  # alive CLAIM: its owner process still runs (same pid and start)
     local pid started
     read -r pid started 2>/dev/null < "$1/owner" || return 1
-    [[ "$pid $(ps -o lstart= -p "$pid" 2>/dev/null)" == "$pid $started" ]]
+    [[ -n $started && "$(started_ticks "$pid")" == "$started" ]]
 }
 take() {  # take CLAIM: claim the step, or take over a stale claim of it
     if mkdir "$1" 2>/dev/null; then echo "$me" > "$1/owner"; return 0; fi
