@@ -97,12 +97,12 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/standard/smoke_colour_decisions.csv"))
     ramps = {"min_meeting_fraction": "--min-meeting", "full_meeting_fraction": "--full-meeting",
              "max_brightness": "--max-brightness", "full_brightness": "--full-brightness"}
-    for flag in ramps.values():
-        ap.add_argument(flag, type=float, default=None, help="a trust ramp end (rule_trust; haze_lines.HazeLineSettings)")
+    for field, flag in ramps.items():
+        ap.add_argument(flag, dest=field, type=float, default=None,
+                        help="a trust ramp end (rule_trust; haze_lines.HazeLineSettings)")
     ap.add_argument("--datasets", type=Path, default=None, help="the scenes' datasets, for the true smoke colour")
     args = ap.parse_args()
-    given = {k: getattr(args, flag[2:].replace("-", "_")) for k, flag in ramps.items()}
-    given = {k: v for k, v in given.items() if v is not None}
+    given = {k: getattr(args, k) for k in ramps if getattr(args, k) is not None}
     rule = HazeLineSettings(**given) if given else None
     variants = tuple(args.variants.split(","))
     unknown = sorted(set(variants) - set(TABLE_VARIANTS))

@@ -42,7 +42,7 @@ ceilings=data/clean_ceiling_standard
 mkdir -p "$claims"
 started_ticks() {  # started_ticks PID: its start in clock ticks after boot (/proc/PID/stat field 22);
     # unlike ps's lstart, which is derived from the wall clock, it does not move when the clock is set
-    local stat
+    local stat fields
     stat=$(cat "/proc/$1/stat" 2>/dev/null) || return 1
     stat=${stat##*) }  # the fields after the command name, which may hold spaces
     read -r -a fields <<< "$stat"

@@ -26,7 +26,7 @@ from contracts.atomic import write_json
 from contracts.recorded_paths import recorded_path
 from contracts.results_format import ResultsFormatError, read_metrics
 from eval.harness import TRAINER_ENTRY, HarnessConfig, default_generate, finished_run, make_plan
-from eval.runs import RunSpec
+from eval.runs import RunResult, RunSpec
 from eval.sources import sources_sha256
 
 
@@ -75,14 +75,14 @@ def _copy_in(spec: RunSpec, source_dir: Path, dest: Path, local_sources: str) ->
     if staging.exists():
         shutil.rmtree(staging)
     shutil.copytree(source_dir, staging)
-    rec = json.loads((staging / "harness.json").read_text())
-    rec["adopted_from"] = (f"{recorded_path(source_dir)} (key {rec['config_hash'][:12]}, trainer digest "
-                           f"{rec['code_digest'][:8]}, trained on {rec.get('device', 'cpu')}): its key with this "
-                           f"checkout's digest {spec.code[:8]} is this run's, and its trainer sources equal this "
-                           f"checkout's (sources_sha256 {local_sources[:12]})")
-    rec.update(config_hash=spec.hash(), run_dir=recorded_path(dest), dataset=recorded_path(spec.dataset),
-               code_digest=spec.code)
-    write_json(staging / "harness.json", rec)
+    rec = RunResult.from_json(json.loads((staging / "harness.json").read_text()))
+    adopted_from = (f"{recorded_path(source_dir)} (key {rec.config_hash[:12]}, trainer digest "
+                    f"{rec.code_digest[:8]}, trained on {rec.device}): its key with this "
+                    f"checkout's digest {spec.code[:8]} is this run's, and its trainer sources equal this "
+                    f"checkout's (sources_sha256 {local_sources[:12]})")
+    rec = replace(rec, adopted_from=adopted_from, config_hash=spec.hash(), run_dir=str(dest), dataset=spec.dataset,
+                  code_digest=spec.code)
+    write_json(staging / "harness.json", rec.to_json())
     os.replace(staging, dest)
 
 
