@@ -1,7 +1,8 @@
 """The haze-line smoke-colour decision of every finished run of a table, beside its score.
 
     python benchmarks/smoke_colour_decisions.py [--tables data/tables_standard] [--digest PREFIX]
-        [--variants full,rgb-only] [--min-meeting F --full-meeting F --max-brightness F --full-brightness F]
+        [--variants full,rgb-only] [--min-meeting F --full-meeting F --max-brightness F --full-brightness F
+         --surface-full-brightness F]
         [--datasets data/standard]
 
 For each finished run of ``--variants`` (default Full and RGB-only; Table 2's ablations decide
@@ -9,12 +10,14 @@ the same way) of one trainer version (``--digest``, default: the version with th
 this reads ``metrics.json`` → ``stages.smoke_colour``: the haze-line estimate, how many
 observation lines it had, the fraction of lines that meet, and the trust the run gave it (runs
 of trainer f13fe3c1 and older held it, trust 1, or refused it, 0, naming the colour the lines
-came nearest to); beside the run's final validation and test PSNR. Writes
+came nearest to) and, where the run recorded it, the surface start's trust; beside the run's
+final validation and test PSNR. Writes
 ``benchmarks/results/standard/smoke_colour_decisions.csv``. Why: the estimate's colour can be
 stable across seeds while its trust moves, and which runs gain from holding it is a question of
-the colour as much as of the trust. The ramp options add the trust
+the colour as much as of the trust. The ramp options add the trusts
 ``smokeseer.stage1.haze_lines.trust`` gives each run's estimate under those settings
-(``rule_trust``), so a rule can be read against every run before any run retrains with it.
+(``rule_trust`` for the colour, ``rule_surface_trust`` for the start), so a rule can be read
+against every run before any run retrains with it.
 ``--datasets`` adds each scene's true smoke colour, read off the generator's passes (scoring only):
 (smoky − (1 − α)·clean) / α over the pixels of every third RGB frame where α > 0.3, its median
 and the mean 10th-90th percentile spread over channels (how far one colour is from every pixel's).
@@ -60,7 +63,9 @@ def estimate(stages: dict) -> tuple[list[float] | None, float | None, float]:
 def decision(stages: dict) -> dict[str, object]:
     """``estimate`` as table columns, with the colour's mean over channels."""
     colour, met, given = estimate(stages)
-    return {"held": given == 1.0, "trust": round(given, 4), "lines": haze_lines(stages).get("lines"),
+    surface = haze_lines(stages).get("surface_trust")
+    return {"held": given == 1.0, "trust": round(given, 4),
+            "surface_trust": None if surface is None else round(surface, 4), "lines": haze_lines(stages).get("lines"),
             "meeting_fraction": met,
             "colour": "" if colour is None else " ".join(f"{c:.3f}" for c in colour),
             "colour_mean": None if colour is None else round(sum(colour) / 3, 3)}
@@ -96,7 +101,8 @@ def main() -> None:
     ap.add_argument("--variants", default="full,rgb-only", help="comma-separated table variants")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/standard/smoke_colour_decisions.csv"))
     ramps = {"min_meeting_fraction": "--min-meeting", "full_meeting_fraction": "--full-meeting",
-             "max_brightness": "--max-brightness", "full_brightness": "--full-brightness"}
+             "max_brightness": "--max-brightness", "full_brightness": "--full-brightness",
+             "surface_full_brightness": "--surface-full-brightness"}
     for field, flag in ramps.items():
         ap.add_argument(flag, dest=field, type=float, default=None,
                         help="a trust ramp end (rule_trust; haze_lines.HazeLineSettings)")
@@ -122,9 +128,12 @@ def main() -> None:
         if rule is not None:
             colour, met, _ = estimate(doc["stages"])
             rows[-1].update(rule=f"meeting {rule.min_meeting_fraction}-{rule.full_meeting_fraction}, brightness "
-                                 f"{rule.max_brightness}-{rule.full_brightness}",
-                            rule_trust=0.0 if colour is None or met is None
-                            else round(trust(np.array(colour), rows[-1]["lines"], met, rule)[0], 4))
+                                 f"{rule.max_brightness}-{rule.full_brightness} (start: "
+                                 f"-{rule.surface_full_brightness})",
+                            **{column: 0.0 if colour is None or met is None
+                               else round(trust(np.array(colour), rows[-1]["lines"], met, rule, full)[0], 4)
+                               for column, full in (("rule_trust", rule.full_brightness),
+                                                    ("rule_surface_trust", rule.surface_full_brightness))})
         if args.datasets is not None:
             if rec["scene"] not in truth:
                 truth[rec["scene"]] = true_smoke_colour(args.datasets / rec["scene"])
@@ -135,7 +144,7 @@ def main() -> None:
         print(f"{r['scene']:11s} {r['variant']:14s} {r['seed']}  lines {r['lines']}  meet {fraction(r['meeting_fraction'])}  colour "
               f"[{r['colour']}] (mean {r['colour_mean']})  trust {r['trust']:.3f}  "
               f"val {r['val_psnr']:.2f}  test {r['test_psnr']:.2f}"
-              + ("" if rule is None else f"  -> rule: trust {r['rule_trust']:.3f}"))
+              + ("" if rule is None else f"  -> rule: trust {r['rule_trust']:.3f}, start {r['rule_surface_trust']:.3f}"))
     print(f"{len(rows)} runs, trainer {rows[0]['code_digest']}; wrote {args.out}")
 
 

@@ -331,7 +331,7 @@ def smoke_colour_record(plan: Stage3Plan, estimate: SmokeColourEstimate | None) 
         return {"source": "learned", "haze_lines": None}
     return {"source": plan.smoke_colour,
             "haze_lines": {"colour": None if estimate.colour is None else [float(c) for c in estimate.colour],
-                           "trust": plan.trust if plan.smoke_colour == "haze-lines" else 0.0,
+                           "trust": plan.trust, "surface_trust": estimate.surface_trust,
                            "lines": estimate.lines, "points": estimate.points,
                            "meeting_fraction": estimate.meeting_fraction, "limits": estimate.reason or None}}
 

@@ -100,6 +100,21 @@ def test_a_bright_estimate_loses_its_trust_over_the_brightness_ramp_only() -> No
     assert by_ramp["inside"].trust == pytest.approx((mean + 0.01 - got) / 0.04, abs=1e-9)
 
 
+def test_the_surface_trust_reads_the_same_estimate_with_its_own_darkness_ramp() -> None:
+    """The start's trust differs from the colour's only where its darkness factor reaches 1: the
+    same colour, lines and meeting, full surface trust at a brighter channel mean."""
+    rng = np.random.default_rng(3)
+    images, depths, valid, vms, ks = _static_frames(rng.uniform(0.2, 0.9, (20, H, W)), rng)
+    mean = float(np.mean(SMOKE))
+    est = estimate_smoke_colour(images, depths, valid, vms, ks, np.random.default_rng(0),
+                                HazeLineSettings(max_brightness=mean + 0.04, full_brightness=mean - 0.04,
+                                                 surface_full_brightness=mean - 0.02))
+    got = float(np.mean(est.colour))
+    assert est.trust == pytest.approx((mean + 0.04 - got) / 0.08, abs=1e-9)
+    assert est.surface_trust == pytest.approx((mean + 0.04 - got) / 0.06, abs=1e-9)
+    assert 0.0 < est.trust < est.surface_trust < 1.0
+
+
 def test_trust_moves_without_a_step() -> None:
     """Along each input (lines, meeting fraction, brightness) the trust changes by at most its
     ramp's slope times the step: no threshold where one more line or a hair of colour flips the
@@ -107,20 +122,22 @@ def test_trust_moves_without_a_step() -> None:
     98 lines learned, 106 held)."""
     s = HazeLineSettings()
     dark = np.array([0.3, 0.3, 0.3])
-    by_lines = [trust(dark, n, 0.9, s)[0] for n in range(s.min_lines, s.full_lines + 50)]
+    by_lines = [trust(dark, n, 0.9, s, s.full_brightness)[0] for n in range(s.min_lines, s.full_lines + 50)]
     assert by_lines[0] == 0.0 and by_lines[-1] == 1.0
     assert np.all(np.diff(by_lines) >= 0) and np.max(np.diff(by_lines)) <= 1.0 / (s.full_lines - s.min_lines) + 1e-12
-    assert trust(dark, 106, 0.9, s)[0] == pytest.approx(6 / 300)
+    assert trust(dark, 106, 0.9, s, s.full_brightness)[0] == pytest.approx(6 / 300)
     mets = np.linspace(0.0, 1.0, 2001)
-    by_met = np.array([trust(dark, 1000, m, s)[0] for m in mets])
+    by_met = np.array([trust(dark, 1000, m, s, s.full_brightness)[0] for m in mets])
     assert np.max(np.abs(np.diff(by_met))) <= (mets[1] - mets[0]) / (s.full_meeting_fraction - s.min_meeting_fraction) + 1e-9
     assert by_met[mets <= s.min_meeting_fraction].max() == 0.0 and by_met[mets >= s.full_meeting_fraction].min() == 1.0
     greys = np.linspace(0.0, 1.0, 2001)
-    by_grey = np.array([trust(np.full(3, g), 1000, 0.9, s)[0] for g in greys])
-    assert np.all(np.diff(by_grey) <= 0) and by_grey[0] == 1.0 and by_grey[-1] == 0.0
-    value, why = trust(np.array([0.45, 0.45, 0.45]), 250, 0.25, s)
+    for full in (s.full_brightness, s.surface_full_brightness):
+        by_grey = np.array([trust(np.full(3, g), 1000, 0.9, s, full)[0] for g in greys])
+        assert np.all(np.diff(by_grey) <= 0) and by_grey[0] == 1.0 and by_grey[-1] == 0.0
+        assert np.max(np.abs(np.diff(by_grey))) <= (greys[1] - greys[0]) / (s.max_brightness - full) + 1e-9
+    value, why = trust(np.array([0.45, 0.45, 0.45]), 250, 0.25, s, 0.4)
     assert value == pytest.approx(0.5 * 0.5 * 0.5)
-    assert "250 lines" in why and "0.25 of the lines meet" in why and "channel mean 0.45" in why
+    assert "250 lines" in why and "0.25 of the lines meet" in why and "channel mean 0.45 (full at 0.4" in why
 
 
 def test_estimate_refuses_smoke_that_never_changes() -> None:

@@ -115,13 +115,17 @@ def _grey_dc(n: int) -> torch.Tensor:
     return t["sh_dc"]
 
 
-def test_the_rgb_share_of_the_start_is_one_minus_the_trust() -> None:
+def test_the_rgb_share_of_the_start_is_one_minus_the_surface_trust() -> None:
+    """The start follows the estimate's surface trust, never the colour's (a colour at trust 0.5
+    with surface trust 1 starts from the thermal Stage 2 alone)."""
     dark = np.array([0.2, 0.2, 0.2])
-    shares = [surface_start(SmokeColourEstimate(dark, 500, 900, 0.8, trust=t), True)[0] for t in (0.0, 0.25, 1.0)]
+    shares = [surface_start(SmokeColourEstimate(dark, 500, 900, 0.8, trust=0.0, surface_trust=t), True)[0]
+              for t in (0.0, 0.25, 1.0)]
     assert shares == [1.0, 0.75, 0.0]
     assert surface_start(None, True)[0] == 1.0 and surface_start(SmokeColourEstimate(None, 12, 900), True)[0] == 1.0
-    assert surface_start(SmokeColourEstimate(dark, 500, 900, 0.8, trust=1.0), False)[0] == 1.0  # no smoke
-    assert "thermal Stage 2 alone" in surface_start(SmokeColourEstimate(dark, 500, 900, 0.8, trust=1.0), True)[1]
+    held = SmokeColourEstimate(dark, 500, 900, 0.8, trust=0.5, surface_trust=1.0)
+    assert surface_start(held, False)[0] == 1.0  # no smoke
+    assert "thermal Stage 2 alone" in surface_start(held, True)[1]
 
 
 def test_fade_scales_every_opacity_and_nothing_else() -> None:

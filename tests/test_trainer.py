@@ -167,7 +167,7 @@ def test_two_surface_run_joins_both_stage2s_and_resumes(splat: Path, tmp_path: P
     assert json.loads((run / "metrics.json").read_text())["metrics"] == doc["metrics"]
 
 
-def test_by_smoke_colour_keeps_the_rgb_stage2_by_one_minus_the_trust(
+def test_by_smoke_colour_keeps_the_rgb_stage2_by_one_minus_the_surface_trust(
         splat: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """stage3.surface_init=by-smoke-colour: this tiny scene's haze lines give no estimate, so Stage 3
     starts from the RGB Stage 2 with the thermal Gaussians in its holes; at trust 0.5 from the same
@@ -183,21 +183,25 @@ def test_by_smoke_colour_keeps_the_rgb_stage2_by_one_minus_the_trust(
     stages = _assert_complete(thin)["stages"]
     assert stages["surface_union"]["fill_opaque_share"] == 0.5 and (thin / "checkpoints" / "stage2_rgb.pt").exists()
     assert stages["surface_union"]["rgb_opacity_share"] == 1.0
-    assert any("at 1.000 × its opacities" in n and "haze-line trust 0.000" in n for n in stages["notes"])
+    assert any("at 1.000 × its opacities" in n and "haze-line surface trust 0.000" in n for n in stages["notes"])
     assert stages["stage3_plan"]["mask_floor"] == "estimated-meeting"
     assert any(n.startswith("mask floor on") for n in stages["notes"])
     colour = np.array([0.21, 0.2, 0.23])
     monkeypatch.setattr(api, "estimate_smoke_colour",
-                        lambda *a, **k: SmokeColourEstimate(colour, 500, 900, 0.8, meeting=colour, trust=0.5))
+                        lambda *a, **k: SmokeColourEstimate(colour, 500, 900, 0.8, meeting=colour, trust=0.25,
+                                                            surface_trust=0.5))
     half = tmp_path / "half"
     assert main([str(splat), "--out", str(half)] + rule) == 0
     stages = _assert_complete(half)["stages"]
-    assert stages["surface_union"]["rgb_opacity_share"] == 0.5
+    assert stages["surface_union"]["rgb_opacity_share"] == 0.5   # the start follows the surface trust ...
+    assert stages["smoke_colour"]["haze_lines"]["trust"] == 0.25   # ... and the colour its own
+    assert stages["smoke_colour"]["haze_lines"]["surface_trust"] == 0.5
     assert stages["surface_union"]["thermal_kept"] >= json.loads((thin / "metrics.json").read_text())[
         "stages"]["surface_union"]["thermal_kept"]   # a fainter RGB surface has more holes
     assert any("at 0.500 × its opacities" in n for n in stages["notes"])
     monkeypatch.setattr(api, "estimate_smoke_colour",
-                        lambda *a, **k: SmokeColourEstimate(colour, 500, 900, 0.8, meeting=colour, trust=1.0))
+                        lambda *a, **k: SmokeColourEstimate(colour, 500, 900, 0.8, meeting=colour, trust=0.5,
+                                                            surface_trust=1.0))
     dense = tmp_path / "dense"
     assert main([str(splat), "--out", str(dense)] + rule) == 0
     stages = _assert_complete(dense)["stages"]

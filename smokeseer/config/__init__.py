@@ -195,24 +195,34 @@ class Stage3Config:
     observation lines passing near the estimate ..."""
     smoke_color_full_meeting: float = 0.3
     """... and 1 at or over this one. The lines meet under dense smoke (room 0.79-0.83, excavator
-    0.65-0.66, machine 0.33-0.67) and not under thin smoke (house 0.03-0.08, forest 0.04-0.05). At
-    0.4, machine's estimate meeting at 0.33 had trust 0.63 and its validation PSNR fell from
-    13.5 to 9.7, RGB-only's level (docs/experiments/2026-12-02-haze-line-trust.md)."""
+    0.65-0.66, machine 0.33-0.67) and not under thin smoke (house 0.03-0.08, forest 0.04-0.05), so
+    every dense scene's estimate meets this (docs/experiments/2026-12-02-haze-line-trust.md)."""
     smoke_color_max_brightness: float = 0.5
     """With smoke_color=haze-lines: the trust's darkness factor is 0 for an estimate whose channel
     mean is at or over this ... A scattering (bright) smoke's radiance follows the light and the
     viewing angle, so no single colour fits it from every view, while an absorbing (dark) one adds
     little light of its own."""
-    smoke_color_full_brightness: float = 0.4
-    """... and 1 at or under this one."""
+    smoke_color_full_brightness: float = 0.3
+    """... and 1 at or under this one. At 0.4 the excavator's estimate (channel mean 0.41) had
+    trust 0.93 and Full's validation PSNR fell from 22.0 at iteration 500 to 20.2, 1.5 dB under
+    RGB-only; at trust 0.47 it climbed to 22.6. Machine's (0.35-0.36) at trust 0.69-0.75 ended
+    level with its held colour (docs/experiments/2026-12-02-colour-ramp.md)."""
     surface_init: str = "thermal"
     """Where Stage 3's surface starts. "thermal": the thermal Stage 2 (the paper).
-    "by-smoke-colour": by the haze-line trust t. At t = 1 (dense absorbing smoke, which a Stage 2
-    on the RGB frames takes for surface) the thermal Stage 2 alone. Under t < 1 a Stage 2 on the
-    smoky RGB frames (RGB-only's) with its opacities scaled by 1 − t, carved where it lies in front
-    of the thermal surface and joined by the thermal Gaussians in its holes
-    (``smokeseer.train.surface_union``), so that where the RGB sees the surface through thin or
-    scattering smoke Stage 3 starts as RGB-only does. Needs smoke_color=haze-lines."""
+    "by-smoke-colour": by the haze-line surface trust t (``surface_full_brightness``). At t = 1
+    (dense absorbing smoke, which a Stage 2 on the RGB frames takes for surface) the thermal
+    Stage 2 alone. Under t < 1 a Stage 2 on the smoky RGB frames (RGB-only's) with its opacities
+    scaled by 1 − t, carved where it lies in front of the thermal surface and joined by the
+    thermal Gaussians in its holes (``smokeseer.train.surface_union``), so that where the RGB sees
+    the surface through thin or scattering smoke Stage 3 starts as RGB-only does. Needs
+    smoke_color=haze-lines."""
+    surface_full_brightness: float = 0.4
+    """With surface_init=by-smoke-colour: the trust t of the start takes the colour's meeting and
+    line factors, but its darkness factor reaches 1 here, at a brighter colour than the colour's
+    (smoke_color_full_brightness), because an RGB start under dense smoke costs far more than a
+    partly learned colour: machine's estimate (channel mean 0.35) with the RGB Stage 2 at a quarter
+    of its opacities fell from 13.7 to 9.4 dB at iteration 250, and with the thermal start and the
+    colour at trust 0.75 it ended level (docs/experiments/2026-12-02-colour-ramp.md)."""
     carve_tolerance: float = 0.05
     """With two surfaces: an RGB Gaussian nearer than (1 − this) × the thermal
     surface's depth in most views that see it is smoke taken for surface, and is dropped."""
@@ -312,6 +322,10 @@ class TrainConfig:
         if not s3.smoke_color_full_brightness < s3.smoke_color_max_brightness:
             raise ValueError("stage3.smoke_color_full_brightness: must be under stage3.smoke_color_max_brightness "
                              f"({s3.smoke_color_full_brightness} >= {s3.smoke_color_max_brightness})")
+        if not s3.smoke_color_full_brightness <= s3.surface_full_brightness < s3.smoke_color_max_brightness:
+            raise ValueError("stage3.surface_full_brightness: must lie from stage3.smoke_color_full_brightness up to "
+                             f"under stage3.smoke_color_max_brightness ({s3.surface_full_brightness} outside "
+                             f"[{s3.smoke_color_full_brightness}, {s3.smoke_color_max_brightness}))")
         if self.stage3.surface_init == "by-smoke-colour" and self.stage3.smoke_color != "haze-lines":
             raise ValueError("stage3.surface_init: by-smoke-colour reads the haze lines; it needs "
                              "stage3.smoke_color=haze-lines")

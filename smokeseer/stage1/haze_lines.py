@@ -11,7 +11,11 @@ How far the estimate is trusted is a number in [0, 1] (``trust``), not a yes or 
 with the number of lines, the share of them that meet, and how dark the colour is (an absorbing
 smoke adds little light of its own; a scattering one's radiance follows the light and the view).
 Each factor rises linearly between two settings, so two runs whose estimates differ a little
-train a little differently, never across a step.
+train a little differently, never across a step. Two trusts are read off one estimate, differing
+only in where the darkness factor reaches 1: the colour's, which Stage 3 blends with each smoke
+Gaussian's own, and the surface start's (``surface_trust``), which decides how far the RGB Stage 2
+is believed. A colour partly learned where it was right costs little; an RGB start under dense
+smoke costs much, so the colour's ramp reaches full trust only at a darker colour.
 """
 from __future__ import annotations
 
@@ -50,7 +54,9 @@ class HazeLineSettings:
     max_brightness: float = Stage3Config.smoke_color_max_brightness
     """The channel mean where the brightness factor reaches 0 (why: ``Stage3Config``) ..."""
     full_brightness: float = Stage3Config.smoke_color_full_brightness
-    """... and the darker one where it is 1."""
+    """... and the darker one where the colour's trust is 1 ..."""
+    surface_full_brightness: float = Stage3Config.surface_full_brightness
+    """... and the one where the surface start's is (``surface_trust``)."""
 
     @classmethod
     def of(cls, stage3: Stage3Config) -> "HazeLineSettings":
@@ -58,7 +64,8 @@ class HazeLineSettings:
         return cls(min_meeting_fraction=stage3.smoke_color_min_meeting,
                    full_meeting_fraction=stage3.smoke_color_full_meeting,
                    max_brightness=stage3.smoke_color_max_brightness,
-                   full_brightness=stage3.smoke_color_full_brightness)
+                   full_brightness=stage3.smoke_color_full_brightness,
+                   surface_full_brightness=stage3.surface_full_brightness)
 
 
 @dataclass
@@ -77,13 +84,17 @@ class SmokeColourEstimate:
     smoke's colour too view-dependent to hold still places its density (``loss.mask_floor_where``)."""
     trust: float = 0.0
     """In [0, 1]: each smoke Gaussian shows trust × ``colour`` + (1 − trust) × its own (``trust``)."""
+    surface_trust: float = 0.0
+    """In [0, 1], at least ``trust``: the RGB Stage 2 keeps 1 − this of its opacities in Stage 3's
+    start (``smokeseer.train.surface_union.surface_start``)."""
 
     def describe(self) -> str:
         met = "" if self.meeting_fraction is None else f", {self.meeting_fraction:.2f} of them meeting"
         if self.colour is None:
             found = f"none: {self.reason}"
         else:
-            found = f"{np.round(self.colour, 3).tolist()}, trust {self.trust:.3f}" + (f" ({self.reason})" if self.reason else "")
+            found = (f"{np.round(self.colour, 3).tolist()}, trust {self.trust:.3f}, surface trust {self.surface_trust:.3f}"
+                     + (f" ({self.reason})" if self.reason else ""))
         return f"{found} ({self.lines} observation lines from {self.points} points{met})"
 
 
@@ -92,24 +103,19 @@ def ramp(value: float, zero: float, one: float) -> float:
     return float(np.clip((value - zero) / (one - zero), 0.0, 1.0))
 
 
-def trust_factors(colour: np.ndarray, lines: int, met: float, settings: HazeLineSettings) -> dict[str, float]:
-    """The three factors of the trust in an estimate ``colour`` from ``lines`` lines meeting at
-    fraction ``met``: enough lines, lines that meet, and a dark colour."""
-    return {"lines": ramp(lines, settings.min_lines, settings.full_lines),
-            "meeting": ramp(met, settings.min_meeting_fraction, settings.full_meeting_fraction),
-            "darkness": ramp(float(np.mean(colour)), settings.max_brightness, settings.full_brightness)}
-
-
-def trust(colour: np.ndarray, lines: int, met: float, settings: HazeLineSettings) -> tuple[float, str]:
-    """The product of ``trust_factors``, and what holds it under 1 ("" at 1)."""
-    factors = trust_factors(colour, lines, met, settings)
+def trust(colour: np.ndarray, lines: int, met: float, settings: HazeLineSettings,
+          full_brightness: float) -> tuple[float, str]:
+    """The product of three ramps, enough lines, lines that meet and a dark colour (1 at channel
+    mean ``full_brightness`` or under), and what holds it under 1 ("" at 1)."""
+    mean = float(np.mean(colour))
+    factors = {
+        f"{lines} lines (full at {settings.full_lines})": ramp(lines, settings.min_lines, settings.full_lines),
+        f"{met:.2f} of the lines meet (full at {settings.full_meeting_fraction})":
+            ramp(met, settings.min_meeting_fraction, settings.full_meeting_fraction),
+        f"channel mean {mean:.2f} (full at {full_brightness} or darker: a scattering smoke's radiance follows "
+        "the light and the view)": ramp(mean, settings.max_brightness, full_brightness)}
     value = float(np.prod(list(factors.values())))
-    why = {"lines": f"{lines} lines (full at {settings.full_lines})",
-           "meeting": f"{met:.2f} of the lines meet (full at {settings.full_meeting_fraction})",
-           "darkness": f"channel mean {float(np.mean(colour)):.2f} (full at {settings.full_brightness} or darker: "
-                       "a scattering smoke's radiance follows the light and the view)"}
-    limits = [f"{why[name]}: {f:.2f}" for name, f in factors.items() if f < 1.0]
-    return value, "; ".join(limits)
+    return value, "; ".join(f"{why}: {f:.2f}" for why, f in factors.items() if f < 1.0)
 
 
 def in_cube(colour: np.ndarray) -> bool:
@@ -204,6 +210,7 @@ def estimate_smoke_colour(images: np.ndarray, depths: np.ndarray, valid: np.ndar
         return SmokeColourEstimate(None, lines, n_points, met,
                                    f"the lines meet outside the colour cube, at {np.round(colour, 3).tolist()}")
     colour = np.clip(colour, 0.01, 0.99)
-    value, limits = trust(colour, lines, met, settings)
+    value, limits = trust(colour, lines, met, settings, settings.full_brightness)
+    surface, _ = trust(colour, lines, met, settings, settings.surface_full_brightness)
     meeting = colour if met >= settings.min_meeting_fraction else None
-    return SmokeColourEstimate(colour, lines, n_points, met, limits, meeting, value)
+    return SmokeColourEstimate(colour, lines, n_points, met, limits, meeting, value, surface)

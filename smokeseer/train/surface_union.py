@@ -9,9 +9,9 @@ it: where the RGB sees the surface, the coarse thermal Gaussians (their RGB colo
 a neighbour) would blur it, and Stage 3 would start far below RGB-only's. Each set takes the
 other's colour from its nearest neighbour in the other set.
 
-How much the RGB Stage 2 is believed follows the haze-line trust t (``surface_start``): its
-opacities are scaled by 1 − t before the carving, and under dense absorbing smoke (t = 1) the
-thermal Stage 2 stands alone. Scaling the whole set, not the Gaussians where the smoke reads
+How much the RGB Stage 2 is believed follows the haze-line estimate's surface trust t
+(``surface_start``; ``SmokeColourEstimate.surface_trust``): its opacities are scaled by 1 − t
+before the carving, and under dense absorbing smoke (t = 1) the thermal Stage 2 stands alone. Scaling the whole set, not the Gaussians where the smoke reads
 dense, was chosen on the validation views: the local fade lost 3.6 dB on machine
 (docs/experiments/2026-12-02-haze-line-trust.md).
 """
@@ -44,18 +44,18 @@ centre lands in more than this share of the RGB training views that see it."""
 
 def surface_start(colour: SmokeColourEstimate | None, smoke: bool) -> tuple[float, str]:
     """The share of its opacity each RGB Stage-2 Gaussian keeps in Stage 3's start (1 − the
-    haze-line trust; 0: the thermal Stage 2 alone), and the note saying why. The trust is high for
-    dense absorbing smoke, which the RGB Stage 2 takes for surface; without smoke Gaussians
+    haze-line surface trust; 0: the thermal Stage 2 alone), and the note saying why. The trust is
+    high for dense absorbing smoke, which the RGB Stage 2 takes for surface; without smoke Gaussians
     (``smoke`` false) the RGB sees the surface everywhere."""
     if not smoke:
         return 1.0, ("surface from the RGB Stage 2 and the thermal Gaussians in its holes (stage3.surface_init="
                      "by-smoke-colour): the run has no smoke, so the RGB sees the surface")
-    trust = 0.0 if colour is None or colour.colour is None else colour.trust
+    trust = 0.0 if colour is None or colour.colour is None else colour.surface_trust
     if trust == 1.0:
         return 0.0, ("surface from the thermal Stage 2 alone (stage3.surface_init=by-smoke-colour): the haze "
                      "lines are fully trusted (dense, dark smoke), so the RGB Stage 2 would take the smoke for surface")
     return 1.0 - trust, (f"surface from the RGB Stage 2 at {1.0 - trust:.3f} × its opacities and the thermal Gaussians "
-                         f"in its holes (stage3.surface_init=by-smoke-colour): haze-line trust {trust:.3f}, so the "
+                         f"in its holes (stage3.surface_init=by-smoke-colour): haze-line surface trust {trust:.3f}, so the "
                          "RGB sees the surface through the smoke that far")
 
 
