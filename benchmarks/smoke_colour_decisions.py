@@ -104,8 +104,9 @@ def main() -> None:
              "max_brightness": "--max-brightness", "full_brightness": "--full-brightness",
              "surface_full_brightness": "--surface-full-brightness"}
     for field, flag in ramps.items():
+        column = "rule_surface_trust" if field == "surface_full_brightness" else "rule_trust, rule_surface_trust"
         ap.add_argument(flag, dest=field, type=float, default=None,
-                        help="a trust ramp end (rule_trust; haze_lines.HazeLineSettings)")
+                        help=f"a trust ramp end ({column}; haze_lines.HazeLineSettings)")
     ap.add_argument("--datasets", type=Path, default=None, help="the scenes' datasets, for the true smoke colour")
     args = ap.parse_args()
     given = {k: getattr(args, k) for k in ramps if getattr(args, k) is not None}
@@ -128,8 +129,8 @@ def main() -> None:
         if rule is not None:
             colour, met, _ = estimate(doc["stages"])
             rows[-1].update(rule=f"meeting {rule.min_meeting_fraction}-{rule.full_meeting_fraction}, brightness "
-                                 f"{rule.max_brightness}-{rule.full_brightness} (start: "
-                                 f"-{rule.surface_full_brightness})",
+                                 f"{rule.max_brightness}-{rule.full_brightness} (start "
+                                 f"{rule.max_brightness}-{rule.surface_full_brightness})",
                             **{column: 0.0 if colour is None or met is None
                                else round(trust(np.array(colour), rows[-1]["lines"], met, rule, full)[0], 4)
                                for column, full in (("rule_trust", rule.full_brightness),

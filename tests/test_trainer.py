@@ -187,25 +187,23 @@ def test_by_smoke_colour_keeps_the_rgb_stage2_by_one_minus_the_surface_trust(
     assert stages["stage3_plan"]["mask_floor"] == "estimated-meeting"
     assert any(n.startswith("mask floor on") for n in stages["notes"])
     colour = np.array([0.21, 0.2, 0.23])
-    monkeypatch.setattr(api, "estimate_smoke_colour",
-                        lambda *a, **k: SmokeColourEstimate(colour, 500, 900, 0.8, meeting=colour, trust=0.25,
-                                                            surface_trust=0.5))
-    half = tmp_path / "half"
-    assert main([str(splat), "--out", str(half)] + rule) == 0
-    stages = _assert_complete(half)["stages"]
+
+    def stages_under(name: str, trust: float, surface_trust: float) -> dict:
+        """The stages record of a run whose haze lines give ``colour`` at these two trusts."""
+        monkeypatch.setattr(api, "estimate_smoke_colour", lambda *a, **k: SmokeColourEstimate(
+            colour, 500, 900, 0.8, meeting=colour, trust=trust, surface_trust=surface_trust))
+        assert main([str(splat), "--out", str(tmp_path / name)] + rule) == 0
+        return _assert_complete(tmp_path / name)["stages"]
+
+    stages = stages_under("half", 0.25, 0.5)
     assert stages["surface_union"]["rgb_opacity_share"] == 0.5   # the start follows the surface trust ...
     assert stages["smoke_colour"]["haze_lines"]["trust"] == 0.25   # ... and the colour its own
     assert stages["smoke_colour"]["haze_lines"]["surface_trust"] == 0.5
     assert stages["surface_union"]["thermal_kept"] >= json.loads((thin / "metrics.json").read_text())[
         "stages"]["surface_union"]["thermal_kept"]   # a fainter RGB surface has more holes
     assert any("at 0.500 × its opacities" in n for n in stages["notes"])
-    monkeypatch.setattr(api, "estimate_smoke_colour",
-                        lambda *a, **k: SmokeColourEstimate(colour, 500, 900, 0.8, meeting=colour, trust=0.5,
-                                                            surface_trust=1.0))
-    dense = tmp_path / "dense"
-    assert main([str(splat), "--out", str(dense)] + rule) == 0
-    stages = _assert_complete(dense)["stages"]
-    assert stages["surface_union"] is None and not (dense / "checkpoints" / "stage2_rgb.pt").exists()
+    stages = stages_under("dense", 0.5, 1.0)
+    assert stages["surface_union"] is None and not (tmp_path / "dense" / "checkpoints" / "stage2_rgb.pt").exists()
     assert any("surface from the thermal Stage 2 alone" in n for n in stages["notes"])
     assert main([str(splat), "--out", str(tmp_path / "bad"), "--set", "stage3.surface_init=by-smoke-colour"]
                 + TINY) == 2

@@ -11,8 +11,9 @@ other's colour from its nearest neighbour in the other set.
 
 How much the RGB Stage 2 is believed follows the haze-line estimate's surface trust t
 (``surface_start``; ``SmokeColourEstimate.surface_trust``): its opacities are scaled by 1 − t
-before the carving, and under dense absorbing smoke (t = 1) the thermal Stage 2 stands alone. Scaling the whole set, not the Gaussians where the smoke reads
-dense, was chosen on the validation views: the local fade lost 3.6 dB on machine
+before the carving, and under dense absorbing smoke (t = 1) the thermal Stage 2 stands alone.
+Scaling the whole set, not the Gaussians where the smoke reads dense, was chosen on the
+validation views: the local fade lost 3.6 dB on machine
 (docs/experiments/2026-12-02-haze-line-trust.md).
 """
 from __future__ import annotations
@@ -155,8 +156,8 @@ class TwoSurfaces:
     def describe(self) -> str:
         r = self.record
         return (f"surface from both Stage 2s: the {r['thermal_kept']} of {r['thermal']} thermal Gaussians in the RGB "
-                f"surface's holes + {r['rgb_kept']} of {r['rgb']} "
-                f"RGB Gaussians at {r['rgb_opacity_share']:.3g} × their opacities ({r['rgb'] - r['rgb_kept']} in front of the thermal surface carved, tolerance "
+                f"surface's holes + {r['rgb_kept']} of {r['rgb']} RGB Gaussians at {r['rgb_opacity_share']:.3g} × "
+                f"their opacities ({r['rgb'] - r['rgb_kept']} in front of the thermal surface carved, tolerance "
                 f"{r['tolerance']:g}; {r['rgb_unchecked']} no view could check kept)")
 
 
