@@ -63,9 +63,10 @@ def estimate(stages: dict) -> tuple[list[float] | None, float | None, float]:
 def decision(stages: dict) -> dict[str, object]:
     """``estimate`` as table columns, with the colour's mean over channels."""
     colour, met, given = estimate(stages)
-    surface = haze_lines(stages).get("surface_trust")
+    lines = haze_lines(stages)
+    surface = lines.get("surface_trust")
     return {"held": given == 1.0, "trust": round(given, 4),
-            "surface_trust": None if surface is None else round(surface, 4), "lines": haze_lines(stages).get("lines"),
+            "surface_trust": None if surface is None else round(surface, 4), "lines": lines.get("lines"),
             "meeting_fraction": met,
             "colour": "" if colour is None else " ".join(f"{c:.3f}" for c in colour),
             "colour_mean": None if colour is None else round(sum(colour) / 3, 3)}
