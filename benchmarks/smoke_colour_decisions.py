@@ -46,10 +46,9 @@ def haze_lines(stages: dict) -> dict:
     return (stages.get("smoke_colour") or {}).get("haze_lines") or {}
 
 
-def estimate(stages: dict) -> tuple[list[float] | None, float | None, float]:
-    """The estimate's colour (for older runs also a refused one), the meeting fraction and the
-    trust the run gave it (older runs: 1 held, 0 refused)."""
-    lines = haze_lines(stages)
+def estimate(lines: dict) -> tuple[list[float] | None, float | None, float]:
+    """From a run's haze-line record (``haze_lines``): the estimate's colour (for older runs also a
+    refused one), the meeting fraction and the trust the run gave it (older runs: 1 held, 0 refused)."""
     colour = lines.get("colour")
     if "trust" in lines:
         return colour, lines.get("meeting_fraction"), lines["trust"]
@@ -62,8 +61,8 @@ def estimate(stages: dict) -> tuple[list[float] | None, float | None, float]:
 
 def decision(stages: dict) -> dict[str, object]:
     """``estimate`` as table columns, with the colour's mean over channels."""
-    colour, met, given = estimate(stages)
     lines = haze_lines(stages)
+    colour, met, given = estimate(lines)
     surface = lines.get("surface_trust")
     return {"held": given == 1.0, "trust": round(given, 4),
             "surface_trust": None if surface is None else round(surface, 4), "lines": lines.get("lines"),
@@ -128,7 +127,7 @@ def main() -> None:
                      "code_digest": rec["code_digest"][:8], **decision(doc["stages"]),
                      "val_psnr": round(doc["validation"]["psnr"], 3), "test_psnr": round(doc["metrics"]["psnr"], 3)})
         if rule is not None:
-            colour, met, _ = estimate(doc["stages"])
+            colour, met, _ = estimate(haze_lines(doc["stages"]))
             rows[-1].update(rule=f"meeting {rule.min_meeting_fraction}-{rule.full_meeting_fraction}, brightness "
                                  f"{rule.max_brightness}-{rule.full_brightness} (start "
                                  f"{rule.max_brightness}-{rule.surface_full_brightness})",
