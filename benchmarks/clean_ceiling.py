@@ -10,7 +10,7 @@ RGB-only's.
 
 Each scene gets a derived dataset (eval/clean_ceiling.py: links into the original, the clean
 frames in place of the smoky ones, no smoke passes) and a `train-and-evaluate --mode MODE` run
-beside it; both resume. One CSV row per scene and method: ceiling test/validation PSNR against
+beside it; both resume, and a finished run of other trainer code is retrained. One CSV row per scene and method: ceiling test/validation PSNR against
 the smoky input's; the same method's Table 1 run on the smoky scene (same seed and trainer
 digest, where the tables have it) and the share of the input-to-ceiling gap it closes; and the
 test views split by the original dataset's smoke mask (eval/regions.py), so the smoky pixels'
@@ -25,21 +25,24 @@ from pathlib import Path
 
 from contracts.atomic import write_rows_csv
 from contracts.errors import DatasetError
-from contracts.results_format import read_metrics
-from eval.clean_ceiling import derive_clean_dataset, headroom_recovered, smoky_input_psnr, table_test_psnr
+from contracts.source import code_digest
+from eval.clean_ceiling import ceiling_run, derive_clean_dataset, headroom_recovered, smoky_input_psnr, table_test_psnr
+from eval.harness import TRAINER_ENTRY
 from eval.regions import score_run
 from eval.runs import RunResult
 
 
 def train(dataset: Path, run_dir: Path, mode: str, profile: str, seed: int, threads: int) -> dict:
-    """The ``mode`` run on the derived dataset (resumed from its checkpoints if interrupted)."""
-    if not (run_dir / "metrics.json").is_file():
+    """The ``mode`` run on the derived dataset by today's trainer (eval.clean_ceiling.ceiling_run:
+    a run of other trainer code is retrained, an interrupted one resumed)."""
+    def run(folder: Path) -> None:
         cmd = [str(Path(sys.executable).with_name("train-and-evaluate")), str(dataset), "--mode", mode,
-               "--profile", profile, "--seed", str(seed), "--threads", str(threads), "--out", str(run_dir),
+               "--profile", profile, "--seed", str(seed), "--threads", str(threads), "--out", str(folder),
                "--no-progress"]
         print("running:", " ".join(cmd), flush=True)
         subprocess.run(cmd, check=True)
-    return read_metrics(run_dir)
+
+    return ceiling_run(run_dir, code_digest(TRAINER_ENTRY), run)
 
 
 def main() -> None:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 from contracts.atomic import write_json
@@ -102,3 +103,31 @@ def headroom_recovered(method: float | None, smoky_input: float | None, ceiling:
     if method is None or smoky_input is None or ceiling - smoky_input <= 0:
         return None
     return (method - smoky_input) / (ceiling - smoky_input)
+
+
+def ceiling_run(run_dir: Path, digest: str, train: Callable[[Path], None]) -> dict:
+    """metrics.json of the ceiling run in ``run_dir`` made by trainer ``digest``, training it first
+    where that folder holds no finished run of this trainer.
+
+    ``train(folder)`` runs the trainer into ``folder``, resuming from its checkpoints. It trains
+    beside ``run_dir``, in ``MODE-DIGEST``, so a finished run of other trainer code stays in place
+    (and committed) until the new one has finished, and an interrupted retrain resumes. The finished
+    folder then takes ``run_dir``'s place by two renames; an interruption between them leaves the
+    new run complete beside, and the next call completes the swap."""
+    if (run_dir / "metrics.json").is_file():
+        found = read_metrics(run_dir)["provenance"]["source_digest"] or ""
+        if found == digest:
+            print(f"{run_dir}: finished by trainer {digest[:8]}, reused", flush=True)
+            return read_metrics(run_dir)
+        print(f"{run_dir}: trained by trainer {found[:8] or 'unknown'}, not {digest[:8]}: retraining; "
+              "the old run stays until the new one has finished", flush=True)
+    fresh = run_dir.with_name(f"{run_dir.name}-{digest[:8]}")
+    if not (fresh / "metrics.json").is_file():
+        train(fresh)
+    retired = run_dir.with_name(f".{run_dir.name}.retired")
+    shutil.rmtree(retired, ignore_errors=True)
+    if run_dir.exists():
+        os.replace(run_dir, retired)
+    os.replace(fresh, run_dir)
+    shutil.rmtree(retired, ignore_errors=True)
+    return read_metrics(run_dir)

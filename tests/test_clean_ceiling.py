@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from contracts.results_format import PROVENANCE_KEYS, ResultsFormatError
-from eval.clean_ceiling import derive_clean_dataset, headroom_recovered, smoky_input_psnr, table_test_psnr
+from eval.clean_ceiling import ceiling_run, derive_clean_dataset, headroom_recovered, smoky_input_psnr, table_test_psnr
 from scenes.load import load_scene
 from tests.results_builder import write_metrics
 
@@ -73,3 +73,51 @@ def test_table_psnr_is_the_runs_own_digest_and_the_headroom_its_share_of_the_gap
     assert headroom_recovered(23.0, 20.0, 32.0) == pytest.approx(0.25)
     assert headroom_recovered(19.0, 20.0, 32.0) == pytest.approx(-1 / 12)  # under the input: negative
     assert headroom_recovered(23.0, 32.0, 31.0) is None and headroom_recovered(None, 20.0, 32.0) is None
+
+
+def _finished_by(digest: str):
+    """A stand-in for the trainer's command: it writes the folder's metrics.json, as a run of
+    trainer ``digest`` does, and records which folders it was asked to train."""
+    calls: list[Path] = []
+
+    def train(folder: Path) -> None:
+        calls.append(folder)
+        write_metrics(folder, scene="house", method="full", profile="standard", seed=0, metrics={"psnr": 30.0},
+                      provenance={**dict.fromkeys(PROVENANCE_KEYS), "source_digest": digest * 8})
+    train.calls = calls  # type: ignore[attr-defined]
+    return train
+
+
+def test_a_ceiling_of_other_trainer_code_is_retrained_and_replaced_only_when_finished(tmp_path: Path) -> None:
+    run_dir = tmp_path / "house" / "full"
+    old, new = "aaaa1111", "bbbb2222"
+    _finished_by(old)(run_dir)
+    (run_dir / "renders").mkdir()
+
+    def interrupted(folder: Path) -> None:
+        (folder / "checkpoints").mkdir(parents=True)
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        ceiling_run(run_dir, new * 8, interrupted)
+    assert json.loads((run_dir / "metrics.json").read_text())["provenance"]["source_digest"] == old * 8
+    assert (tmp_path / "house" / f"full-{new}" / "checkpoints").is_dir()  # left to resume from
+
+    train = _finished_by(new)
+    doc = ceiling_run(run_dir, new * 8, train)
+    assert train.calls == [tmp_path / "house" / f"full-{new}"]
+    assert doc["provenance"]["source_digest"] == new * 8
+    assert json.loads((run_dir / "metrics.json").read_text()) == doc
+    assert not (run_dir / "renders").exists()  # nothing of the old run is left in the folder
+    assert sorted(p.name for p in (tmp_path / "house").iterdir()) == ["full"]
+
+    again = _finished_by(new)
+    assert ceiling_run(run_dir, new * 8, again) == doc and again.calls == []  # this trainer's run is reused
+
+
+def test_a_swap_cut_between_its_renames_is_completed_without_training(tmp_path: Path) -> None:
+    run_dir = tmp_path / "house" / "full"
+    _finished_by("bbbb2222")(tmp_path / "house" / "full-bbbb2222")
+    train = _finished_by("bbbb2222")
+    assert ceiling_run(run_dir, "bbbb2222" * 8, train)["provenance"]["source_digest"] == "bbbb2222" * 8
+    assert train.calls == [] and sorted(p.name for p in (tmp_path / "house").iterdir()) == ["full"]
