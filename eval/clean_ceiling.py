@@ -115,10 +115,11 @@ def ceiling_run(run_dir: Path, digest: str, train: Callable[[Path], None]) -> di
     folder then takes ``run_dir``'s place by two renames; an interruption between them leaves the
     new run complete beside, and the next call completes the swap."""
     if (run_dir / "metrics.json").is_file():
-        found = read_metrics(run_dir)["provenance"]["source_digest"] or ""
+        doc = read_metrics(run_dir)
+        found = doc["provenance"]["source_digest"] or ""
         if found == digest:
             print(f"{run_dir}: finished by trainer {digest[:8]}, reused", flush=True)
-            return read_metrics(run_dir)
+            return doc
         print(f"{run_dir}: trained by trainer {found[:8] or 'unknown'}, not {digest[:8]}: retraining; "
               "the old run stays until the new one has finished", flush=True)
     fresh = run_dir.with_name(f"{run_dir.name}-{digest[:8]}")
