@@ -10,7 +10,7 @@ RGB-only's.
 
 Each scene gets a derived dataset (eval/clean_ceiling.py: links into the original, the clean
 frames in place of the smoky ones, no smoke passes) and a `train-and-evaluate --mode MODE` run
-beside it; both resume, and a finished run of other trainer code is retrained. One CSV row per
+beside it; both resume, and a finished run of other trainer code, profile or seed is retrained. One CSV row per
 scene and method: ceiling test/validation PSNR against the smoky input's; the same method's
 Table 1 run on the smoky scene (same seed and trainer digest, where the tables have it) and the
 share of the input-to-ceiling gap it closes; and the test views split by the original dataset's
@@ -35,7 +35,7 @@ from eval.runs import RunResult
 
 def train(dataset: Path, run_dir: Path, mode: str, profile: str, seed: int, threads: int) -> dict:
     """The ``mode`` run on the derived dataset by today's trainer (eval.clean_ceiling.ceiling_run:
-    a run of other trainer code is retrained, an interrupted one resumed)."""
+    a run of other trainer code, profile or seed is retrained, an interrupted one resumed)."""
     def run(folder: Path) -> None:
         cmd = [str(Path(sys.executable).with_name("train-and-evaluate")), str(dataset), "--mode", mode,
                "--profile", profile, "--seed", str(seed), "--threads", str(threads), "--out", str(folder),
@@ -43,7 +43,7 @@ def train(dataset: Path, run_dir: Path, mode: str, profile: str, seed: int, thre
         print("running:", " ".join(cmd), flush=True)
         subprocess.run(cmd, check=True)
 
-    return ceiling_run(run_dir, code_digest(TRAINER_ENTRY), run)
+    return ceiling_run(run_dir, code_digest(TRAINER_ENTRY), profile, seed, run)
 
 
 def main() -> None:

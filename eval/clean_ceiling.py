@@ -105,26 +105,36 @@ def headroom_recovered(method: float | None, smoky_input: float | None, ceiling:
     return (method - smoky_input) / (ceiling - smoky_input)
 
 
-def ceiling_run(run_dir: Path, digest: str, train: Callable[[Path], None]) -> dict:
-    """metrics.json of the ceiling run in ``run_dir`` made by trainer ``digest``, training it first
-    where that folder holds no finished run of this trainer.
+def ceiling_run(run_dir: Path, digest: str, profile: str, seed: int, train: Callable[[Path], None]) -> dict:
+    """metrics.json of the ceiling run in ``run_dir`` made by trainer ``digest`` at this profile
+    and seed, training it first where that folder holds no such finished run.
 
     ``train(folder)`` runs the trainer into ``folder``, resuming from its checkpoints. It trains
-    beside ``run_dir``, in ``MODE-DIGEST``, so a finished run of other trainer code stays in place
-    (and committed) until the new one has finished, and an interrupted retrain resumes. The finished
-    folder then takes ``run_dir``'s place by two renames; an interruption between them leaves the
-    new run complete beside, and the next call completes the swap."""
+    beside ``run_dir``, in ``MODE-DIGEST-PROFILE-seedSEED``, so a finished run of another request
+    stays in place (and committed) until the new one has finished, and an interrupted retrain
+    resumes. The finished folder then takes ``run_dir``'s place by two renames; an interruption
+    between them leaves the new run complete beside, and the next call completes the swap."""
+    want = {"trainer": digest, "profile": profile, "seed": seed}
+
+    def differences(doc: dict) -> list[str]:
+        found = {"trainer": doc["provenance"]["source_digest"] or "", "profile": doc["profile"], "seed": doc["seed"]}
+        return [f"{key} {str(found[key])[:8] or 'unknown'}, not {str(want[key])[:8]}"
+                for key in want if found[key] != want[key]]
+
     if (run_dir / "metrics.json").is_file():
         doc = read_metrics(run_dir)
-        found = doc["provenance"]["source_digest"] or ""
-        if found == digest:
-            print(f"{run_dir}: finished by trainer {digest[:8]}, reused", flush=True)
+        unlike = differences(doc)
+        if not unlike:
+            print(f"{run_dir}: finished by trainer {digest[:8]} at {profile}, seed {seed}: reused", flush=True)
             return doc
-        print(f"{run_dir}: trained by trainer {found[:8] or 'unknown'}, not {digest[:8]}: retraining; "
+        print(f"{run_dir}: a run of {'; '.join(unlike)}: retraining; "
               "the old run stays until the new one has finished", flush=True)
-    fresh = run_dir.with_name(f"{run_dir.name}-{digest[:8]}")
+    fresh = run_dir.with_name(f"{run_dir.name}-{digest[:8]}-{profile}-seed{seed}")
     if not (fresh / "metrics.json").is_file():
         train(fresh)
+    unlike = differences(read_metrics(fresh))
+    if unlike:
+        raise RuntimeError(f"{fresh / 'metrics.json'}: the ceiling run just trained is a run of {'; '.join(unlike)}")
     retired = run_dir.with_name(f".{run_dir.name}.retired")
     shutil.rmtree(retired, ignore_errors=True)
     if run_dir.exists():

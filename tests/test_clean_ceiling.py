@@ -75,14 +75,14 @@ def test_table_psnr_is_the_runs_own_digest_and_the_headroom_its_share_of_the_gap
     assert headroom_recovered(23.0, 32.0, 31.0) is None and headroom_recovered(None, 20.0, 32.0) is None
 
 
-def _finished_by(digest: str):
+def _finished_by(digest: str, seed: int = 0, profile: str = "standard"):
     """A stand-in for the trainer's command: it writes the folder's metrics.json, as a run of
-    trainer ``digest`` does, and records which folders it was asked to train."""
+    trainer ``digest`` at this seed and profile does, and records which folders it was asked to train."""
     calls: list[Path] = []
 
     def train(folder: Path) -> None:
         calls.append(folder)
-        write_metrics(folder, scene="house", method="full", profile="standard", seed=0, metrics={"psnr": 30.0},
+        write_metrics(folder, scene="house", method="full", profile=profile, seed=seed, metrics={"psnr": 30.0},
                       provenance={**dict.fromkeys(PROVENANCE_KEYS), "source_digest": digest * 8})
     train.calls = calls  # type: ignore[attr-defined]
     return train
@@ -93,31 +93,50 @@ def test_a_ceiling_of_other_trainer_code_is_retrained_and_replaced_only_when_fin
     old, new = "aaaa1111", "bbbb2222"
     _finished_by(old)(run_dir)
     (run_dir / "renders").mkdir()
+    fresh = tmp_path / "house" / f"full-{new}-standard-seed0"
 
     def interrupted(folder: Path) -> None:
         (folder / "checkpoints").mkdir(parents=True)
         raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        ceiling_run(run_dir, new * 8, interrupted)
+        ceiling_run(run_dir, new * 8, "standard", 0, interrupted)
     assert json.loads((run_dir / "metrics.json").read_text())["provenance"]["source_digest"] == old * 8
-    assert (tmp_path / "house" / f"full-{new}" / "checkpoints").is_dir()  # left to resume from
+    assert (fresh / "checkpoints").is_dir()  # left to resume from
 
     train = _finished_by(new)
-    doc = ceiling_run(run_dir, new * 8, train)
-    assert train.calls == [tmp_path / "house" / f"full-{new}"]
+    doc = ceiling_run(run_dir, new * 8, "standard", 0, train)
+    assert train.calls == [fresh]
     assert doc["provenance"]["source_digest"] == new * 8
     assert json.loads((run_dir / "metrics.json").read_text()) == doc
     assert not (run_dir / "renders").exists()  # nothing of the old run is left in the folder
     assert sorted(p.name for p in (tmp_path / "house").iterdir()) == ["full"]
 
     again = _finished_by(new)
-    assert ceiling_run(run_dir, new * 8, again) == doc and again.calls == []  # this trainer's run is reused
+    assert ceiling_run(run_dir, new * 8, "standard", 0, again) == doc and again.calls == []  # reused
+
+
+@pytest.mark.parametrize("seed, profile", [(1, "standard"), (0, "quick")])
+def test_a_ceiling_of_another_seed_or_profile_is_retrained_not_reused(tmp_path: Path, seed: int, profile: str) -> None:
+    run_dir = tmp_path / "house" / "full"
+    _finished_by("bbbb2222")(run_dir)
+    train = _finished_by("bbbb2222", seed, profile)
+    doc = ceiling_run(run_dir, "bbbb2222" * 8, profile, seed, train)
+    assert train.calls == [tmp_path / "house" / f"full-bbbb2222-{profile}-seed{seed}"]
+    assert (doc["seed"], doc["profile"]) == (seed, profile)
+
+
+def test_a_trained_run_unlike_the_request_is_refused_not_swapped_in(tmp_path: Path) -> None:
+    run_dir = tmp_path / "house" / "full"
+    _finished_by("aaaa1111")(run_dir)
+    with pytest.raises(RuntimeError, match=r"full-bbbb2222-standard-seed1/metrics\.json: .*seed 0, not 1"):
+        ceiling_run(run_dir, "bbbb2222" * 8, "standard", 1, _finished_by("bbbb2222", seed=0))
+    assert json.loads((run_dir / "metrics.json").read_text())["provenance"]["source_digest"] == "aaaa1111" * 8
 
 
 def test_a_swap_cut_between_its_renames_is_completed_without_training(tmp_path: Path) -> None:
     run_dir = tmp_path / "house" / "full"
-    _finished_by("bbbb2222")(tmp_path / "house" / "full-bbbb2222")
+    _finished_by("bbbb2222")(tmp_path / "house" / "full-bbbb2222-standard-seed0")
     train = _finished_by("bbbb2222")
-    assert ceiling_run(run_dir, "bbbb2222" * 8, train)["provenance"]["source_digest"] == "bbbb2222" * 8
+    assert ceiling_run(run_dir, "bbbb2222" * 8, "standard", 0, train)["provenance"]["source_digest"] == "bbbb2222" * 8
     assert train.calls == [] and sorted(p.name for p in (tmp_path / "house").iterdir()) == ["full"]
