@@ -10,12 +10,12 @@ RGB-only's.
 
 Each scene gets a derived dataset (eval/clean_ceiling.py: links into the original, the clean
 frames in place of the smoky ones, no smoke passes) and a `train-and-evaluate --mode MODE` run
-beside it; both resume, and a finished run of other trainer code, profile or seed is retrained. One CSV row per
-scene and method: ceiling test/validation PSNR against the smoky input's; the same method's
-Table 1 run on the smoky scene (same seed and trainer digest, where the tables have it) and the
-share of the input-to-ceiling gap it closes; and the test views split by the original dataset's
-smoke mask (eval/regions.py), so the smoky pixels' ceiling can be set beside what the table
-methods reach there (per_scene_regions.md).
+beside it; both resume, and a finished run of other trainer code, profile or seed is retrained.
+One CSV row per scene and method: ceiling test/validation PSNR against the smoky input's; the
+same method's Table 1 run on the smoky scene (same seed and trainer digest, where the tables
+have it) and the share of the input-to-ceiling gap it closes; and the test views split by the
+original dataset's smoke mask (eval/regions.py), so the smoky pixels' ceiling can be set beside
+what the table methods reach there (per_scene_regions.md).
 """
 from __future__ import annotations
 

@@ -118,7 +118,8 @@ def ceiling_run(run_dir: Path, digest: str, profile: str, seed: int, train: Call
 
     def differences(doc: dict) -> list[str]:
         found = {"trainer": doc["provenance"]["source_digest"] or "", "profile": doc["profile"], "seed": doc["seed"]}
-        return [f"{key} {str(found[key])[:8] or 'unknown'}, not {str(want[key])[:8]}"
+        shown = {"trainer": lambda d: d[:8] or "unknown", "profile": str, "seed": str}
+        return [f"{key} {shown[key](found[key])}, not {shown[key](want[key])}"
                 for key in want if found[key] != want[key]]
 
     if (run_dir / "metrics.json").is_file():
