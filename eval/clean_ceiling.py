@@ -114,13 +114,11 @@ def ceiling_run(run_dir: Path, digest: str, profile: str, seed: int, train: Call
     stays in place (and committed) until the new one has finished, and an interrupted retrain
     resumes. The finished folder then takes ``run_dir``'s place by two renames; an interruption
     between them leaves the new run complete beside, and the next call completes the swap."""
-    want = {"trainer": digest, "profile": profile, "seed": seed}
-
     def differences(doc: dict) -> list[str]:
-        found = {"trainer": doc["provenance"]["source_digest"] or "", "profile": doc["profile"], "seed": doc["seed"]}
-        shown = {"trainer": lambda d: d[:8] or "unknown", "profile": str, "seed": str}
-        return [f"{key} {shown[key](found[key])}, not {shown[key](want[key])}"
-                for key in want if found[key] != want[key]]
+        trainer = doc["provenance"]["source_digest"] or ""
+        unlike = [f"trainer {trainer[:8] or 'unknown'}, not {digest[:8]}"] if trainer != digest else []
+        return unlike + [f"{key} {doc[key]}, not {wanted}"
+                         for key, wanted in (("profile", profile), ("seed", seed)) if doc[key] != wanted]
 
     if (run_dir / "metrics.json").is_file():
         doc = read_metrics(run_dir)
