@@ -9,9 +9,10 @@
 # takes); Table 2's ablations at seed 0 (the harness's default list for the standard profile, each
 # taking Full's Stage 2 the same way); then each scene's clean ceiling of both at seed 0
 # (benchmarks/clean_ceiling.py into data/clean_ceiling_standard; run it once more over every scene
-# afterwards for the whole CSV); the DCP baseline at seed 0. Seeds 1-2 of each ablation whose seed 0
-# has finished on every scene close to Full or above it (eval/reseed_ablations.py) come last,
-# after "Full, estimated Stage 1" and the DCP baseline at seeds 1-2, which complete Table 1's rows.
+# afterwards for the whole CSV); the DCP baseline at seed 0; "Full, estimated Stage 1" at seeds 1-2;
+# seeds 1-2 of each ablation whose seed 0 has finished on every scene close to Full or above it
+# (eval/reseed_ablations.py), which a must-hold reads; and last the DCP baseline at seeds 1-2, a
+# reference row that no must-hold reads.
 # With --density-sweep the queue is issue 49's instead: Full and RGB-only at seeds 0-2 on every
 # dataset of data/density_sweep/kK (k = 1 aside, whose runs are Table 1's), seed 0 at every k
 # first, each into data/tables_density_kK (benchmarks/density_sweep_plan.sh, shared with
@@ -88,8 +89,8 @@ plan_steps() {  # fills steps
         close=$(.venv/bin/python -m eval.reseed_ablations "$out" --scenes "$(IFS=,; echo "${scenes[*]}")")
         read -r -a reseed <<< "${close//$'\n'/ }"
         for seed in 1 2; do add_steps full,full-estimated "$seed"; done
-        for seed in 1 2; do add_steps imgdehaze-dcp "$seed"; done
         for seed in 1 2; do for a in "${reseed[@]}"; do add_steps full "$seed" "$a"; done; done
+        for seed in 1 2; do add_steps imgdehaze-dcp "$seed"; done
         return
     fi
     local k s m
