@@ -257,10 +257,41 @@ def test_the_committed_cpu_reference_of_house() -> None:
     # the GPU run's own trainer version is preferred where it has a seed-0 run
     house = ROOT / "data" / "tables_standard" / "runs" / "house" / "full"
     own = json.loads((house / "seed0-6cae0a53465b" / "metrics.json").read_text())["provenance"]["source_digest"]
-    mine = cpu_reference(house, "standard", prefer=own)
+    mine = cpu_reference(house, "standard", prefer=(own,))
     assert mine.source_digest == own and mine.seed0_run == "seed0-6cae0a53465b"
     assert mine.seed0_psnr == pytest.approx(32.2057, abs=1e-3)
-    assert cpu_reference(house, "standard", prefer="no such version").source_digest.startswith("6663d970")
+    assert cpu_reference(house, "standard", prefer=("no such version",)).source_digest.startswith("6663d970")
+
+
+def test_a_node_under_another_python_finds_its_own_trainer_version_by_the_source_fingerprint() -> None:
+    """Under Python 3.12 the GPU run's source digest is not the CPU runs' (ast.dump differs), so
+    the reference is found by the trainer's source fingerprint that harness.json records."""
+    house = ROOT / "data" / "tables_standard" / "runs" / "house" / "full"
+    harness = json.loads((house / "seed0-bf5f6efcd9d1" / "harness.json").read_text())
+    ref = cpu_reference(house, "standard", prefer=("a 3.12 digest", harness["sources_sha256"]))
+    assert ref.source_digest.startswith("d65d2bcb") and ref.seeds == [0, 1, 2]
+    assert ref.seed0_run == "seed0-bf5f6efcd9d1" and ref.seed0_psnr == pytest.approx(32.2057, abs=1e-3)
+
+
+def test_the_torch_backend_comparison_takes_both_stage2s_of_the_gsplat_run(tmp_path: Path) -> None:
+    """take_stage2 gives the torch-backend run the donor's thermal and RGB Stage 2, so it trains
+    neither (an RGB Stage 2 on the torch backend outlasts the step's timeout)."""
+    from eval.shared_stage2 import stage2_keys
+
+    thermal, rgb = stage2_keys("full", "standard", 0, {"device": "cuda"})  # the donor's own settings
+    donor, run = tmp_path / "donor", tmp_path / "run"
+    (donor / "checkpoints").mkdir(parents=True)
+    torch.save({"done": True, "config_sha256": thermal}, donor / "checkpoints" / "stage2.pt")
+    torch.save({"done": True, "config_sha256": rgb}, donor / "checkpoints" / "stage2_rgb.pt")
+    header = ("stage,iteration,wall_s,n_gaussians,n_smoke,loss,render_rgb,render_thermal,smoke_alpha,smoke_color,"
+              "mono,depth,mask,thermal_smoke_opacity,val_psnr,test_psnr")
+    (donor / "train_log.csv").write_text(header + "\n2,10,1.0,5000,,0.2,,0.2,,,,,,,,\n")
+    res = subprocess.run([sys.executable, "-m", "benchmarks.gpu_check.take_stage2", str(run), str(donor), "full",
+                          "standard", "0", "device=cuda", "stage3.iterations=200"], cwd=ROOT, capture_output=True,
+                         text=True)
+    assert res.returncode == 0, res.stderr
+    for name in ("stage2.pt", "stage2_rgb.pt"):
+        assert (run / "checkpoints" / name).read_bytes() == (donor / "checkpoints" / name).read_bytes()
 
 
 def test_parity_outcomes_and_printed_errors_come_from_junit(tmp_path: Path) -> None:

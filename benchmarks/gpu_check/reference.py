@@ -56,12 +56,15 @@ class CpuReference:
                 "spread_db": self.spread_db, "std_db": statistics.pstdev(self.psnrs)}
 
 
-def cpu_reference(runs: Path, profile: str, prefer: str = "") -> CpuReference:
+def cpu_reference(runs: Path, profile: str, prefer: tuple[str, ...] = ()) -> CpuReference:
     """Among the finished CPU runs under ``runs`` (one folder per seed, as regenerate-tables
-    writes them) at ``profile``: the trainer version (source digest) ``prefer`` where it has a
-    seed-0 run (the GPU run's own version), else the one with a seed-0 run and the most seeds.
-    Raises ValueError naming the folder when there is none."""
+    writes them) at ``profile``: the trainer version named in ``prefer`` where it has a seed-0 run
+    (the GPU run's own version), else the one with a seed-0 run and the most seeds. ``prefer``
+    may hold source digests and trainer-source fingerprints (``sources_sha256`` in harness.json):
+    the digest differs between Python versions, so a node whose Python is not the CPU runs' finds
+    its version by the fingerprint. Raises ValueError naming the folder when there is none."""
     groups: dict[str, dict[int, tuple[float, str]]] = {}
+    names: dict[str, set[str]] = {}
     for metrics_path in sorted(runs.glob("*/metrics.json")):
         doc = json.loads(metrics_path.read_text())
         config = json.loads((metrics_path.parent / "config.json").read_text())
@@ -70,10 +73,14 @@ def cpu_reference(runs: Path, profile: str, prefer: str = "") -> CpuReference:
         digest = doc["provenance"]["source_digest"]
         groups.setdefault(digest, {}).setdefault(int(doc["seed"]), (float(doc["metrics"]["psnr"]),
                                                                      metrics_path.parent.name))
+        harness = metrics_path.parent / "harness.json"
+        sources = json.loads(harness.read_text()).get("sources_sha256") if harness.is_file() else None
+        names.setdefault(digest, {digest}).update([sources] if sources else [])
     usable = {d: seeds for d, seeds in groups.items() if 0 in seeds}
     if not usable:
         raise ValueError(f"{runs}: no finished CPU run of seed 0 at profile {profile}")
-    digest = prefer if prefer in usable else max(sorted(usable), key=lambda d: len(usable[d]))
+    own = [d for d in sorted(usable) if names[d] & set(prefer)]
+    digest = own[0] if own else max(sorted(usable), key=lambda d: len(usable[d]))
     seeds = usable[digest]
     order = sorted(seeds)
     return CpuReference(str(runs), digest, order, [seeds[s][0] for s in order], seeds[0][0], seeds[0][1])
