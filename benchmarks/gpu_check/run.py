@@ -25,8 +25,8 @@ from packaging.tags import sys_tags
 from benchmarks.gpu_check.reference import cpu_reference, last_iterations, psnr_verdict, stage_rates
 from benchmarks.gpu_check.report import write_report
 from benchmarks.gpu_check.prebuilt import mismatches, read_record
-from benchmarks.gpu_check.steps import (FAILED, OK, SKIPPED, Budget, Running, StepResult, blocked, last_line,
-                                        run_command, start_command)
+from benchmarks.gpu_check.steps import (FAILED, OK, SKIPPED, Budget, Running, StepResult, blocked, run_command,
+                                        start_command)
 from benchmarks.gpu_check.wheels import check_folder
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -151,13 +151,16 @@ class Check:
         # The installed copy, not the checkout, and without Blender: what training needs. It prints
         # the installed trainer's source fingerprint, which finds the CPU runs of the same code.
         res = self.command("imports", [PY, "-c", "import sys, smokeseer.api, smokeseer.cli, smokeseer.raster, "
-                                                 "eval.shared_stage2; assert not {'bpy', 'pycolmap'} & set(sys.modules), "
-                                                 "'bpy or pycolmap imported'; from eval.harness import TRAINER_ENTRY; "
+                                                 "eval.shared_stage2; from eval.harness import TRAINER_ENTRY; "
                                                  "from eval.sources import sources_sha256; "
+                                                 "assert not {'bpy', 'pycolmap'} & set(sys.modules), "
+                                                 "'bpy or pycolmap imported'; "
                                                  "print('sources_sha256', sources_sha256(TRAINER_ENTRY))"],
                            30, ["install-project"], env=_env(self.site), cwd=self.work)
-        if res.status == OK:
-            self.node["trainer_sources_sha256"] = last_line(Path(res.log)).split()[-1]
+        printed = [ln.split()[1] for ln in Path(res.log).read_text().splitlines() if ln.startswith("sources_sha256 ")] \
+            if res.status == OK else []
+        if printed:
+            self.node["trainer_sources_sha256"] = printed[-1]
 
     def build(self) -> None:
         """gsplat's CUDA extension: the folder's prebuilt wheel where it was built for this node
