@@ -31,19 +31,23 @@ from eval.runs import RunSpec
 from smokeseer.config import make_config
 
 
-def stage2_keys(mode: str, profile: str, seed: int, overrides: dict) -> tuple[str, str]:
-    """The trainer's keys of a run's Stage-2 checkpoint and of its RGB Stage 2 (``stage2_rgb``,
-    trained where Stage 3 starts from two surfaces): RGB-only's Stage-2 key under the run's settings."""
-    return (make_config(mode, profile, seed, overrides).stage2_sha256(),
-            make_config("rgb-only", profile, seed, overrides).stage2_sha256())
+def stage2_sha_of(mode: str, profile: str, seed: int, overrides: dict) -> str:
+    """The trainer's key of a run's Stage-2 checkpoint."""
+    return make_config(mode, profile, seed, overrides).stage2_sha256()
+
+
+def rgb_stage2_sha_of(profile: str, seed: int, overrides: dict) -> str:
+    """The trainer's key of a run's RGB Stage 2 (``stage2_rgb``, trained where Stage 3 starts
+    from two surfaces): RGB-only's Stage-2 key under the run's settings."""
+    return stage2_sha_of("rgb-only", profile, seed, overrides)
 
 
 def stage2_sha(spec: RunSpec) -> str:
-    return stage2_keys(spec.mode, spec.profile, spec.seed, dict(spec.overrides))[0]
+    return stage2_sha_of(spec.mode, spec.profile, spec.seed, dict(spec.overrides))
 
 
 def rgb_stage2_sha(spec: RunSpec) -> str:
-    return stage2_keys(spec.mode, spec.profile, spec.seed, dict(spec.overrides))[1]
+    return rgb_stage2_sha_of(spec.profile, spec.seed, dict(spec.overrides))
 
 
 def stage2_key(spec: RunSpec) -> tuple[str, ...]:

@@ -7,12 +7,13 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from eval.shared_stage2 import stage2_keys, take_finished_stage2
+from eval.shared_stage2 import rgb_stage2_sha_of, stage2_sha_of, take_finished_stage2
 from smokeseer.config import parse_set_items
 
 if __name__ == "__main__":
     run, donor, mode, profile, seed, *items = sys.argv[1:]
-    sha, rgb_sha = stage2_keys(mode, profile, int(seed), parse_set_items(items))
+    overrides = parse_set_items(items)
+    sha, rgb_sha = stage2_sha_of(mode, profile, int(seed), overrides), rgb_stage2_sha_of(profile, int(seed), overrides)
     Path(run).mkdir(parents=True, exist_ok=True)
     if not take_finished_stage2(Path(run), [donor], sha, rgb_sha):
         print(f"take_stage2: error: {donor}: no finished Stage-2 checkpoint with these settings", file=sys.stderr)
