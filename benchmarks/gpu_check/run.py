@@ -157,10 +157,10 @@ class Check:
                                                  "'bpy or pycolmap imported'; "
                                                  "print('sources_sha256', sources_sha256(TRAINER_ENTRY))"],
                            30, ["install-project"], env=_env(self.site), cwd=self.work)
-        printed = [ln.split()[1] for ln in Path(res.log).read_text().splitlines() if ln.startswith("sources_sha256 ")] \
-            if res.status == OK else []
-        if printed:
-            self.node["trainer_sources_sha256"] = printed[-1]
+        if res.status == OK:
+            for line in Path(res.log).read_text().splitlines():
+                if line.startswith("sources_sha256 "):
+                    self.node["trainer_sources_sha256"] = line.split()[1]
 
     def build(self) -> None:
         """gsplat's CUDA extension: the folder's prebuilt wheel where it was built for this node
