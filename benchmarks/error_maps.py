@@ -5,7 +5,8 @@ one row per (run, test frame): where in the image a method loses to the input.
 
 `--without-smoke` drops the smoke column, for runs whose smoke renders were not kept (the table
 runs commit the surface renders only, data/README.md). The error panel is the mean absolute
-error over channels times 4 (white = 0.25 or more); the row title gives the frame's surface and input PSNR (8-bit images, as eval/regions.py reads them).
+error over channels times 4 (white = 0.25 or more); the row title gives the frame's surface and
+input PSNR (8-bit images, as eval/regions.py reads them).
 """
 from __future__ import annotations
 
@@ -34,7 +35,8 @@ def _rgb(path: Path) -> np.ndarray:
 
 
 def row_files(dataset: Path, run: Path, stem: str, smoke: bool) -> list[Path]:
-    """The images a row reads, in COLUMNS order up to the error panel (no smoke render unless `smoke`)."""
+    """The images a row reads, in COLUMNS order up to the error panel (no smoke render unless
+    `smoke`): what main checks before drawing and panels reads."""
     files = [dataset / "rgb" / "clean" / f"{stem}.png", dataset / "rgb" / "smoky" / f"{stem}.png",
              run / "renders" / "surface" / f"{stem}.png"]
     return files + ([run / "renders" / "smoke" / f"{stem}.png"] if smoke else [])
@@ -64,7 +66,7 @@ def main() -> None:
         parts = spec.split(":")
         if len(parts) != 3:
             sys.exit(f"error_maps.py: row {row!r}: expected LABEL=DATASET:RUN:STEM")
-        dataset, run, stem = (Path(parts[0]), Path(parts[1]), parts[2])
+        dataset, run, stem = Path(parts[0]), Path(parts[1]), parts[2]
         missing = [p for p in row_files(dataset, run, stem, not args.without_smoke) if not p.is_file()]
         if missing:
             hint = " (pass --without-smoke for runs whose smoke renders were not kept)" if missing[0].parent.name == "smoke" else ""
