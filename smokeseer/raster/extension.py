@@ -22,6 +22,8 @@ import time
 from pathlib import Path
 from types import ModuleType
 
+from contracts.float_setup import kernel_vector_flags
+
 CSRC = Path(__file__).resolve().parent / "csrc"
 SOURCES = [CSRC / "tile_raster.cpp", CSRC / "projection.cpp", CSRC / "sh_colors.cpp"]
 HEADERS = [CSRC / "projection.h", CSRC / "sh_colors.h"]
@@ -30,18 +32,14 @@ HEADERS = [CSRC / "projection.h", CSRC / "sh_colors.h"]
 # -fno-math-errno: sqrt/ceil inline as single instructions (the kernel never reads errno).
 BASE_CFLAGS = ["-O3", "-fopenmp", "-ffp-contract=off", "-fno-math-errno"]
 LDFLAGS = ["-fopenmp"]
-AVX2_FLAGS = ["-mavx2", "-mfma"]  # 8-wide float loops; used only where /proc/cpuinfo lists both
 
 
 def compiler_flags() -> list[str]:
-    """Base flags, plus AVX2/FMA when this machine's CPU has them (never -march=native, so a
-    build cache copied to an older CPU of the same family still runs; the cache key holds the flags)."""
-    try:
-        with open("/proc/cpuinfo") as f:
-            flags = next((line.split(":", 1)[1].split() for line in f if line.startswith("flags")), [])
-    except OSError:
-        flags = []
-    return BASE_CFLAGS + (AVX2_FLAGS if {"avx2", "fma"} <= set(flags) else [])
+    """Base flags, plus AVX2/FMA (8-wide float loops) when this machine's CPU has them
+    (``contracts.float_setup.kernel_vector_flags``: never -march=native, so a build cache copied to an
+    older CPU of the same family still runs, and AVX2 and AVX-512 machines build the same kernel; the
+    cache key holds the flags)."""
+    return BASE_CFLAGS + kernel_vector_flags()
 
 _lock = threading.Lock()
 _module: ModuleType | None = None

@@ -1,0 +1,138 @@
+"""The same runs under two float setups on one machine: this machine's default, and torch, oneDNN and
+MKL held to AVX2 (``contracts.float_setup.HELD_TO``), so that a result which hangs on the CPU's
+arithmetic shows up here, not only when a run moves to another machine.
+
+    python -m benchmarks.float_setup --out data/float_setup [--scenes house,room] [--datasets data/standard]
+        [--profile standard] [--seed 0] [--workers 2] [--default-from data/tables_standard]
+        [--csv benchmarks/results/float_setup/per_scene.csv]
+
+Each setup is one ``regenerate-tables`` call (Full at one seed, no ablations) in a process started
+with that setup's environment, into OUT/<setup> (the default side may reuse a tables folder that
+already holds those runs: ``--default-from``); both are resumable. The CSV has one row per scene:
+``scene, default_psnr, avx2_psnr``, the difference, both validation PSNRs and the float-setup line
+each side recorded. It refuses to compare when the two sides report the same torch capability (an
+AVX2 machine has nothing to compare) or trained different trainer versions.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+from contracts.atomic import write_rows_csv
+from contracts.float_setup import HELD_TO, ISA_VARIABLES
+from eval.finished_runs import finished_runs
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def setup_environment(setup: str, base: dict[str, str] | None = None) -> dict[str, str]:
+    """``base`` (this process's environment) with every ISA variable removed, then ``setup``'s set."""
+    env = {k: v for k, v in (os.environ if base is None else base).items() if k not in ISA_VARIABLES}
+    env.update(HELD_TO[setup])
+    return env
+
+
+def tables_command(scenes: list[str], datasets: Path, profile: str, seed: int, workers: int,
+                   out: Path) -> list[str]:
+    """The ``regenerate-tables`` call that trains Full on ``scenes`` at ``seed`` into ``out``."""
+    cmd = [sys.executable, "-m", "eval.harness_cli", "--profile", profile, "--workers", str(workers),
+           "--scenes", ",".join(scenes), "--methods", "full", "--seeds", f"{seed},", "--no-ablations",
+           "--out", str(out)]
+    for s in scenes:
+        cmd += ["--dataset", f"{s}={datasets / s}"]
+    return cmd
+
+
+def side(tables: Path, seed: int, scenes: list[str]) -> tuple[str, dict[str, tuple[Path, dict[str, Any]]]]:
+    """(trainer digest, {scene: (run folder, harness record)}) of the finished Full runs at ``seed``."""
+    digest, runs = finished_runs(tables, ["full"])
+    return digest, {rec["scene"]: (run, rec) for run, rec in runs if rec["seed"] == seed and rec["scene"] in scenes}
+
+
+def _validation_psnr(run: Path) -> float | None:
+    validation = json.loads((run / "metrics.json").read_text()).get("validation") or {}
+    value = validation.get("psnr")
+    return float(value) if value is not None else None
+
+
+def compare(default_tables: Path, avx2_tables: Path, seed: int, scenes: list[str]) -> list[dict[str, Any]]:
+    """One row per scene that finished on both sides; raises ValueError when the sides
+    are not comparable."""
+    d_digest, default = side(default_tables, seed, scenes)
+    a_digest, avx2 = side(avx2_tables, seed, scenes)
+    if d_digest != a_digest:
+        raise ValueError(f"{default_tables} holds trainer {d_digest[:8]} and {avx2_tables} trainer {a_digest[:8]}: "
+                         "train both sides with the same code")
+    rows = []
+    for scene in scenes:
+        if scene not in default or scene not in avx2:
+            continue
+        (d_run, d_rec), (a_run, a_rec) = default[scene], avx2[scene]
+        if _capability(d_rec["float_setup"]) == _capability(a_rec["float_setup"]):
+            raise ValueError(f"{scene}: both sides trained with torch's {_capability(d_rec['float_setup'])} kernels "
+                             "(on an AVX2 machine the default is AVX2: there is nothing to compare)")
+        dp, ap = float(d_rec["metrics"]["psnr"]), float(a_rec["metrics"]["psnr"])
+        rows.append({"scene": scene, "default_psnr": round(dp, 4), "avx2_psnr": round(ap, 4),
+                     "avx2_minus_default": round(ap - dp, 4), "default_val_psnr": _validation_psnr(d_run),
+                     "avx2_val_psnr": _validation_psnr(a_run), "default_float_setup": d_rec["float_setup"],
+                     "avx2_float_setup": a_rec["float_setup"]})
+    return rows
+
+
+def _capability(line: str) -> str:
+    """torch's CPU capability from a float-setup line ("... torch 2.13.0+cpu AVX512; ...")."""
+    part = next((p.strip() for p in line.split(";") if p.strip().startswith("torch ")), "")
+    return part.split()[-1] if part else "unknown"
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m benchmarks.float_setup", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--out", type=Path, required=True, help="OUT/default and OUT/avx2 hold the runs")
+    p.add_argument("--scenes", default="house,forest,food_plate,excavator,rover,chair,plant,brick_toy,machine,room")
+    p.add_argument("--datasets", type=Path, default=Path("data/standard"))
+    p.add_argument("--profile", default="standard")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--default-from", type=Path, help="a tables folder that holds (or will hold) the default side")
+    p.add_argument("--csv", type=Path, default=Path("benchmarks/results/float_setup/per_scene.csv"))
+    p.add_argument("--compare-only", action="store_true", help="train nothing; compare what has finished")
+    args = p.parse_args(argv)
+    scenes = [s for s in args.scenes.split(",") if s]
+    missing = [s for s in scenes if not (args.datasets / s / "dataset.json").is_file()]
+    if missing:
+        print(f"float_setup: error: {args.datasets}: no dataset for {', '.join(missing)}", file=sys.stderr)
+        return 2
+    folders = {"default": args.default_from or args.out / "default", "avx2": args.out / "avx2"}
+    if not args.compare_only:
+        for setup, tables in folders.items():
+            cmd = tables_command(scenes, args.datasets, args.profile, args.seed, args.workers, tables)
+            print(f"== float setup {setup}: {' '.join(f'{k}={v}' for k, v in HELD_TO[setup].items())} "
+                  f"{' '.join(cmd[1:])}", flush=True)
+            done = subprocess.run(cmd, cwd=ROOT, env=setup_environment(setup))
+            if done.returncode not in (0, 1):  # 1: tables written, some runs failed
+                return done.returncode
+    try:
+        rows = compare(folders["default"], folders["avx2"], args.seed, scenes)
+    except ValueError as exc:
+        print(f"float_setup: error: {exc}", file=sys.stderr)
+        return 2
+    if not rows:
+        print(f"float_setup: error: no scene of {', '.join(scenes)} has finished on both sides", file=sys.stderr)
+        return 2
+    args.csv.parent.mkdir(parents=True, exist_ok=True)
+    write_rows_csv(args.csv, rows)
+    for r in rows:
+        print(f"{r['scene']:<11} default {r['default_psnr']:6.2f}  avx2 {r['avx2_psnr']:6.2f}  "
+              f"difference {r['avx2_minus_default']:+.2f} dB")
+    print(f"wrote {args.csv} ({len(rows)} of {len(scenes)} scenes finished on both sides)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
