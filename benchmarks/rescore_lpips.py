@@ -4,8 +4,9 @@
                                        [--net alex] [--out benchmarks/results/standard/rescore_lpips]
 
 A run is re-scored from its `renders/surface/*.png` (8-bit, what the run folders keep) against the
-clean frames of the dataset its harness record names, loaded at the renders' width as the trainer
-loads them. The weights are the ones the trainer reads by default (`contracts.metrics.load_lpips`,
+clean frames of the dataset its harness record names (for the dehazing baseline, whose dehazed copy
+is not kept, the dataset it was made from: `ground_truth_dataset`), loaded at the renders' width as
+the trainer loads them; the CSV's `ground_truth` column names it. The weights are the ones the trainer reads by default (`contracts.metrics.load_lpips`,
 installed by `scripts/install.sh`). PSNR is scored from the same PNGs beside the recorded float
 PSNR: their gap is the PNG rounding, and a larger one would mean the clean frames are not the ones
 the run was scored against. The runs' own records are left as they are.
@@ -50,6 +51,25 @@ def weights_id(net: str) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()[:16] if path is not None else ""
 
 
+def ground_truth_dataset(run_dir: Path, rec: dict[str, Any]) -> Path:
+    """The dataset whose clean frames the run was scored against: the one its record names; for the
+    dehazing baseline, whose copy of the dataset the harness rebuilds and does not keep, the dataset
+    that copy was made from (it hard-links the clean frames), which the same scene's other runs in
+    the tables folder name. Anything else is an error naming the record."""
+    path = recorded_location(rec["dataset"])
+    if (path / "dataset.json").is_file():
+        return path
+    if "-dehazed-" in path.name:
+        named = {json.loads(h.read_text()).get("dataset", "") for h in run_dir.parents[1].glob("*/*/harness.json")}
+        sources = sorted(d for d in named if d and "-dehazed-" not in d
+                         and (recorded_location(d) / "dataset.json").is_file())
+        if len(sources) == 1:
+            return recorded_location(sources[0])
+        raise ValueError(f"dataset {rec['dataset']} (a dehazed copy) is not kept, and the scene's other runs name "
+                         f"{len(sources)} source datasets ({', '.join(sources) or 'none'}), not one")
+    raise ValueError(f"dataset {rec['dataset']}: no dataset.json there")
+
+
 def score_run(run_dir: Path, rec: dict[str, Any], scorer: Callable[[Any, Any], float],
               loaded: dict[tuple[str, int], GroundTruth]) -> dict[str, Any]:
     """LPIPS and PNG PSNR of one run's test renders, mean over its test views."""
@@ -63,12 +83,13 @@ def score_run(run_dir: Path, rec: dict[str, Any], scorer: Callable[[Any, Any], f
         raise ValueError(f"{run_dir / 'renders' / 'surface'}: no render for test views {', '.join(missing)}")
     pred = [image01(read_png(run_dir / "renders" / "surface" / f"{s}.png")) for s in stems]
     width = pred[0].shape[1]
-    key = (str(rec["dataset"]), width)
+    dataset = ground_truth_dataset(run_dir, rec)
+    key = (str(dataset), width)
     if key not in loaded:
-        loaded[key] = GroundTruth(load_scene(recorded_location(rec["dataset"]), max_width=width))
+        loaded[key] = GroundTruth(load_scene(dataset, max_width=width))
     gt = loaded[key].clean(stems)
     return {"scene": rec["scene"], "variant": rec["variant"], "seed": rec["seed"],
-            "run": recorded_path(run_dir), "views": len(stems),
+            "run": recorded_path(run_dir), "ground_truth": recorded_path(dataset), "views": len(stems),
             "lpips": float(np.mean([scorer(p, g) for p, g in zip(pred, gt)])),
             "psnr_png": float(np.mean([psnr(p, g) for p, g in zip(pred, gt)])),
             "psnr_recorded": metrics["metrics"]["psnr"],
