@@ -54,7 +54,7 @@ def _old_dataset(scene: str, rev: str, work: Path) -> Path:
 
 
 @dataclass
-class _GroundTruth:
+class GroundTruth:
     """One side's dataset, loaded once at one width; the smoky input's score is the same for
     every run on the same test views, so it is taken once per set of views."""
 
@@ -75,7 +75,7 @@ class _GroundTruth:
         return self.inputs[tuple(stems)]
 
 
-def _scores(pred: list[np.ndarray], truth: _GroundTruth, stems: list[str]) -> dict[str, float]:
+def _scores(pred: list[np.ndarray], truth: GroundTruth, stems: list[str]) -> dict[str, float]:
     gt = truth.clean(stems)
     return {"psnr": float(np.mean([psnr(p, g) for p, g in zip(pred, gt)])),
             "ssim": float(np.mean([ssim_3dgs(p, g) for p, g in zip(pred, gt)])),
@@ -84,7 +84,7 @@ def _scores(pred: list[np.ndarray], truth: _GroundTruth, stems: list[str]) -> di
 
 def rescore(rev: str, digest: str) -> list[dict[str, Any]]:
     rows: list[dict[str, Any]] = []
-    loaded: dict[tuple[str, str, int], _GroundTruth] = {}
+    loaded: dict[tuple[str, str, int], GroundTruth] = {}
     seen: set[Path] = set()
     with tempfile.TemporaryDirectory() as tmp:
         for tables, variants in dict.fromkeys(TABLES.values()):
@@ -105,7 +105,7 @@ def rescore(rev: str, digest: str) -> list[dict[str, Any]]:
                                    ("after", lambda: ROOT / "data" / "standard" / scene)):
                     key = (scene, side, width)
                     if key not in loaded:
-                        loaded[key] = _GroundTruth(load_scene(path(), max_width=width, all_ground_truth=True))
+                        loaded[key] = GroundTruth(load_scene(path(), max_width=width, all_ground_truth=True))
                     for name, value in _scores(pred, loaded[key], stems).items():
                         row[f"{name}_{side}"] = value
                 rows.append(row)
@@ -114,7 +114,7 @@ def rescore(rev: str, digest: str) -> list[dict[str, Any]]:
     return rows
 
 
-def _stat(rows: list[dict[str, Any]], key: str, digits: int = 2) -> str:
+def stat_text(rows: list[dict[str, Any]], key: str, digits: int = 2) -> str:
     by_seed: dict[int, list[float]] = {}
     for r in rows:
         by_seed.setdefault(int(r["seed"]), []).append(float(r[key]))
@@ -143,9 +143,9 @@ def report(rows: list[dict[str, Any]], rev: str, digest: str) -> str:
             if not rs:
                 continue
             move = np.mean([r["psnr_after"] - r["psnr_before"] for r in rs])
-            lines.append(f"| {variant_label(v)} | {len(rs)} | {_stat(rs, 'psnr_before')} | {_stat(rs, 'psnr_after')} "
-                         f"| {move:+.2f} | {_stat(rs, 'ssim_before', 3)} | {_stat(rs, 'ssim_after', 3)} "
-                         f"| {_stat(rs, 'psnr_input_before')} | {_stat(rs, 'psnr_input_after')} |")
+            lines.append(f"| {variant_label(v)} | {len(rs)} | {stat_text(rs, 'psnr_before')} | {stat_text(rs, 'psnr_after')} "
+                         f"| {move:+.2f} | {stat_text(rs, 'ssim_before', 3)} | {stat_text(rs, 'ssim_after', 3)} "
+                         f"| {stat_text(rs, 'psnr_input_before')} | {stat_text(rs, 'psnr_input_after')} |")
         lines.append("")
     t1 = [r for r in rows if r["tables"] == "data/tables_standard" and r["variant"] in METHODS]
     scenes = sorted({r["scene"] for r in t1})

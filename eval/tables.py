@@ -61,6 +61,8 @@ class Row:
     stage2_apart_by_seed: dict[int, tuple[int, int]] = field(default_factory=dict)
     """An ablation's trained runs whose Stage 2 ended apart from Full's of the same scene and seed,
     and how many were compared, per seed (``stage2_apart``)."""
+    lpips_runs: int = 0
+    """Finished runs with an LPIPS score (``lpips_coverage``)."""
 
 
 def seed_stat(values_by_seed: dict[int, list[float]]) -> Stat:
@@ -84,6 +86,22 @@ def _metric_values(results: Iterable[RunResult], metric: str) -> dict[int, list[
         if v is not None:
             out[r.seed].append(float(v))
     return out
+
+
+def lpips_coverage(results: Iterable[RunResult]) -> tuple[int, int]:
+    """(finished runs with an LPIPS score, finished runs). Runs trained before the weights were
+    installed, or on views too small for the network, have none; a mean over the scored ones alone
+    would be over other scenes than the other columns', so a partly scored group gets no LPIPS mean."""
+    ok = [r for r in results if r.status == "ok"]
+    return sum(r.metrics.get("lpips") is not None for r in ok), len(ok)
+
+
+def _stat_of(results: list[RunResult], metric: str) -> Stat:
+    if metric == "lpips":
+        scored, ok = lpips_coverage(results)
+        if 0 < scored < ok:
+            return Stat(None, None, 0)
+    return seed_stat(_metric_values(results, metric))
 
 
 def stage2_apart(results: list[RunResult]) -> dict[str, dict[int, tuple[int, int]]]:
@@ -122,12 +140,13 @@ def build_rows(results: list[RunResult], variants: list[str], metrics: Iterable[
         statuses = sorted({str(r.metrics.get("lpips_status", "")) for r in mine if r.status == "ok"} - {""})
         rows.append(Row(
             variant=key, label=variant_label(key),
-            stats={m: seed_stat(_metric_values(mine, m)) for m in metrics},
+            stats={m: _stat_of(mine, m) for m in metrics},
             paper=VARIANTS[key].paper if key in VARIANTS else {},
             runs_ok=sum(r.status == "ok" for r in mine),
             runs_failed=sum(r.status == "failed" for r in mine),
             runs_expected=len(scenes) * len(seeds),
             lpips_status="; ".join(statuses),
+            lpips_runs=lpips_coverage(mine)[0],
             runs_same_as=sum(bool(r.same_as) for r in mine if r.status == "ok"),
             same_as_reason="; ".join(sorted({r.same_as_reason for r in mine if r.same_as})),
             scenes_by_seed=dict(sorted(Counter(r.seed for r in mine if r.status == "ok").items())),
@@ -147,8 +166,11 @@ def format_stat(stat: Stat, digits: int, latex: bool = False) -> str:
 
 def _cell(row: Row, col: Column, latex: bool) -> str:
     stat = row.stats[col.metric]
-    if col.metric == "lpips" and stat.mean is None and row.lpips_status.startswith("skipped"):
-        return "skipped: no weights"
+    if col.metric == "lpips" and stat.mean is None:
+        if 0 < row.lpips_runs < row.runs_ok:
+            return f"partial: {row.lpips_runs}/{row.runs_ok} runs"
+        if row.lpips_status.startswith("skipped"):
+            return "skipped: no weights"
     return format_stat(stat, col.digits, latex)
 
 
@@ -192,6 +214,11 @@ def _footnotes(rows: list[Row], n_scenes: int, n_finished: int, devices: dict[st
             per_seed = ", ".join(f"seed {k}: {n}" for k, n in r.scenes_by_seed.items())
             notes.append(f"{r.label}: its seeds are means over different numbers of scenes ({per_seed}), so its ± "
                          "mixes the spread between scenes with the spread between seeds; per_scene.csv has each scene.")
+        if 0 < r.lpips_runs < r.runs_ok:
+            notes.append(f"{r.label}: LPIPS was scored in {r.lpips_runs} of its {r.runs_ok} runs (the others were "
+                         "trained before the weights were installed, or their views are too small); a mean over the "
+                         "scored ones alone would be over other scenes, so none is shown. "
+                         "benchmarks/rescore_lpips.py scores the others from their saved renders.")
         if r.runs_same_as:
             notes.append(f"{r.label}: {r.runs_same_as} of its {r.runs_ok} runs are Full's of the same scene and "
                          f"seed, not trained: {r.same_as_reason}.")
@@ -290,7 +317,7 @@ def _write_per_scene(results: list[RunResult], path: Path) -> Path:
             for key in sorted({r.variant for r in results if r.scene == scene}):
                 mine = [r for r in results if r.scene == scene and r.variant == key]
                 for m in metrics:
-                    s = seed_stat(_metric_values(mine, m))
+                    s = _stat_of(mine, m)
                     w.writerow([scene, key, m, "" if s.mean is None else s.mean,
                                 "" if s.std is None else s.std, s.n_seeds,
                                 sum(r.status == "failed" for r in mine)])

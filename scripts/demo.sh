@@ -13,7 +13,7 @@ python - "$OUT/train" <<'EOF'
 import json, sys
 run = sys.argv[1]
 m = json.load(open(f"{run}/metrics.json"))["metrics"]
-lpips = m["lpips"] if m["lpips"] is not None else m["lpips_status"]
+lpips = f"{m['lpips']:.3f}" if m["lpips"] is not None else m["lpips_status"]
 print(f"de-smoked test views vs clean ground truth: PSNR {m['psnr']:.2f} dB (smoky input {m['psnr_input']:.2f} dB), "
       f"SSIM {m['ssim']:.3f}, LPIPS {lpips}")
 print(f"one figure per test view (smoky input | thermal | de-smoked render | clean truth): {run}/figures")

