@@ -13,6 +13,7 @@ python -m pip install --quiet --upgrade pip wheel setuptools
 # that depends on torch, so no resolver pulls a multi-GB CUDA build.
 python -m pip install --quiet "torch==2.13.0" "numpy>=1.26,<2"
 python -m pip install --quiet -e ".[test]"
-# Compile the CPU rasterizer kernel now (g++ via torch.utils.cpp_extension, about a minute, cached
-# under ~/.cache/torch_extensions or $TORCH_EXTENSIONS_DIR), so the first training run does not.
-python -c "from smokeseer.raster.extension import load_kernel; load_kernel()"
+# Compile the CPU kernels now (the rasterizer and the plane-field lookups of deform.kind=planes;
+# g++ via torch.utils.cpp_extension, about a minute each, cached under ~/.cache/torch_extensions
+# or $TORCH_EXTENSIONS_DIR), so the first training run does not.
+python -c "from smokeseer.raster.extension import PLANE_FEATURES, load_kernel; load_kernel(); load_kernel(PLANE_FEATURES)"

@@ -798,7 +798,7 @@ def test_fourier_motion_is_refused_for_the_deformable_baseline_and_checked() -> 
     from smokeseer.config import make_config
     with pytest.raises(ValueError, match="deform.kind: the deformable-3dgs baseline is the MLP"):
         make_config("deformable-3dgs", overrides={"deform.kind": "fourier"})
-    with pytest.raises(ValueError, match="deform.kind: 'spline' is not one of mlp, fourier"):
+    with pytest.raises(ValueError, match="deform.kind: 'spline' is not one of mlp, fourier, planes"):
         make_config(overrides={"deform.kind": "spline"})
     with pytest.raises(ValueError, match="deform.fourier_terms: must be at least 1"):
         make_config(overrides={"deform.kind": "fourier", "deform.fourier_terms": 0})
