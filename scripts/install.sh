@@ -16,4 +16,4 @@ python -m pip install --quiet -e ".[test]"
 # Compile the CPU kernels now (the rasterizer and the plane-field lookups of deform.kind=planes;
 # g++ via torch.utils.cpp_extension, about a minute each, cached under ~/.cache/torch_extensions
 # or $TORCH_EXTENSIONS_DIR), so the first training run does not.
-python -c "from smokeseer.raster.extension import PLANE_FEATURES, load_kernel; load_kernel(); load_kernel(PLANE_FEATURES)"
+python -c "from smokeseer.model.planes import PLANE_FEATURES, load_kernel; load_kernel(); load_kernel(PLANE_FEATURES)"

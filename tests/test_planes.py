@@ -121,7 +121,7 @@ def test_smoothness_terms_are_zero_on_constant_planes_and_checked() -> None:
         p.data.fill_(0.3)
     for p in field.time:
         p.data.fill_(1.0)
-    assert [float(v) for v in field.smoothness()] == [0.0, 0.0]
+    assert [float(v.detach()) for v in field.smoothness()] == [0.0, 0.0]
 
 
 @pytest.mark.parametrize("key, value, message", [

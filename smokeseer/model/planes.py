@@ -10,13 +10,20 @@ about ten times as long, most of it in its backward scatter; on other devices th
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
 from smokeseer.config import DeformConfig
 from smokeseer.model.deform import Encoded, Offsets, split_offsets
-from smokeseer.raster.extension import PLANE_FEATURES, load_kernel
+from smokeseer.raster.extension import Kernel, load_kernel
+
+PLANE_FEATURES = Kernel("smokeseer_plane_features", "the CPU plane-field lookups",
+                        (Path(__file__).resolve().parent / "csrc" / "plane_features.cpp",), (),
+                        "or set deform.kind to mlp or fourier")
+"""The compiled lookups, built as the rasterizer is (``scripts/install.sh`` builds both)."""
 
 SPACE_PAIRS = [[0, 1], [0, 2], [1, 2]]
 """The coordinates of the (x,y), (x,z) and (y,z) planes, in grid order (along W, along H)."""

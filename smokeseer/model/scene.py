@@ -5,8 +5,9 @@ Surface tensors: ``means quats log_scales opacity`` (one opacity for both modali
 Smoke tensors: ``means quats log_scales opacity_rgb opacity_thermal color thermal`` plus the
 temporal-opacity parameters ``t_lo t_hi t_log_sigma``, and with ``deform.kind=fourier`` the
 coefficients ``motion_*``; smoke lives in a canonical space moved by a motion field (the
-deformation MLP or the plane field) or by those coefficients. A renderer call takes any subset of the two sets, so the composite, the
-surface-only prediction and smoke-only views all come from the same code path.
+deformation MLP or the plane field) or by those coefficients. A renderer call takes any subset of
+the two sets, so the composite, the surface-only prediction and smoke-only views all come from
+the same code path.
 """
 from __future__ import annotations
 

@@ -1,5 +1,6 @@
-"""Builds (once) and loads the compiled CPU kernels with torch.utils.cpp_extension: the tile
-rasterizer, and the plane-field lookups of ``deform.kind=planes`` (``PLANE_FEATURES``).
+"""Builds (once) and loads compiled CPU kernels with torch.utils.cpp_extension: the tile
+rasterizer (``TILE_RASTER``), and any other ``Kernel`` (the plane field's lookups,
+``smokeseer.model.planes.PLANE_FEATURES``).
 
 The build directory is keyed by a hash of the source, the flags and the torch installation it
 links against, so an edited kernel is rebuilt, an unchanged one loads in milliseconds, and two
@@ -43,9 +44,6 @@ TILE_RASTER = Kernel("smokeseer_tile_raster", "the CPU tile rasterizer",
                      (CSRC / "tile_raster.cpp", CSRC / "projection.cpp", CSRC / "sh_colors.cpp"),
                      (CSRC / "projection.h", CSRC / "sh_colors.h"),
                      "or pass backend='torch' explicitly to use the slow reference backend")
-PLANE_FEATURES = Kernel("smokeseer_plane_features", "the CPU plane-field lookups",
-                        (CSRC.parent.parent / "model" / "csrc" / "plane_features.cpp",), (),
-                        "or set deform.kind to mlp or fourier")
 # -ffp-contract=off: forward and backward recompute alpha with the same rounding (no FMA fusion
 # that could differ between the two call sites), so both passes agree on which pairs are skipped.
 # -fno-math-errno: sqrt/ceil inline as single instructions (the kernel never reads errno).

@@ -111,7 +111,8 @@ class Stage3Problem(StageProblem):
                  heldout_psnr: HeldoutPsnr | None) -> None:
         cfg, dev = ctx.cfg, ctx.device
         self.ctx, self.cfg, self.model, self.prior, self.heldout_fn = ctx, cfg, model, prior, heldout_psnr
-        self.weights = {**plan.weights, "planes_tv": cfg.deform.planes_tv, "planes_time": cfg.deform.planes_time_smoothness}
+        self.weights = {**plan.weights, "planes_tv": cfg.deform.planes_tv,
+                        "planes_time": cfg.deform.planes_time_smoothness}
         self._make_optimizers()
         self.strategy = DensifyStrategy(cfg.stage3.smoke_densify, cfg.stage3.iterations, ("opacity_rgb", "opacity_thermal"),
                                         ctx.extent)
