@@ -13,9 +13,8 @@ from smokeseer.cli import main
 from smokeseer.config import DeformConfig, make_config
 from smokeseer.model.planes import (PlaneField, plane_product, plane_product_reference, time_curvature,
                                     total_variation)
-from smokeseer.train.stage3 import Stage3Problem
 from tests.test_smokeseer_data import write_splat_dataset
-from tests.test_trainer import TINY, _Interrupted
+from tests.test_trainer import TINY, run_stopped_and_resumed
 
 SMALL = DeformConfig(kind="planes", planes_resolution=3, planes_levels=2, planes_time_resolution=3,
                      planes_features=2, planes_head_width=4, predict_rotation_scale=True)
@@ -159,19 +158,8 @@ def test_planes_run_stops_and_resumes_to_the_same_model(tmp_path: Path, monkeypa
     assert {"lo", "hi", "space.0", "space.1", "time.0", "time.1", "head.weight"} <= set(state["deform"])
     assert [g["lr_scale"] for g in state["deform_optimizer"]["param_groups"]] == [10.0, 1.0]
     assert state["deform"]["head.weight"].abs().max() > 0
-    forward = Stage3Problem.forward
-
-    def stopping(self: Stage3Problem, it: int):
-        if it == 8:
-            raise _Interrupted
-        return forward(self, it)
-
     run = tmp_path / "stopped"
-    monkeypatch.setattr(Stage3Problem, "forward", stopping)
-    with pytest.raises(_Interrupted):
-        main([str(splat), "--out", str(run)] + args)
-    monkeypatch.setattr(Stage3Problem, "forward", forward)
-    assert main([str(splat), "--out", str(run)] + args) == 0
+    run_stopped_and_resumed(splat, run, args, 8, monkeypatch)
     plys = sorted((tmp_path / "whole" / "ply").glob("smoke_t*.ply"))
     assert len(plys) >= 2 and plys[0].read_bytes() != plys[-1].read_bytes()
     for ply in plys:
