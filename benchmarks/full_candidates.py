@@ -122,7 +122,7 @@ def plot(curves: list[dict], path: Path) -> None:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("name")
-    p.add_argument("runs", nargs="+", help="LABEL=RUN_DIR")
+    p.add_argument("runs", nargs="+", help="LABEL=RUN_DIR (split at the last =)")
     p.add_argument("--tables", type=Path, default=Path("data/tables_standard"))
     p.add_argument("--add", action="store_true", help="keep the existing rows the given runs do not replace")
     p.add_argument("--take", action="append", default=[], metavar="TABLE:LABEL",
@@ -132,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         given = []
         for item in args.runs:
-            label, sep, run = item.partition("=")
+            label, sep, run = item.rpartition("=")  # a label may hold "=" (settings); the folder not
             if not sep or not label or not run:
                 raise ValueError(f"{item}: give LABEL=RUN_DIR")
             given.append((label, Path(run)))

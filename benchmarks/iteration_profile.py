@@ -8,7 +8,7 @@ Gaussian counts of a finished standard run.
 
 ``--set`` profiles a variant of the standard settings (its column is named mode + overrides); a
 Fourier variant started from a network-trained state gets zero coefficients with fresh moments,
-a network of another shape starts fresh.
+a network of another shape, or the plane field (``deform.kind=planes``), starts fresh.
 ``--counts-from`` takes the Gaussian counts from any finished run instead of the committed one.
 
 A standard run takes 20-40 min of one thread, so each scene and mode is profiled in three steps:
@@ -376,8 +376,9 @@ def profile_case(dataset: Path, mode: str, counts: Counts, tmp: Path, fraction: 
         sizes = (model.surface.n, model.smoke.n if model.smoke is not None else 0, *loaded)
         model.render_rgb = labelled(model.render_rgb, "rgb pass")
         model.render_thermal = labelled(model.render_thermal, "thermal pass")
-        if model.deform is not None:
-            model.deform.forward = labelled(model.deform.forward, "deformation")
+        if model.deform is not None:  # encode once and decode per time with deform.shared_position
+            for name in ("forward", "encode", "decode"):
+                setattr(model.deform, name, labelled(getattr(model.deform, name), "deformation"))
         for strategy in (problem.strategy, problem.surface_strategy):
             if strategy is not None:
                 strategy.step = labelled(strategy.step, "densify step")

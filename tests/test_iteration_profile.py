@@ -182,3 +182,24 @@ def test_deformation_tradeoff_averages_seeds_and_keeps_one_commit_per_scene() ->
     assert rows["estimated-floor"]["val_psnr_mean"] == 13.0 and rows["estimated-floor"]["val_psnr_std"] == pytest.approx(1.414, abs=1e-3)
     assert rows["estimated-floor"]["stage3_min"] == 15.0 and rows["fourier"]["stage3_min"] == 7.5
     assert rows["fourier, 6000"]["stage3_min"] == 15.0 and rows["fourier, 6000"]["val_psnr_std"] == ""
+
+
+def test_deformation_tradeoff_reads_trainers_named_by_their_settings() -> None:
+    """A trainer labelled by its --set words finds the iteration_profile column of those words
+    (the iteration count left out of the column, used for the minutes); the summary gives each
+    trainer's mean and worst validation difference from the network and its share of the time."""
+    from benchmarks.deformation_tradeoff import profiled, summary_rows, tradeoff_rows
+    planes = "deform.kind=planes deform.planes_levels=1"
+    assert profiled(planes) == ("full deform.kind=planes deform.planes_levels=1", 3000)
+    assert profiled(planes + " stage3.iterations=6000") == ("full deform.kind=planes deform.planes_levels=1", 6000)
+    assert profiled("fourier") == ("full deform.kind=fourier", 3000) and profiled("width 48") is None
+    final = [{"scene": s, "seed": 0, "trainer": t, "val_psnr": v} for s, t, v in
+             (("a", "estimated-floor", 20.0), ("a", planes, 19.9), ("b", "estimated-floor", 15.0), ("b", planes, 15.3))]
+    costs = {(s, c): (ms, "c1") for s in "ab" for c, ms in (("full", 300.0), ("full " + planes, 120.0))}
+    rows = tradeoff_rows(final, costs)
+    assert {r["stage3_min"] for r in rows if r["trainer"] == planes} == {6.0}
+    (summary,) = summary_rows(rows)
+    assert summary["trainer"] == planes and summary["scenes"] == 2
+    assert summary["mean_val_psnr_minus_baseline"] == pytest.approx(0.1, abs=1e-9)
+    assert (summary["worst_scene"], summary["worst_val_psnr_minus_baseline"]) == ("a", pytest.approx(-0.1, abs=1e-9))
+    assert summary["stage3_time_over_baseline"] == 0.4

@@ -129,15 +129,18 @@ def test_cpu_backend_rejects_other_devices_by_name() -> None:
         rasterize(*scene, backend="cpu")
 
 
-def test_failed_build_is_one_clear_error(tmp_path: Path) -> None:
+@pytest.mark.parametrize("module, kernel, what", [
+    ("smokeseer.raster.extension", "TILE_RASTER", "the CPU tile rasterizer"),
+    ("smokeseer.model.planes", "PLANE_FEATURES", "the CPU plane-field lookups")])
+def test_failed_build_is_one_clear_error(tmp_path: Path, module: str, kernel: str, what: str) -> None:
     """A broken compiler stops with KernelBuildError naming it; nothing falls back to torch."""
     env = {**os.environ, "CXX": "/bin/false", "TORCH_EXTENSIONS_DIR": str(tmp_path)}
-    code = "from smokeseer.raster.extension import load_kernel; load_kernel()"
+    code = f"from {module} import load_kernel, {kernel}; load_kernel({kernel})"
     proc = subprocess.run([sys.executable, "-c", code], env=env, cwd=ROOT, capture_output=True, text=True,
                           timeout=300, check=False)
     assert proc.returncode != 0
     last = proc.stderr.strip().splitlines()[-1]
-    assert "KernelBuildError" in last and "could not build the CPU tile rasterizer" in last, proc.stderr[-2000:]
+    assert "KernelBuildError" in last and f"could not build {what}" in last, proc.stderr[-2000:]
     assert "/bin/false" in last
 
 

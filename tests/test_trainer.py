@@ -214,13 +214,10 @@ class _Interrupted(Exception):
     """Stands for a killed process: raised inside Stage 3, caught by the test."""
 
 
-@pytest.mark.parametrize("stop_at", [1, 8])
-def test_interrupted_run_resumes_to_the_same_model(splat: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-                                                   stop_at: int) -> None:
-    """A run stopped in Stage 3 and started again ends with the same bytes as one that never
-    stopped: at iteration 1 it restarts Stage 3 from the finished Stage 2, at 8 from the Stage 3
-    checkpoint of iteration 6. Both need the view-drawing RNG's state in the checkpoint."""
-    assert main([str(splat), "--out", str(tmp_path / "whole")] + TINY) == 0
+def run_stopped_and_resumed(dataset: Path, run: Path, args: list[str], stop_at: int,
+                            monkeypatch: pytest.MonkeyPatch) -> None:
+    """Train ``dataset`` into ``run``, stopped (``_Interrupted``) at Stage-3 iteration ``stop_at``,
+    then started again to the end."""
     forward = Stage3Problem.forward
 
     def stopping(self: Stage3Problem, it: int):
@@ -228,12 +225,22 @@ def test_interrupted_run_resumes_to_the_same_model(splat: Path, tmp_path: Path, 
             raise _Interrupted
         return forward(self, it)
 
-    run = tmp_path / "stopped"
     monkeypatch.setattr(Stage3Problem, "forward", stopping)
     with pytest.raises(_Interrupted):
-        main([str(splat), "--out", str(run)] + TINY)
+        main([str(dataset), "--out", str(run)] + args)
     monkeypatch.setattr(Stage3Problem, "forward", forward)
-    assert main([str(splat), "--out", str(run)] + TINY) == 0
+    assert main([str(dataset), "--out", str(run)] + args) == 0
+
+
+@pytest.mark.parametrize("stop_at", [1, 8])
+def test_interrupted_run_resumes_to_the_same_model(splat: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                   stop_at: int) -> None:
+    """A run stopped in Stage 3 and started again ends with the same bytes as one that never
+    stopped: at iteration 1 it restarts Stage 3 from the finished Stage 2, at 8 from the Stage 3
+    checkpoint of iteration 6. Both need the view-drawing RNG's state in the checkpoint."""
+    assert main([str(splat), "--out", str(tmp_path / "whole")] + TINY) == 0
+    run = tmp_path / "stopped"
+    run_stopped_and_resumed(splat, run, TINY, stop_at, monkeypatch)
     assert (run / "ply" / "surface.ply").read_bytes() == (tmp_path / "whole" / "ply" / "surface.ply").read_bytes()
     whole = json.loads((tmp_path / "whole" / "metrics.json").read_text())["metrics"]["psnr"]
     assert json.loads((run / "metrics.json").read_text())["metrics"]["psnr"] == whole
@@ -798,7 +805,7 @@ def test_fourier_motion_is_refused_for_the_deformable_baseline_and_checked() -> 
     from smokeseer.config import make_config
     with pytest.raises(ValueError, match="deform.kind: the deformable-3dgs baseline is the MLP"):
         make_config("deformable-3dgs", overrides={"deform.kind": "fourier"})
-    with pytest.raises(ValueError, match="deform.kind: 'spline' is not one of mlp, fourier"):
+    with pytest.raises(ValueError, match="deform.kind: 'spline' is not one of mlp, fourier, planes"):
         make_config(overrides={"deform.kind": "spline"})
     with pytest.raises(ValueError, match="deform.fourier_terms: must be at least 1"):
         make_config(overrides={"deform.kind": "fourier", "deform.fourier_terms": 0})

@@ -30,7 +30,7 @@ SMOKE_COLOR_SOURCES: tuple[str, ...] = ("learned", "haze-lines")
 SURFACE_INITS: tuple[str, ...] = ("thermal", "by-smoke-colour")
 POSE_SOURCES: tuple[str, ...] = ("given", "sfm")
 MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "estimated-meeting")
-DEFORM_KINDS: tuple[str, ...] = ("mlp", "fourier")
+DEFORM_KINDS: tuple[str, ...] = ("mlp", "fourier", "planes")
 LPIPS_NETS: tuple[str, ...] = ("alex", "vgg")
 
 
@@ -78,10 +78,44 @@ class DeformConfig:
     lr_final: float = 1.6e-6
     predict_rotation_scale: bool = False  # smoke offsets in rotation and log-scale too (the paper)
     kind: str = "mlp"
-    """How the smoke moves: ``mlp`` (the paper's network on position and time) or ``fourier``
+    """How the smoke moves: ``mlp`` (the paper's network on position and time), ``fourier``
     (each smoke Gaussian's own offsets, a linear term plus ``fourier_terms`` sine and cosine
-    pairs in time; no network). The deformable-3dgs baseline is the MLP by definition."""
+    pairs in time; no network) or ``planes`` (a factorised space-time feature field, six planes
+    over (x,y), (x,z), (y,z), (x,t), (y,t), (z,t), read bilinearly and decoded by a small head;
+    the ``planes_*`` settings). The deformable-3dgs baseline is the MLP by definition."""
     fourier_terms: int = 4
+    planes_resolution: int = 32
+    """kind=planes: cells along each spatial axis of the coarsest level's planes."""
+    planes_levels: int = 2
+    """kind=planes: levels of planes, each twice the spatial resolution of the one before (the
+    time resolution is the same at every level); their features are concatenated."""
+    planes_time_resolution: int = 16
+    """kind=planes: cells along the time axis of the (x,t), (y,t), (z,t) planes."""
+    planes_features: int = 16
+    """kind=planes: features per plane and level."""
+    planes_head_width: int = 64
+    """kind=planes: the width of the head's one hidden layer (features → width → offsets)."""
+    planes_margin: float = 0.1
+    """kind=planes: the planes span the smoke's starting points' bounding box grown by this
+    share of its size on every side; a point outside reads the border (clamped)."""
+    planes_lr_scale: float = 10.0
+    """kind=planes: the planes learn at this multiple of the head's rate (4DGS's ratio)."""
+    planes_tv: float = 2e-4
+    """kind=planes: Stage-3 weight of the planes' total variation (mean squared difference of
+    neighbouring cells, every plane, both axes; 4DGS's weight)."""
+    planes_time_smoothness: float = 1e-3
+    """kind=planes: Stage-3 weight of the space-time planes' squared second difference along
+    time (K-Planes' temporal smoothness; 4DGS's weight)."""
+    shared_position: bool = True
+    """Stage 3 evaluates the smoke's motion at the RGB frame's time and at the thermal frame's:
+    compute the time-independent part once for both (the MLP's first and skip layers' products
+    with γ(x), the planes' spatial lookups). Exact: the same offsets up to float rounding."""
+    view_cull: bool = False
+    """Stage 3 deforms only the smoke Gaussians near each rendered view's frustum (within
+    ``view_cull_margin`` × the scene extent plus 4σ); the others keep zero offset. Exact where
+    every skipped Gaussian's offset is under the margin; training renders only (evaluation
+    deforms every Gaussian). Not for kind=fourier, whose offsets cost a few multiply-adds."""
+    view_cull_margin: float = 0.05
 
     @property
     def fourier_lr_scale(self) -> float:
@@ -89,6 +123,30 @@ class DeformConfig:
         moves every coefficient by about its rate, so an offset would otherwise move several
         times faster than the Gaussian's own parameter."""
         return 1.0 / (1 + 2 * self.fourier_terms)
+
+
+PLANES_MAX_RESOLUTION = 1024
+"""The finest plane's cells per axis, and the time cells, refused above this: 1024² cells × 16
+features are 64 MiB per plane."""
+
+
+def check_motion_field(d: DeformConfig) -> None:
+    """The planes' sizes and weights, and the cuts, each refused with one line naming it."""
+    for name, least in (("planes_resolution", 2), ("planes_time_resolution", 2), ("planes_levels", 1),
+                        ("planes_features", 1), ("planes_head_width", 1)):
+        if getattr(d, name) < least:
+            raise ValueError(f"deform.{name}: must be at least {least}, got {getattr(d, name)}")
+    finest = d.planes_resolution * 2 ** (d.planes_levels - 1)
+    if max(finest, d.planes_time_resolution) > PLANES_MAX_RESOLUTION:
+        raise ValueError(f"deform.planes_resolution: the finest level has {finest} cells per axis and time "
+                         f"{d.planes_time_resolution}; at most {PLANES_MAX_RESOLUTION} each")
+    for name in ("planes_margin", "planes_tv", "planes_time_smoothness", "view_cull_margin"):
+        if not 0.0 <= getattr(d, name) < float("inf"):
+            raise ValueError(f"deform.{name}: must be a number >= 0, got {getattr(d, name)}")
+    if not 0.0 < d.planes_lr_scale < float("inf"):
+        raise ValueError(f"deform.planes_lr_scale: must be a number > 0, got {d.planes_lr_scale}")
+    if d.view_cull and d.kind == "fourier":
+        raise ValueError("deform.view_cull: culls a motion field (mlp or planes); kind=fourier has none")
 
 
 def at_iteration(fraction: float, iterations: int) -> int:
@@ -366,6 +424,7 @@ class TrainConfig:
             raise ValueError("deform.kind: the deformable-3dgs baseline is the MLP by definition; use mlp")
         if self.deform.fourier_terms < 1:
             raise ValueError(f"deform.fourier_terms: must be at least 1, got {self.deform.fourier_terms}")
+        check_motion_field(self.deform)
         if self.lpips_net not in LPIPS_NETS:
             raise ValueError(f"lpips_net: {self.lpips_net!r} is not one of {', '.join(LPIPS_NETS)}")
         for t in self.smoke_ply_times:

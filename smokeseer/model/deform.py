@@ -1,5 +1,10 @@
-"""Smoke motion: the Deformable-3DGS deformation MLP or per-Gaussian Fourier trajectories, and
-SmokeSeer's bimodal temporal opacity."""
+"""Smoke motion: the Deformable-3DGS deformation MLP or per-Gaussian Fourier trajectories (the
+plane field is ``smokeseer.model.planes``), and SmokeSeer's bimodal temporal opacity.
+
+The two fields share one interface: ``field(means, t, center)`` gives the offsets at time ``t``,
+and ``field.decode(field.encode(means, center), t)`` gives the same offsets with the part that does
+not depend on time (``encode``) computed once for any number of times: Stage 3 evaluates the smoke
+at the RGB frame's time and at the thermal frame's (``deform.shared_position``)."""
 from __future__ import annotations
 
 import math
@@ -10,6 +15,11 @@ from torch import Tensor, nn
 
 from smokeseer.config import DeformConfig
 
+Offsets = tuple[Tensor, Tensor | None, Tensor | None]
+"""Position offsets (scene units), and quaternion and log-scale offsets where the head predicts them."""
+Encoded = tuple[Tensor, ...]
+"""A field's time-independent part, one row per Gaussian in every tensor (``rows`` selects alike)."""
+
 
 def positional_encoding(x: Tensor, frequencies: int) -> Tensor:
     """NeRF encoding [x, sin(2^k π x), cos(2^k π x)] for k < frequencies."""
@@ -18,6 +28,14 @@ def positional_encoding(x: Tensor, frequencies: int) -> Tensor:
     freqs = (2.0 ** torch.arange(frequencies, dtype=x.dtype, device=x.device)) * math.pi
     xb = x[..., None] * freqs
     return torch.cat([x, torch.sin(xb).flatten(-2), torch.cos(xb).flatten(-2)], dim=-1)
+
+
+def split_offsets(out: Tensor, position_scale: float, full: bool) -> Offsets:
+    """A head's output as (Δx in scene units, Δrotation, Δlog-scale); the last two only for ``full``."""
+    d_xyz = out[:, :3] * position_scale
+    if not full:
+        return d_xyz, None, None
+    return d_xyz, out[:, 3:7], out[:, 7:10]
 
 
 class DeformNetwork(nn.Module):
@@ -31,9 +49,9 @@ class DeformNetwork(nn.Module):
         super().__init__()
         self.cfg = cfg
         self.position_scale = position_scale
-        in_x = 3 * (1 + 2 * cfg.xyz_frequencies)
+        self.in_x = 3 * (1 + 2 * cfg.xyz_frequencies)
         in_t = 1 + 2 * cfg.t_frequencies
-        self.in_dim = in_x + in_t
+        self.in_dim = self.in_x + in_t
         layers = []
         for i in range(cfg.depth):
             d_in = self.in_dim if i == 0 else cfg.width
@@ -46,25 +64,62 @@ class DeformNetwork(nn.Module):
         nn.init.zeros_(self.head.weight)
         nn.init.zeros_(self.head.bias)
 
-    def forward(self, means: Tensor, t: float, center: Tensor) -> tuple[Tensor, Tensor | None, Tensor | None]:
-        """Offsets for ``means`` at normalised time ``t``. Positions are encoded relative to the
-        scene centre in units of the scene extent so the frequencies mean the same in any scene.
-        The network sees detached canonical positions, as in Deformable 3DGS: the canonical means
-        learn only through the offset they receive, not through the network's input."""
-        x = (means.detach() - center) / self.position_scale
-        tt = torch.full((means.shape[0], 1), float(t), dtype=means.dtype, device=means.device)
-        inp = torch.cat([positional_encoding(x, self.cfg.xyz_frequencies),
-                         positional_encoding(tt, self.cfg.t_frequencies)], dim=-1)
+    def _inputs(self, means: Tensor, center: Tensor) -> Tensor:
+        """γ of the positions relative to the scene centre in units of the scene extent, so the
+        frequencies mean the same in any scene. Detached canonical positions, as in Deformable
+        3DGS: the canonical means learn only through the offset they receive, not through the
+        network's input."""
+        return positional_encoding((means.detach() - center) / self.position_scale, self.cfg.xyz_frequencies)
+
+    def _time(self, t: float, like: Tensor) -> Tensor:
+        return positional_encoding(like.new_full((1, 1), float(t)), self.cfg.t_frequencies)
+
+    def forward(self, means: Tensor, t: float, center: Tensor) -> Offsets:
+        """Offsets for ``means`` at normalised time ``t``."""
+        gx = self._inputs(means, center)
+        inp = torch.cat([gx, self._time(t, gx).expand(means.shape[0], -1)], dim=-1)
         h = inp
         for i, layer in enumerate(self.layers):
             if i == self.cfg.skip_layer:
                 h = torch.cat([inp, h], dim=-1)
             h = torch.relu_(layer(h))  # in place: the layer's output is not kept for its backward
-        out = self.head(h)
-        d_xyz = out[:, :3] * self.position_scale
-        if not self.cfg.predict_rotation_scale:
-            return d_xyz, None, None
-        return d_xyz, out[:, 3:7], out[:, 7:10]
+        return split_offsets(self.head(h), self.position_scale, self.cfg.predict_rotation_scale)
+
+    def _blocks(self, i: int) -> tuple[Tensor, Tensor, Tensor | None]:
+        """Layer ``i``'s weight split by what it multiplies: (γ(x) columns, γ(t) columns, hidden
+        columns). Layer 0 and the skip layer see the input (layer 0 twice when the skip is at 0:
+        its blocks are summed); the hidden columns come after it."""
+        w = self.layers[i].weight
+        n_inp = int(i == 0) + int(i == self.cfg.skip_layer)
+        starts = [k * self.in_dim for k in range(n_inp)]
+        wx = sum(w[:, a:a + self.in_x] for a in starts)
+        wt = sum(w[:, a + self.in_x:a + self.in_dim] for a in starts)
+        return wx, wt, (w[:, n_inp * self.in_dim:] if i > 0 else None)
+
+    def encode(self, means: Tensor, center: Tensor) -> Encoded:
+        """γ(x) times the γ(x) columns of the first layer and of the skip layer, [N, 2·width]
+        (the first layer's alone when the skip is at layer 0): the per-Gaussian products that do
+        not depend on time."""
+        layers = sorted({0, self.cfg.skip_layer})
+        return (self._inputs(means, center) @ torch.cat([self._blocks(i)[0] for i in layers]).t(),)
+
+    def decode(self, encoded: Encoded, t: float) -> Offsets:
+        """The offsets at time ``t`` from ``encode``'s products. γ(t) is the same for every
+        Gaussian, so its columns add one vector (with the bias) to a layer's output instead of a
+        product per Gaussian; only the hidden layers run per Gaussian."""
+        pos = encoded[0]
+        gt = self._time(t, pos)
+        w = self.cfg.width
+        h = pos
+        for i, layer in enumerate(self.layers):
+            if i == 0 or i == self.cfg.skip_layer:
+                _, wt, wh = self._blocks(i)
+                shift = torch.addmm(layer.bias, gt, wt.t())
+                h = pos[:, :w] + shift if i == 0 else torch.addmm(shift, h, wh.t()) + pos[:, w:]
+            else:
+                h = layer(h)
+            h = torch.relu_(h)
+        return split_offsets(self.head(h), self.position_scale, self.cfg.predict_rotation_scale)
 
 
 MOTION_KEYS: tuple[str, ...] = ("motion_means", "motion_quats", "motion_log_scales")

@@ -4,9 +4,10 @@ Surface tensors: ``means quats log_scales opacity`` (one opacity for both modali
 (a logit; thermal emission is treated as view-independent) and ``sh_dc``/``sh_rest`` (RGB SH).
 Smoke tensors: ``means quats log_scales opacity_rgb opacity_thermal color thermal`` plus the
 temporal-opacity parameters ``t_lo t_hi t_log_sigma``, and with ``deform.kind=fourier`` the
-coefficients ``motion_*``; smoke lives in a canonical space moved by the deformation MLP or by
-those coefficients. A renderer call takes any subset of the two sets, so the composite, the
-surface-only prediction and smoke-only views all come from the same code path.
+coefficients ``motion_*``; smoke lives in a canonical space moved by a motion field (the
+deformation MLP or the plane field) or by those coefficients. A renderer call takes any subset of
+the two sets, so the composite, the surface-only prediction and smoke-only views all come from
+the same code path.
 """
 from __future__ import annotations
 
@@ -17,9 +18,12 @@ import torch
 from torch import Tensor
 
 from smokeseer.model.background import EnvironmentBackground, composite_over
-from smokeseer.model.deform import MOTION_KEYS, DeformNetwork, motion_offsets, temporal_opacity
+from smokeseer.model.deform import MOTION_KEYS, DeformNetwork, Encoded, Offsets, motion_offsets, temporal_opacity
+from smokeseer.model.frustum import near_frustum
 from smokeseer.model.gaussians import GaussianSet, knn_log_scales, logit, rgb_to_sh_dc
+from smokeseer.model.planes import PlaneField
 from smokeseer.raster import RasterOutput, rasterize
+from smokeseer.raster.api import NEAR_PLANE
 
 
 @dataclass
@@ -109,16 +113,48 @@ def place_static(g: GaussianSet) -> Placed:
     return Placed(g["means"], g.quats, g["log_scales"])
 
 
-def place_deformed(g: GaussianSet, deform: DeformNetwork | None, t: float, center: Tensor,
-                   active: bool) -> Placed:
+MotionField = DeformNetwork | PlaneField
+"""A field of offsets over position and time: ``field(means, t, center)``, or ``encode`` once and
+``decode`` per time (``smokeseer.model.deform``)."""
+
+CULL_SIGMAS = 4.0
+"""The view cut keeps a Gaussian whose centre lies within the margin plus this many of its
+largest standard deviation of the frustum: the rasterizer's 3σ footprint, linearised at the
+centre, grows off-axis by up to its 1.3× frustum clamp."""
+
+
+@dataclass
+class SmokeMotion:
+    """The smoke-motion work one Stage-3 iteration shares between its RGB and thermal renders:
+    the field's time-independent part for every smoke Gaussian (``deform.shared_position``, else
+    None), and the view cut's margin in scene units (``deform.view_cull``, else None)."""
+
+    encoded: Encoded | None
+    cull_margin: float | None
+
+
+def field_offsets(field: MotionField, means: Tensor, t: float, center: Tensor, encoded: Encoded | None,
+                  rows: Tensor | None) -> Offsets:
+    """The field's offsets at time ``t``, from ``encoded`` where given; with ``rows`` (a mask) only
+    for those Gaussians, the others' offsets zero (they get no gradient through the field)."""
+    if rows is None:
+        return field(means, t, center) if encoded is None else field.decode(encoded, t)
+    part = field(means[rows], t, center) if encoded is None else field.decode(tuple(e[rows] for e in encoded), t)
+    return tuple(None if d is None else d.new_zeros((means.shape[0], d.shape[1])).index_put((rows,), d)
+                 for d in part)
+
+
+def place_deformed(g: GaussianSet, deform: MotionField | None, t: float, center: Tensor,
+                   active: bool, encoded: Encoded | None = None, rows: Tensor | None = None) -> Placed:
     """Canonical Gaussians moved to time t by their own Fourier coefficients where the set has
-    them, else by the network (unchanged during warm-up, or with neither)."""
+    them, else by the motion field (unchanged during warm-up, or with neither); ``encoded`` and
+    ``rows``: see ``field_offsets``."""
     if not active:
         return place_static(g)
     if MOTION_KEYS[0] in g:
         d_xyz, d_rot, d_scale = motion_offsets(g.params, t)
     elif deform is not None:
-        d_xyz, d_rot, d_scale = deform(g["means"], t, center)
+        d_xyz, d_rot, d_scale = field_offsets(deform, g["means"], t, center, encoded, rows)
     else:
         return place_static(g)
     means = g["means"] + d_xyz
@@ -214,7 +250,7 @@ class SceneModel:
 
     surface: GaussianSet
     smoke: GaussianSet | None
-    deform: DeformNetwork | None
+    deform: MotionField | None
     smoke_static: bool
     center: Tensor
     sh_degree: int
@@ -236,22 +272,46 @@ class SceneModel:
             return place_static(self.surface)
         return place_deformed(self.surface, self.surface_deform, t, self.center, True)
 
-    def smoke_at(self, t: float, deform_active: bool = True) -> tuple[Placed, Tensor, Tensor]:
-        """Smoke placed at time t with its RGB and thermal opacities (temporal opacity applied)."""
+    def smoke_motion(self, deform_active: bool, shared: bool, cull_margin: float | None) -> SmokeMotion | None:
+        """What this iteration's renders share of the smoke's motion (``SmokeMotion``); None when
+        the smoke has no motion field or it is not active yet."""
+        if self.smoke is None or self.deform is None or self.smoke_static or not deform_active:
+            return None
+        return SmokeMotion(self.deform.encode(self.smoke["means"], self.center) if shared else None, cull_margin)
+
+    def smoke_near_view(self, view: View, margin: float) -> Tensor:
+        """The smoke Gaussians whose canonical centre lies within ``margin`` (scene units) plus
+        ``CULL_SIGMAS`` of their scale of ``view``'s frustum."""
+        g = self.smoke
+        radius = margin + CULL_SIGMAS * g["log_scales"].detach().max(dim=1).values.exp()
+        return near_frustum(g["means"].detach(), radius, view.viewmat[0].detach(), view.K[0].detach(), view.width,
+                            view.height, NEAR_PLANE)
+
+    def smoke_at(self, t: float, deform_active: bool = True, view: View | None = None,
+                 motion: SmokeMotion | None = None) -> tuple[Placed, Tensor, Tensor]:
+        """Smoke placed at time t with its RGB and thermal opacities (temporal opacity applied);
+        ``motion`` (with the ``view`` rendered): this iteration's shared motion work and view cut."""
         if self.smoke is None:
             raise ValueError("smoke_at: this model has no smoke Gaussians")
-        placed = place_deformed(self.smoke, self.deform, t, self.center, deform_active and not self.smoke_static)
+        encoded = rows = None
+        if motion is not None and deform_active:
+            encoded = motion.encoded
+            if motion.cull_margin is not None and view is not None:
+                rows = self.smoke_near_view(view, motion.cull_margin)
+        placed = place_deformed(self.smoke, self.deform, t, self.center, deform_active and not self.smoke_static,
+                                encoded, rows)
         tw = smoke_time_opacity(self.smoke, t, self.smoke_static)
         return (placed, torch.sigmoid(self.smoke["opacity_rgb"]) * tw,
                 torch.sigmoid(self.smoke["opacity_thermal"]) * tw)
 
     def render_rgb(self, view: View, surface: bool = True, smoke: bool = True, degree: int | None = None,
-                   deform_active: bool = True, surface_depth: bool = False, depth: bool = True) -> RasterOutput:
+                   deform_active: bool = True, surface_depth: bool = False, depth: bool = True,
+                   motion: SmokeMotion | None = None) -> RasterOutput:
         """RGB = surface ∪ smoke with RGB opacities; with both, smoke alpha comes from the same pass.
         The environment is drawn behind any render that includes the surface (a smoke-only
         view is shown on black). ``surface_depth``: the surface's own depth and alpha as
         ``rest_depths``/``rest_alphas``, from the same pass; ``depth``: the depth image (both: see
-        ``render``)."""
+        ``render``); ``motion``: see ``smoke_at``."""
         if surface_depth and not surface:
             raise ValueError("render_rgb: surface_depth needs the surface in the render")
         degree = self.sh_degree if degree is None else degree
@@ -261,7 +321,7 @@ class SceneModel:
             parts.append((self.surface_at(view.time), torch.sigmoid(self.surface["opacity"]), sh_coeffs(self.surface)))
         use_smoke = smoke and self.smoke is not None
         if use_smoke:
-            placed, o_rgb, _ = self.smoke_at(view.time, deform_active)
+            placed, o_rgb, _ = self.smoke_at(view.time, deform_active, view, motion)
             parts.append((placed, o_rgb, smoke_sh(self.smoke_colours(), k)))
         subset = len(parts) - 1 if use_smoke else None
         if not parts:
@@ -270,9 +330,10 @@ class SceneModel:
                       rest_alone=surface_depth, depth=depth)
 
     def render_thermal(self, view: View, surface: bool = True, smoke: bool = True,
-                       deform_active: bool = True, surface_depth: bool = False, depth: bool = True) -> RasterOutput:
+                       deform_active: bool = True, surface_depth: bool = False, depth: bool = True,
+                       motion: SmokeMotion | None = None) -> RasterOutput:
         """Thermal = surface ∪ smoke with thermal opacities and 1-channel thermal colours.
-        ``surface_depth``, ``depth``: as for ``render_rgb``."""
+        ``surface_depth``, ``depth``, ``motion``: as for ``render_rgb``."""
         if surface_depth and not surface:
             raise ValueError("render_thermal: surface_depth needs the surface in the render")
         parts = []
@@ -281,7 +342,7 @@ class SceneModel:
             parts.append((placed, torch.sigmoid(logits), torch.sigmoid(self.surface["thermal"])))
         use_smoke = smoke and self.smoke is not None
         if use_smoke:
-            placed, _, o_th = self.smoke_at(view.time, deform_active)
+            placed, _, o_th = self.smoke_at(view.time, deform_active, view, motion)
             parts.append((placed, o_th, torch.sigmoid(self.smoke["thermal"])))
         return render(view, parts, None, self.background_thermal if surface else None,
                       subset=len(parts) - 1 if use_smoke else None, rest_alone=surface_depth, depth=depth)

@@ -115,6 +115,10 @@ def view_colors(colors: Tensor, means: Tensor, viewmats: Tensor, sh_degree: int 
     return torch.clamp_min(eval_sh(sh_degree, colors[None], dirs) + 0.5, 0.0)
 
 
+NEAR_PLANE = 0.01
+"""Camera depth below which a Gaussian is not drawn, unless a call sets ``near_plane``."""
+
+
 def rasterize(
     means: Tensor,
     quats: Tensor,
@@ -129,7 +133,7 @@ def rasterize(
     sh_degree: int | None = None,
     log_scales: bool = False,
     backgrounds: Tensor | None = None,
-    near_plane: float = 0.01,
+    near_plane: float = NEAR_PLANE,
     far_plane: float = 1e10,
     subset_mask: Tensor | None = None,
     render_depth: bool = True,

@@ -17,6 +17,7 @@ import torch
 from scenes.scene import ModalityData
 from smokeseer.config import TrainConfig, at_iteration
 from smokeseer.model.deform import DeformNetwork, motion_tensors
+from smokeseer.model.planes import PlaneField
 from smokeseer.model.gaussians import DensifyStrategy, GaussianSet, make_optimizer
 from smokeseer.model.optim import Adam
 from smokeseer.model.scene import SceneModel, SmokeAnchor, add_rgb_sh, make_smoke
@@ -52,6 +53,9 @@ def build_scene_model(ctx: RunContext, s2: Stage2Result, plan: Stage3Plan,
                            cfg.stage2.init_scale_max * ctx.extent, np.random.default_rng(cfg.seed + 1), ctx.device)
         if plan.use_deform and cfg.deform.kind == "mlp":
             deform = DeformNetwork(cfg.deform, ctx.extent, ctx.device)
+        elif plan.use_deform and cfg.deform.kind == "planes":
+            deform = PlaneField(cfg.deform, *planes_domain(smoke_points, cfg.deform.planes_margin, ctx.extent),
+                                ctx.extent, ctx.device)
         elif plan.use_deform:
             smoke = GaussianSet({**smoke.state_dict(), **motion_tensors(smoke.n, cfg.deform, ctx.device)})
     thermal_geometry = s2.color == "thermal"
@@ -62,6 +66,15 @@ def build_scene_model(ctx: RunContext, s2: Stage2Result, plan: Stage3Plan,
               if smoke is not None and plan.colour is not None else None)
     return SceneModel(surface, smoke, deform, smoke_static or not plan.use_deform, ctx.center, cfg.sh_degree,
                       background_rgb=bg_rgb, background_thermal=bg_thermal, smoke_anchor=anchor)
+
+
+def planes_domain(points: np.ndarray, margin: float, extent: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """The plane field's box: the smoke's starting points' bounding box grown by ``margin`` × its
+    size on every side (each side at least a thousandth of the scene extent, so a flat start still
+    spans a box)."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    grow = np.maximum(margin * (hi - lo), 1e-3 * extent)
+    return torch.as_tensor(lo - grow), torch.as_tensor(hi + grow)
 
 
 def _backgrounds(model: SceneModel) -> dict[str, torch.nn.Module]:
@@ -98,7 +111,8 @@ class Stage3Problem(StageProblem):
                  heldout_psnr: HeldoutPsnr | None) -> None:
         cfg, dev = ctx.cfg, ctx.device
         self.ctx, self.cfg, self.model, self.prior, self.heldout_fn = ctx, cfg, model, prior, heldout_psnr
-        self.weights = plan.weights
+        self.weights = {**plan.weights, "planes_tv": cfg.deform.planes_tv,
+                        "planes_time": cfg.deform.planes_time_smoothness}
         self._make_optimizers()
         self.strategy = DensifyStrategy(cfg.stage3.smoke_densify, cfg.stage3.iterations, ("opacity_rgb", "opacity_thermal"),
                                         ctx.extent)
@@ -129,8 +143,9 @@ class Stage3Problem(StageProblem):
         self.surface_optimizer = make_optimizer(model.surface, _surface_lrs(cfg, model.surface, self.ctx.extent))
         self.smoke_optimizer = (make_optimizer(model.smoke, _smoke_lrs(cfg, self.ctx.extent))
                                 if model.smoke is not None else None)
-        self.deform_optimizer = (Adam(model.deform.parameters(), lr=cfg.deform.lr_init)
-                                 if model.deform else None)
+        groups = (model.deform.parameter_groups(cfg.deform.lr_init) if isinstance(model.deform, PlaneField)
+                  else model.deform.parameters()) if model.deform is not None else None
+        self.deform_optimizer = Adam(groups, lr=cfg.deform.lr_init) if groups is not None else None
         bg_params = [p for bg in _backgrounds(model).values() for p in bg.parameters()]
         self.background_optimizer = Adam(bg_params, lr=cfg.lr.background) if bg_params else None
 
@@ -140,14 +155,16 @@ class Stage3Problem(StageProblem):
         degree = min(cfg.sh_degree, (it - 1) // max(cfg.sh_increase_every, 1))
         k = draw_index(self.ctx, len(self.rgb_views))
         view = self.rgb_views[k]
+        motion = model.smoke_motion(deform_on, cfg.deform.shared_position,
+                                    cfg.deform.view_cull_margin * self.ctx.extent if cfg.deform.view_cull else None)
         out = model.render_rgb(view, degree=degree, deform_active=deform_on,
-                               surface_depth=self.depth_on and not self.depth_on_thermal, depth=False)
+                               surface_depth=self.depth_on and not self.depth_on_thermal, depth=False, motion=motion)
         terms: dict[str, torch.Tensor] = {"render_rgb": render_loss(out.colors[0], self.rgb_imgs[k], cfg.loss.dssim)}
         depth_source = (out, k)
         if self.th_imgs is not None:
             j = draw_index(self.ctx, len(self.th_views))
             tout = model.render_thermal(self.th_views[j], deform_active=deform_on,
-                                        surface_depth=self.depth_on_thermal, depth=False)
+                                        surface_depth=self.depth_on_thermal, depth=False, motion=motion)
             terms["render_thermal"] = render_loss(tout.colors[0], self.th_imgs[j], cfg.loss.dssim)
             if self.depth_on_thermal:
                 depth_source = (tout, j)
@@ -168,6 +185,8 @@ class Stage3Problem(StageProblem):
                 terms["thermal_smoke_opacity"] = torch.sigmoid(model.smoke["opacity_thermal"]).mean()
         if self.depth_on:
             terms["depth"] = self._depth_term(*depth_source)
+        if motion is not None and isinstance(model.deform, PlaneField):
+            terms["planes_tv"], terms["planes_time"] = model.deform.smoothness()
         share = {"render_rgb": 1.0, "render_thermal": cfg.loss.thermal}
         loss = sum(weights["render"] * share[n] * v if n in share else weights[n] * v for n, v in terms.items())
         return IterationOutput(loss, terms, {"raster": out, "view": view, "index": k, "deform_on": deform_on})

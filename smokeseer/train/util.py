@@ -44,7 +44,8 @@ def step_optimizers(it: int, total: int, cfg: TrainConfig, extent: float,
     rate decays over the stage as in 3DGS (a group frozen at lr 0 stays frozen), and so does the
     Fourier position offsets' (``deform.fourier_lr_scale`` of it), every optimiser
     steps and clears its gradients, and the deformation network follows its own decay over the
-    stage and only steps after its warm-up (an iteration of the stage)."""
+    stage (each group at its ``lr_scale`` times it, where it has one: the plane field's planes)
+    and only steps after its warm-up (an iteration of the stage)."""
     decayed = exp_lr(it, total, cfg.lr.means_init * extent, cfg.lr.means_final * extent)
     scale = {"means": 1.0, "motion_means": cfg.deform.fourier_lr_scale}
     for opt in gaussian_optimizers:
@@ -57,7 +58,7 @@ def step_optimizers(it: int, total: int, cfg: TrainConfig, extent: float,
             opt.zero_grad(set_to_none=True)
     if deform_optimizer is not None:
         for group in deform_optimizer.param_groups:
-            group["lr"] = exp_lr(it, total, cfg.deform.lr_init, cfg.deform.lr_final)
+            group["lr"] = exp_lr(it, total, cfg.deform.lr_init, cfg.deform.lr_final) * group.get("lr_scale", 1.0)
         if it > deform_warmup:
             deform_optimizer.step()
         deform_optimizer.zero_grad(set_to_none=True)
