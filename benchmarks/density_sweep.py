@@ -11,9 +11,10 @@ today's trainer: k = 1's runs are Table 1's, whose folder also keeps older versi
 Writes to OUT:
 
 - sweep.csv: per scene and k, the mean optical depth −ln(1 − ᾱ) of the RGB smoke in the test
-  views, each method's test PSNR (mean of views), pooled PSNR (of the views' mean squared error)
-  and SSIM, mean ± std over seeds, and Full − RGB-only paired by seed;
-- results.md: sweep.csv's test PSNR as a markdown table (eval.density_sweep.results_table);
+  views, each method's test PSNR (mean of views), pooled PSNR (of the views' mean squared error),
+  SSIM and LPIPS, mean ± std over seeds, and Full's lead paired by seed (Full − RGB-only;
+  RGB-only − Full for LPIPS, where lower is better);
+- results.md: sweep.csv's test PSNR and LPIPS as markdown tables (eval.density_sweep.results_table, lpips_table);
 - crossover.csv: per scene and metric, the optical depth where Full's lead turns positive;
 - lead.png: the lead against optical depth, one line per scene, a panel per metric;
 - strip.png: one test view per scene across k: smoky input, RGB-only, Full (seed 0), clean;
@@ -40,7 +41,7 @@ from contracts.metrics import psnr  # noqa: E402
 from contracts.source import code_digest  # noqa: E402
 from eval.claims import ClaimCheck, claims_table  # noqa: E402
 from eval.density_sweep import (crossover, frames_of_test_views, mean_optical_depth, paired_lead,  # noqa: E402
-                                results_table, stems_of_test_views, sweep_checks)
+                                lpips_table, results_table, stems_of_test_views, sweep_checks)
 from eval.finished_runs import finished_runs  # noqa: E402
 from eval.harness import TRAINER_ENTRY  # noqa: E402
 from eval.per_view import pooled_over_views  # noqa: E402
@@ -49,7 +50,13 @@ from eval.regions import write_split_files  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 METHODS = ("full", "rgb-only")
 METRICS = {"psnr": "test PSNR, mean of views (dB)", "pooled_psnr": "test PSNR pooled over views (dB)",
-           "ssim": "test SSIM"}
+           "ssim": "test SSIM", "lpips": "test LPIPS, mean of views"}
+LOWER_IS_BETTER = frozenset({"lpips"})
+"""Metrics whose lead is RGB-only − Full, so that a positive lead is Full's advantage in every metric."""
+
+
+def lead_label(metric: str) -> str:
+    return "RGB-only − Full" if metric in LOWER_IS_BETTER else "Full − RGB-only"
 
 
 def density_folders(parent: Path, prefix: str = "") -> dict[float, Path]:
@@ -92,6 +99,7 @@ def run_scores(tables: Path, digest: str) -> Scores:
         views = [e["psnr"] for e in metrics["per_image"]]
         out.setdefault((rec["scene"], rec["variant"]), {})[int(rec["seed"])] = {
             "psnr": metrics["metrics"]["psnr"], "ssim": metrics["metrics"]["ssim"],
+            "lpips": metrics["metrics"].get("lpips"),
             "pooled_psnr": pooled_over_views(views), "run": run_dir}
     return out
 
@@ -101,25 +109,37 @@ def _mean_std(values: list[float]) -> tuple[float, float | None]:
     return float(a.mean()), (float(a.std(ddof=1)) if a.size > 1 else None)
 
 
+def score_columns(scores: Scores, scene: str) -> dict[str, Any]:
+    """Both methods' scores on one dataset, mean ± std over seeds, and Full's lead paired by seed
+    (``lead_label``). A metric that some seed's run lacks (LPIPS of a run scored without weights)
+    gets no mean and no lead: one over the other seeds would sit beside the PSNR of all of them."""
+    def by_seed(method: str, metric: str) -> dict[int, float] | None:
+        values = {s: v[metric] for s, v in scores.get((scene, method), {}).items()}
+        return None if any(v is None for v in values.values()) else values
+
+    row: dict[str, Any] = {}
+    for method in METHODS:
+        row[f"{method}_seeds"] = " ".join(str(s) for s in sorted(scores.get((scene, method), {})))
+        for metric in METRICS:
+            values = by_seed(method, metric)
+            mean, std = _mean_std(list(values.values())) if values else (None, None)
+            row[f"{method}_{metric}"], row[f"{method}_{metric}_std"] = mean, std
+    for metric in METRICS:
+        full, rgb_only = by_seed("full", metric), by_seed("rgb-only", metric)
+        lead = None if full is None or rgb_only is None else \
+            paired_lead(rgb_only, full) if metric in LOWER_IS_BETTER else paired_lead(full, rgb_only)
+        row[f"lead_{metric}"] = lead.mean if lead else None
+        row[f"lead_{metric}_std"] = lead.std if lead else None
+    return row
+
+
 def sweep_rows(dens: dict[float, Path], scores_by_k: dict[float, Scores]) -> list[dict[str, Any]]:
     """One row per finished dataset: its density and both methods' scores at it."""
     rows = []
     for k, folder in dens.items():
-        scores = scores_by_k[k]
         for dataset in sorted(p for p in folder.iterdir() if (p / "dataset.json").is_file()):
-            row: dict[str, Any] = {"scene": dataset.name, "k": k, **scene_density(dataset)}
-            for method in METHODS:
-                by_seed = scores.get((dataset.name, method), {})
-                row[f"{method}_seeds"] = " ".join(str(s) for s in sorted(by_seed))
-                for metric in METRICS:
-                    mean, std = _mean_std([v[metric] for v in by_seed.values()]) if by_seed else (None, None)
-                    row[f"{method}_{metric}"], row[f"{method}_{metric}_std"] = mean, std
-            for metric in METRICS:
-                lead = paired_lead({s: v[metric] for s, v in scores.get((dataset.name, "full"), {}).items()},
-                                   {s: v[metric] for s, v in scores.get((dataset.name, "rgb-only"), {}).items()})
-                row[f"lead_{metric}"] = lead.mean if lead else None
-                row[f"lead_{metric}_std"] = lead.std if lead else None
-            rows.append(row)
+            rows.append({"scene": dataset.name, "k": k, **scene_density(dataset),
+                         **score_columns(scores_by_k[k], dataset.name)})
     return rows
 
 
@@ -153,10 +173,11 @@ def plot_lead(rows: list[dict[str, Any]], path: Path) -> None:
         ax.xaxis.set_minor_locator(NullLocator())
         ax.set_xlim(-0.01, max(1.3 * max_depth, 0.1))  # room for the densest point
         ax.set_xlabel("mean optical depth of the RGB smoke, test views")
-        ax.set_ylabel(f"Full − RGB-only, {label}")
+        ax.set_ylabel(f"{lead_label(metric)}, {label}")
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
-    fig.suptitle("Full (RGB + thermal) against RGB-only across smoke density (mean ± std over seeds)")
+    fig.suptitle("Full (RGB + thermal) against RGB-only across smoke density (mean ± std over seeds; "
+                 "above 0: Full ahead)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -214,7 +235,12 @@ def main() -> None:
     write_text(args.out / "results.md", "\n".join([
         "# The density sweep's test PSNR, from sweep.csv", "",
         "dB, mean of each dataset's test views; mean ± std over the seeds named (RGB-only / Full where "
-        "they differ). Full − RGB-only is paired by seed.", "", *results_table(rows)]) + "\n")
+        "they differ). Full − RGB-only is paired by seed.", "", *results_table(rows), "",
+        "## Test LPIPS", "",
+        "LPIPS-AlexNet (lower is better), mean of each dataset's test views, the same seeds; where the runs' "
+        "records were scored after training, from their 8-bit surface renders (benchmarks/rescore_lpips.py). "
+        "RGB-only − Full is paired by seed: positive where Full is closer to the clean frames.", "",
+        *lpips_table(rows)]) + "\n")
     cross = crossover_rows(rows)
     if cross:
         write_rows_csv(args.out / "crossover.csv", cross)

@@ -7,13 +7,17 @@
 # runs of the scene: finished ones are taken as they are, and one trained here is Table 1's too.
 #
 #   bash benchmarks/density_sweep_train.sh [DATASETS] [TABLES] [extra regenerate-tables options]
-#   (defaults: data/density_sweep data/tables_density; --finished-only trains nothing)
+#   (defaults: data/density_sweep data/tables_density; --finished-only trains nothing; with it,
+#   --digest PREFIX tables the runs of an earlier trainer, and goes to density_sweep.py too)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 datasets=data/density_sweep
 tables=data/tables_density
 if [[ $# -gt 0 && $1 != --* ]]; then datasets=$1; shift; fi
 if [[ $# -gt 0 && $1 != --* ]]; then tables=$1; shift; fi
+digest=()
+opts=("$@")
+for ((i = 0; i < ${#opts[@]} - 1; i++)); do [[ ${opts[i]} == --digest ]] && digest=(--digest "${opts[i + 1]}"); done
 source benchmarks/density_sweep_plan.sh
 mapfile -t entries < <(sweep_datasets "$datasets")
 for k in $(printf '%s\n' "${entries[@]%% *}" | uniq); do
@@ -36,4 +40,4 @@ for k in $(printf '%s\n' "${entries[@]%% *}" | uniq); do
         --seeds "$(IFS=,; echo "${sweep_seeds[*]}")" --no-ablations --out "${tables}_$k" "$@" \
         || [[ $? -eq 1 ]]  # 1: tables written, some runs failed (report.md)
 done
-.venv/bin/python benchmarks/density_sweep.py --datasets "$datasets" --tables "$tables"
+.venv/bin/python benchmarks/density_sweep.py --datasets "$datasets" --tables "$tables" "${digest[@]}"

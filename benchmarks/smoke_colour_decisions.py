@@ -34,7 +34,7 @@ import numpy as np
 from contracts.atomic import write_rows_csv
 from contracts.dataset_format import file_path, load_transforms, pass_file, read_pass_image
 from contracts.imageio import image01, read_png
-from eval.finished_runs import finished_runs
+from eval.finished_runs import runs_of_variants
 from eval.runs import VARIANTS as TABLE_VARIANTS
 from smokeseer.stage1.haze_lines import HazeLineSettings, trust
 
@@ -111,14 +111,7 @@ def main() -> None:
     args = ap.parse_args()
     given = {k: getattr(args, k) for k in ramps if getattr(args, k) is not None}
     rule = HazeLineSettings(**given) if given else None
-    variants = tuple(args.variants.split(","))
-    unknown = sorted(set(variants) - set(TABLE_VARIANTS))
-    if unknown:
-        raise SystemExit(f"--variants: unknown {', '.join(unknown)} (known: {', '.join(TABLE_VARIANTS)})")
-    try:
-        _, runs = finished_runs(args.tables, variants, args.digest)
-    except ValueError as exc:
-        raise SystemExit(str(exc)) from None
+    runs = runs_of_variants(args.tables, args.variants, TABLE_VARIANTS, args.digest)
     truth: dict[str, tuple[list[float], float]] = {}
     rows = []
     for folder, rec in runs:

@@ -12,6 +12,8 @@
 #
 #   bash benchmarks/standard_tables.sh [DATASETS_ROOT] [OUT]      (defaults: data/standard data/tables_standard)
 #   bash benchmarks/standard_tables.sh [DATASETS_ROOT] [OUT] --finished-only   tables from what has finished, train nothing
+#   bash benchmarks/standard_tables.sh [DATASETS_ROOT] [OUT] --finished-only --digest PREFIX
+#        the same from the runs of an earlier trainer whose code digest starts so (kept in OUT)
 #
 # OUT then holds Table 1 (table1.*, per_scene.csv, per_scene_regions.*, per_view.*, claims.*,
 # convergence.*, figure3, psnr_vs_time, report.md) from the last call, Table 1 at seed 0 alone
@@ -26,6 +28,8 @@ out=data/tables_standard
 if [[ $# -gt 0 && $1 != --* ]]; then root=$1; shift; fi
 if [[ $# -gt 0 && $1 != --* ]]; then out=$1; shift; fi
 extra=("$@")
+digest=()  # --digest PREFIX goes to eval.reseed_ablations too, so it picks from the same runs
+for ((i = 0; i < ${#extra[@]} - 1; i++)); do [[ ${extra[i]} == --digest ]] && digest=(--digest "${extra[i + 1]}"); done
 source benchmarks/standard_scenes.sh
 mapfile -t scenes < <(standard_scenes "$root")
 datasets=()
@@ -44,7 +48,7 @@ run "${common[@]}" --methods full,rgb-only,imgdehaze-dcp,full-estimated,full-fro
 for f in table1.md table1.tex table1.csv per_scene.csv; do  # seed 0 alone: every scene on the same seed
     cp "$out/$f" "$out/${f%.*}_seed0.${f##*.}"
 done
-close=$(.venv/bin/python -m eval.reseed_ablations "$out" --scenes "$list")  # a failure stops here (set -e)
+close=$(.venv/bin/python -m eval.reseed_ablations "$out" --scenes "$list" "${digest[@]}")  # a failure stops here (set -e)
 read -r -a reseed <<< "${close//$'\n'/ }"
 if [[ ${#reseed[@]} -gt 0 ]]; then  # the ablations close to Full at seed 0, over seeds 0-2
     run "${common[@]}" --methods full --seeds 3 --ablations --ablation-list "$(IFS=,; echo "${reseed[*]}")"

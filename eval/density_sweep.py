@@ -194,8 +194,14 @@ def _signed(x: float) -> str:
     return f"+{x:.2f}" if x >= 0 else f"−{-x:.2f}"
 
 
-def _score(row: dict, method: str) -> str:
-    return format_stat(Stat(row[f"{method}_psnr"], row[f"{method}_psnr_std"], len(row[f"{method}_seeds"].split())), 2)
+def _score(row: dict, method: str, metric: str = "psnr", digits: int = 2) -> str:
+    return format_stat(Stat(row[f"{method}_{metric}"], row[f"{method}_{metric}_std"],
+                            len(row[f"{method}_seeds"].split())), digits)
+
+
+def _seeds(row: dict) -> str:
+    full, rgb = row["full_seeds"].replace(" ", ", "), row["rgb-only_seeds"].replace(" ", ", ")
+    return full if full == rgb else f"{rgb or '—'} / {full or '—'}"
 
 
 def results_table(rows: list[dict]) -> list[str]:
@@ -205,10 +211,21 @@ def results_table(rows: list[dict]) -> list[str]:
     lines = ["| scene | k | optical depth | smoky input | RGB-only | Full | Full − RGB-only | seeds |",
              "|---|---|---|---|---|---|---|---|"]
     for r in sorted(rows, key=lambda r: (r["k"], r["scene"])):
-        full, rgb = r["full_seeds"].replace(" ", ", "), r["rgb-only_seeds"].replace(" ", ", ")
-        seeds = full if full == rgb else f"{rgb or '—'} / {full or '—'}"
         lead = "—" if r["lead_psnr"] is None else _signed(r["lead_psnr"])
         lines.append(f"| {r['scene']} | {r['k']:g} | {r['optical_depth']:.2f} | {r['input_psnr']:.2f} | "
-                     f"{_score(r, 'rgb-only')} | {_score(r, 'full')} | {lead} | {seeds} |")
+                     f"{_score(r, 'rgb-only')} | {_score(r, 'full')} | {lead} | {_seeds(r)} |")
+    return lines
+
+
+def lpips_table(rows: list[dict]) -> list[str]:
+    """The same rows' test LPIPS (lower is better; mean ± std over seeds), and Full's lead as
+    RGB-only − Full paired by seed, so that, as in PSNR, a positive lead is Full's; "—" where a
+    run has no LPIPS."""
+    lines = ["| scene | k | optical depth | RGB-only | Full | RGB-only − Full | seeds |",
+             "|---|---|---|---|---|---|---|"]
+    for r in sorted(rows, key=lambda r: (r["k"], r["scene"])):
+        lead = "—" if r["lead_lpips"] is None else f"{r['lead_lpips']:+.3f}".replace("-", "−")
+        lines.append(f"| {r['scene']} | {r['k']:g} | {r['optical_depth']:.2f} | {_score(r, 'rgb-only', 'lpips', 3)} | "
+                     f"{_score(r, 'full', 'lpips', 3)} | {lead} | {_seeds(r)} |")
     return lines
 

@@ -33,3 +33,17 @@ def finished_runs(tables: Path, variants: Iterable[str],
         raise ValueError(f"--digest {digest}: no run in {tables}/runs has a code_digest starting so "
                          f"(found {', '.join(v[:8] for v in versions)})")
     return chosen, [(run_dir, rec) for run_dir, rec in records if rec["code_digest"] == chosen]
+
+
+def runs_of_variants(tables: Path, variants: str, known: Iterable[str],
+                     digest: str | None) -> list[tuple[Path, dict[str, Any]]]:
+    """``finished_runs`` for a script's comma list of variants: a variant not in ``known``, or no
+    finished run, is one line (SystemExit), never a traceback."""
+    known = tuple(known)
+    unknown = sorted(set(variants.split(",")) - set(known))
+    if unknown:
+        raise SystemExit(f"--variants: unknown {', '.join(unknown)} (known: {', '.join(known)})")
+    try:
+        return finished_runs(tables, variants.split(","), digest)[1]
+    except ValueError as exc:
+        raise SystemExit(str(exc)) from None

@@ -400,7 +400,7 @@ def plan_runs(cfg: HarnessConfig, datasets: dict[str, DatasetOutcome],
               dehazed: dict[str, DatasetOutcome]) -> list[RunSpec]:
     """Every run; its key holds the digest of the trainer's code (the modules it imports)."""
     specs = []
-    code = code_digest(TRAINER_ENTRY)
+    code = cfg.trainer_digest or code_digest(TRAINER_ENTRY)
     for scene in cfg.scenes:
         for key in cfg.variants():
             v = VARIANTS[key]
@@ -497,7 +497,10 @@ def execute_runs(cfg: HarnessConfig, ex: _Executor, plan: Plan, train_fn: TrainF
         run_dir = spec.run_dir(Path(cfg.out)).resolve()
         ds = dehazed[spec.scene] if VARIANTS[spec.variant].dehazer else datasets[spec.scene]
         prep = ds.wall_time_s if VARIANTS[spec.variant].dehazer else 0.0
-        if ds.status != "ok":
+        cached = finished_run(spec, run_dir) or plan.twins.get(str(run_dir))
+        # A finished run is tabled without its dataset: --finished-only does not rebuild the dehazed
+        # copies a fresh clone lacks, and the run's key holds the copy's settings, not its bytes.
+        if ds.status != "ok" and not (ds.status == "pending" and cached is not None):
             r = RunResult(spec.scene, spec.variant, spec.seed, "pending" if ds.status == "pending" else "failed",
                           str(run_dir), spec.hash(), ds.path,
                           error=f"dataset ({ds.kind}) {ds.status}: {ds.error.splitlines()[0] if ds.error else ''}")
@@ -505,7 +508,6 @@ def execute_runs(cfg: HarnessConfig, ex: _Executor, plan: Plan, train_fn: TrainF
             bar.write(_line(r))
             bar.update(1)
             continue
-        cached = finished_run(spec, run_dir) or plan.twins.get(str(run_dir))
         if cached is not None or cfg.finished_only:
             r = cached or RunResult(spec.scene, spec.variant, spec.seed, "pending", str(run_dir), spec.hash(),
                                     spec.dataset, error="not trained yet (--finished-only)")

@@ -14,7 +14,8 @@ from pathlib import Path
 
 from eval.adopt import adopt_runs
 from eval.harness import DEFAULT_OUT, HarnessConfig, regenerate
-from eval.runs import ABLATIONS, METHODS
+from eval.finished_runs import finished_runs
+from eval.runs import ABLATIONS, METHODS, VARIANTS
 from eval.settings import default_workers
 from generator.cli import parse_size
 from generator.profiles import get_profile
@@ -100,6 +101,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--adopt-from", type=Path, default=None, metavar="DIR",
                    help="first adopt the finished runs of this plan found in another --out folder whose keys "
                         "differ only by the trainer's code digest (another Python); see docs/scale-out.md")
+    p.add_argument("--digest", default=None, metavar="PREFIX",
+                   help="with --finished-only: table the finished runs in --out of the trainer whose code digest "
+                        "starts so (an earlier trainer's), in place of today's")
     p.add_argument("--dry-run", action="store_true", help="print the plan (runs, estimated time) and stop")
     p.add_argument("--finished-only", action="store_true",
                    help="write the tables from the runs already finished in --out, beside an invocation still "
@@ -137,6 +141,9 @@ def config_from_args(args: argparse.Namespace) -> HarnessConfig:
     for key in ("frames", "resolution", "thermal_resolution", "samples", "sim_resolution"):
         if getattr(args, key) is not None:
             gen[key] = getattr(args, key)
+    digest = args.digest or ""
+    if digest and args.finished_only:  # the full digest of the runs in --out (else validate() refuses it)
+        digest = finished_runs(args.out, VARIANTS, digest)[0]
     cfg = HarnessConfig(
         out=args.out, scenes=scenes, methods=args.methods,
         ablations=args.ablation_list if args.ablations else [], seeds=parse_seeds(args.seeds),
@@ -144,6 +151,7 @@ def config_from_args(args: argparse.Namespace) -> HarnessConfig:
         dehazer=args.dehazer, workers=args.workers, scheduler=args.scheduler,
         lpips_net=args.lpips_net, lpips_weights=args.lpips_weights, lpips_heads=args.lpips_heads,
         finished_only=args.finished_only, device=args.device,
+        trainer_digest=digest,
     )
     from eval.dehaze import available_dehazers
 

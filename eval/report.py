@@ -65,9 +65,16 @@ def _settings(cfg: HarnessConfig, backend: str) -> list[tuple[str, Any]]:
         ("versions", ", ".join(f"{p} {_version(p)}" for p in ("smokeseer-synth", "torch", "numpy", "bpy"))
          + f", python {platform.python_version()}"),
         ("code digests (part of every cache key: each entry point and the project modules it imports)",
-         ", ".join(f"{n} {code_digest(*n.split('+'))[:12]}"
-                   for n in ("generator.api+blender.worker", "smokeseer.api", "eval.dehaze"))),
+         ", ".join(f"{n} {_digest_shown(cfg, n)}" for n in ("generator.api+blender.worker", "smokeseer.api", "eval.dehaze"))),
     ]
+
+
+def _digest_shown(cfg: HarnessConfig, entry: str) -> str:
+    """An entry point's code digest; for the trainer tabled with --digest, the runs' and today's."""
+    today = code_digest(*entry.split("+"))[:12]
+    if entry == "smokeseer.api" and cfg.trainer_digest:
+        return f"{cfg.trainer_digest[:12]} (the runs tabled, --digest; today's trainer {today})"
+    return today
 
 
 def write_report(cfg: HarnessConfig, results: list[RunResult], datasets: list[DatasetOutcome],

@@ -52,6 +52,9 @@ class HarnessConfig:
     lpips_heads: str | None = None
     finished_only: bool = False
     """Table the runs already finished in ``out``; generate, dehaze and train nothing (the rest are pending)."""
+    trainer_digest: str = ""
+    """With ``finished_only``: the code digest of the trainer whose runs are tabled, an earlier
+    one's whose runs ``out`` keeps; "" for today's trainer (the digest is part of every run's key)."""
     device: str = "cpu"
     """Torch device the runs train on. Like the thread count, it is not part of a run's cache key
     (the method and settings are the same; the float rounding differs): each run records it in
@@ -90,6 +93,8 @@ class HarnessConfig:
 
             if not torch.cuda.is_available():
                 raise ValueError(f"device: {self.device} asked for, but torch {torch.__version__} sees no CUDA device")
+        if self.trainer_digest and not self.finished_only:
+            raise ValueError("digest: only with --finished-only (a run trains under today's trainer's digest)")
         if self.lpips_net not in LPIPS_NETS:
             raise ValueError(f"lpips_net: must be one of {', '.join(LPIPS_NETS)}, got {self.lpips_net!r}")
         for scene, path in self.datasets.items():

@@ -63,6 +63,9 @@ class Row:
     and how many were compared, per seed (``stage2_apart``)."""
     lpips_runs: int = 0
     """Finished runs with an LPIPS score (``lpips_coverage``)."""
+    lpips_rescored: int = 0
+    """Finished runs whose LPIPS was scored after training from their saved renders (``RESCORED_LPIPS``)."""
+    lpips_rescored_status: str = ""
 
 
 def seed_stat(values_by_seed: dict[int, list[float]]) -> Stat:
@@ -86,6 +89,11 @@ def _metric_values(results: Iterable[RunResult], metric: str) -> dict[int, list[
         if v is not None:
             out[r.seed].append(float(v))
     return out
+
+
+RESCORED_LPIPS = "rescored from the run's 8-bit surface renders"
+"""How a record's ``lpips_status`` starts when benchmarks/rescore_lpips.py wrote its LPIPS after
+training (docs/results-format.md); the trainer scores its float renders."""
 
 
 def lpips_coverage(results: Iterable[RunResult]) -> tuple[int, int]:
@@ -137,7 +145,8 @@ def build_rows(results: list[RunResult], variants: list[str], metrics: Iterable[
         mine = [r for r in results if r.variant == key]
         if not mine:
             continue
-        statuses = sorted({str(r.metrics.get("lpips_status", "")) for r in mine if r.status == "ok"} - {""})
+        ok_statuses = [str(r.metrics.get("lpips_status", "")) for r in mine if r.status == "ok"]
+        statuses = sorted(set(ok_statuses) - {""})
         rows.append(Row(
             variant=key, label=variant_label(key),
             stats={m: _stat_of(mine, m) for m in metrics},
@@ -147,6 +156,8 @@ def build_rows(results: list[RunResult], variants: list[str], metrics: Iterable[
             runs_expected=len(scenes) * len(seeds),
             lpips_status="; ".join(statuses),
             lpips_runs=lpips_coverage(mine)[0],
+            lpips_rescored=sum(s.startswith(RESCORED_LPIPS) for s in ok_statuses),
+            lpips_rescored_status="; ".join(sorted({s for s in ok_statuses if s.startswith(RESCORED_LPIPS)})),
             runs_same_as=sum(bool(r.same_as) for r in mine if r.status == "ok"),
             same_as_reason="; ".join(sorted({r.same_as_reason for r in mine if r.same_as})),
             scenes_by_seed=dict(sorted(Counter(r.seed for r in mine if r.status == "ok").items())),
@@ -205,6 +216,12 @@ def _footnotes(rows: list[Row], n_scenes: int, n_finished: int, devices: dict[st
         counts = ", ".join(f"{n} on {d}" for d, n in sorted(devices.items()))
         notes.append(f"The runs were trained on more than one device ({counts}); the settings are the same, "
                      "the float rounding differs. report.md gives each run's.")
+    rescored = sum(r.lpips_rescored for r in rows)
+    if rescored:
+        how = "; ".join(sorted({r.lpips_rescored_status for r in rows if r.lpips_rescored}))
+        ok = sum(r.runs_ok for r in rows)
+        notes.append(f"LPIPS: {how}" + (f", in {rescored} of the {ok} runs" if rescored < ok else "")
+                     + "; scored after training, where the trainer scores its float renders (docs/results-format.md).")
     for r in rows:
         v = VARIANTS.get(r.variant)
         if v is not None and v.note:

@@ -114,3 +114,28 @@ def test_results_table_orders_by_density_and_says_which_seeds_each_method_has() 
     assert lines[2:] == ["| b | 0 | 0.00 | 20.00 | 30.50 ± 0.25 | 30.00 ± 0.10 | −0.50 | 0, 1, 2 |",
                          "| a | 2 | 1.00 | 18.00 | 17.00 | 19.00 ± 0.30 | +2.00 | 0 / 0, 1 |",
                          "| b | 2 | 1.00 | 18.00 | — | 18.00 | — | — / 0 |"]
+
+
+def test_lpips_lead_is_rgb_only_minus_full_and_absent_where_a_seed_lacks_it() -> None:
+    """benchmarks/density_sweep.py: LPIPS is lower-is-better, so Full's lead in it is RGB-only − Full,
+    paired by seed (positive where Full is closer to the clean frames, as a positive PSNR lead is);
+    a seed whose run has no LPIPS leaves that method with no mean and the scene with no lead."""
+    from benchmarks.density_sweep import score_columns
+    from eval.density_sweep import lpips_table
+
+    def runs(psnr: list[float], lpips: list[float | None]) -> dict[int, dict]:
+        return {s: {"psnr": p, "pooled_psnr": p, "ssim": 0.8, "lpips": q} for s, (p, q) in enumerate(zip(psnr, lpips))}
+
+    scores = {("a", "full"): runs([22.0, 24.0], [0.30, 0.20]), ("a", "rgb-only"): runs([21.0, 21.0], [0.40, 0.40])}
+    row = score_columns(scores, "a")
+    assert row["lead_psnr"] == pytest.approx(2.0) and row["lead_lpips"] == pytest.approx(0.15)
+    assert row["lead_lpips_std"] == pytest.approx(math.sqrt(2) * 0.05)
+    assert row["full_lpips"] == pytest.approx(0.25) and row["rgb-only_lpips"] == pytest.approx(0.40)
+    table = lpips_table([{"scene": "a", "k": 1.0, "optical_depth": 0.5, **row}])
+    assert table[2] == "| a | 1 | 0.50 | 0.400 ± 0.000 | 0.250 ± 0.071 | +0.150 | 0, 1 |"
+    scores[("a", "rgb-only")] = runs([21.0, 21.0], [0.40, None])
+    row = score_columns(scores, "a")
+    assert row["rgb-only_lpips"] is None and row["lead_lpips"] is None and row["full_lpips"] == pytest.approx(0.25)
+    assert row["lead_psnr"] == pytest.approx(2.0)
+    assert lpips_table([{"scene": "a", "k": 1.0, "optical_depth": 0.5, **row}])[2] == \
+        "| a | 1 | 0.50 | — | 0.250 ± 0.071 | — | 0, 1 |"

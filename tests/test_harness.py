@@ -14,6 +14,7 @@ import shutil
 import subprocess
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -602,6 +603,13 @@ def test_a_committed_out_folder_serves_its_finished_runs_on_a_fresh_clone(tmp_pa
     assert {row["variant"] for row in regions} == {"full", "imgdehaze-dcp"}
     assert "skipped" not in paths["per_scene_regions.md"].read_text().lower()
 
+    # --finished-only rebuilds nothing, the dehazed copy included, and still tables the baseline's run
+    shutil.rmtree(out / "datasets")
+    again, _ = regenerate(replace(cfg(clone), finished_only=True), train_fn=heavy_identity_train)
+    assert [(r.variant, r.status, r.cached) for r in again] == [("full", "ok", True), ("imgdehaze-dcp", "ok", True)]
+    assert [r.metrics["psnr"] for r in again] == [r.metrics["psnr"] for r in first]
+    assert _calls(out) == calls and not (out / "datasets").exists()
+
 
 def test_adopt_from_takes_only_runs_that_differ_by_the_python_digest(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                                       capsys: pytest.CaptureFixture[str]) -> None:
@@ -670,3 +678,37 @@ def test_each_run_records_its_float_setup_and_the_report_names_a_mix(tmp_path: P
     assert {r.float_setup for r in again} == {here, "cpu Other; torch 2.13.0+cpu AVX2; kernel g++ -O3"}
     report = paths["report.md"].read_text()
     assert "more than one float setup" in report and "1 under cpu Other; torch 2.13.0+cpu AVX2" in report
+
+
+def test_finished_only_with_digest_tables_an_earlier_trainers_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    """After a trainer change every run is keyed anew, so --finished-only finds none; with --digest
+    it tables the earlier trainer's finished runs kept in --out, under their own keys, trains
+    nothing, and the report names both digests. Without --finished-only, or with a digest no run
+    has, it is one line."""
+    ds = write_tiny_dataset(tmp_path / "ds", "alpha")
+    out = tmp_path / "out"
+    argv = ["--out", str(out), "--scenes", "alpha", "--dataset", f"alpha={ds}", "--methods", "full",
+            "--no-ablations", "--seeds", "0,", "--workers", "1"]
+    cfg = harness_cli.config_from_args(harness_cli.build_parser().parse_args(argv))
+    regenerate(cfg, train_fn=identity_train, generate_fn=tiny_generate)
+    earlier = json.loads(next(out.glob("runs/alpha/full/*/harness.json")).read_text())["code_digest"]
+    real = harness.code_digest
+    monkeypatch.setattr(harness, "code_digest",
+                        lambda *names: ("f" * 64) if names == (harness.TRAINER_ENTRY,) else real(*names))
+    monkeypatch.setattr("eval.report.code_digest",
+                        lambda *names: ("f" * 64) if names == (harness.TRAINER_ENTRY,) else real(*names))
+    n = _calls(out)
+    assert harness_cli.main([*argv, "--finished-only"]) == 0
+    assert "0 runs ok, 0 failed, 1 pending" in capsys.readouterr().out
+    assert harness_cli.main([*argv, "--finished-only", "--digest", earlier[:8]]) == 0
+    assert "1 runs ok, 0 failed" in capsys.readouterr().out and _calls(out) == n
+    report = (out / "report.md").read_text()
+    assert f"smokeseer.api {earlier[:12]} (the runs tabled, --digest; today's trainer ffffffffffff)" in report
+    assert "| alpha | full | 0 | ok | True | cpu |" in report
+    assert harness_cli.main([*argv, "--digest", earlier[:8]]) == 2
+    assert "digest: only with --finished-only" in capsys.readouterr().err
+    assert harness_cli.main([*argv, "--finished-only", "--digest", "00000000"]) == 2
+    assert f"--digest 00000000: no run in {out}/runs has a code_digest starting so (found {earlier[:8]})" \
+        in capsys.readouterr().err
+    assert _calls(out) == n

@@ -210,3 +210,21 @@ def test_a_partly_scored_lpips_column_shows_no_mean_over_a_subset(tmp_path: Path
     per_scene = {(r["scene"], r["metric"]): r for r in csv.DictReader(open(paths["per_scene.csv"]))}
     assert float(per_scene[("a", "lpips")]["mean"]) == pytest.approx(0.31)  # scene a: scored at both seeds
     assert per_scene[("b", "lpips")]["mean"] == ""
+
+
+def test_lpips_scored_after_training_is_said_so_beneath_the_table(tmp_path: Path) -> None:
+    """Runs whose LPIPS benchmarks/rescore_lpips.py wrote from their saved renders get the mean as
+    any other, and a note naming where it came from; a table of trainer-scored runs has none."""
+    how = "rescored from the run's 8-bit surface renders by benchmarks/rescore_lpips.py, alex, x weights"
+    runs = [_run("a", "full", 0, 20.0, lpips=0.30), _run("b", "full", 0, 22.0, lpips=0.40),
+            _run("a", "rgb-only", 0, 15.0, lpips=0.50), _run("b", "rgb-only", 0, 17.0, lpips=0.60)]
+    for r in runs[:3]:
+        r.metrics["lpips_status"] = how
+    md = write_tables(runs, tmp_path)["table1.md"].read_text()
+    assert "| Ours (Full) | 21.00 | 0.500 | 0.350 |" in md and "| Ours (RGB only) | 16.00 | 0.500 | 0.550 |" in md
+    assert f"- LPIPS: {how}, in 3 of the 4 runs; scored after training" in md
+    runs[3].metrics["lpips_status"] = how
+    md = write_tables(runs, tmp_path)["table1.md"].read_text()
+    assert f"- LPIPS: {how}; scored after training" in md
+    md = write_tables(FIXTURE, tmp_path / "trainer")["table1.md"].read_text()
+    assert "scored after training" not in md
