@@ -1,0 +1,169 @@
+"""The mean RGB optical depth of a scene's smoke over its views, and the calibration that makes
+it meet a target (`smoke.optical_depth`, docs/scene-spec.md).
+
+A pixel's smoke optical depth is tau = -ln(1 - alpha), alpha its RGB smoke opacity (the
+`smoke_alpha` pass: 1 - transmittance in front of the surfaces, averaged over R, G, B). The
+scene's value is the opacity-weighted mean of tau over every pixel of every RGB view,
+sum(alpha * tau) / sum(alpha): the mean optical depth of the smoke where there is smoke, with no
+threshold (a threshold would make the value jump as faint pixels cross it). Scaling every smoke
+coefficient by k scales each ray's tau by k, and this mean then rises strictly and continuously
+with k, from 0 to infinity, so every target has exactly one k.
+
+The calibration renders a small RGB `smoke_alpha` pass of the baked scene at the spec's
+coefficients (the pilot), finds the k whose mean meets the target, and the dataset is rendered
+with every smoke coefficient times k. The bake is deterministic and the pilot is a Cycles render
+with the scene's seed, so the spec alone gives the same k again.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from blender.job import ImageSize, WorkerJob
+from contracts.dataset_format import PASS_FILES
+from contracts.imageio import read_exr_channel
+from generator.errors import GeneratorError
+from generator.postprocess import read_alpha
+from generator.worker_client import render_baked
+
+log = logging.getLogger("generate-scene")
+
+#: Opacity is clipped below 1 by this much before the logarithm (float32 holds 1 - 6e-8).
+MAX_ALPHA = 1.0 - 1e-6
+SCALE_RANGE = (1e-4, 1e4)
+SCALE_DIGITS = 4
+"""The calibrated k is rounded to 4 significant digits, so a rerun whose pilot differs in the
+last bits of a few pixels renders the same coefficients."""
+
+
+def pixel_optical_depth(alpha: np.ndarray) -> np.ndarray:
+    return -np.log1p(-np.clip(np.asarray(alpha, dtype=np.float64), 0.0, MAX_ALPHA))
+
+
+def weighted_mean(tau: np.ndarray) -> float:
+    """Opacity-weighted mean of optical depths `tau`; 0 when there is no smoke."""
+    weight = -np.expm1(-tau)
+    total = float(weight.sum())
+    return float((weight * tau).sum() / total) if total > 0 else 0.0
+
+
+def mean_optical_depth(alphas: np.ndarray, scale: float = 1.0) -> float:
+    """The scene's mean optical depth from smoke opacities `alphas` (any shape), after every smoke
+    coefficient is scaled by `scale`."""
+    return weighted_mean(scale * pixel_optical_depth(alphas))
+
+
+def solve_increasing(fn: Callable[[float], float], target: float, lo: float, hi: float,
+                     steps: int = 80) -> float:
+    """The x in [lo, hi] where the increasing function `fn` meets `target`, by bisection on log x
+    (the nearer end when the target lies outside)."""
+    a, b = math.log(lo), math.log(hi)
+    for _ in range(steps):
+        mid = 0.5 * (a + b)
+        if fn(math.exp(mid)) < target:
+            a = mid
+        else:
+            b = mid
+    return math.exp(0.5 * (a + b))
+
+
+def scale_for_target(alphas: np.ndarray, target: float) -> float:
+    """The factor k on every smoke coefficient that brings `mean_optical_depth` to `target`."""
+    tau = pixel_optical_depth(alphas)
+    tau = tau[tau > 0]
+    return solve_increasing(lambda k: weighted_mean(k * tau), target, *SCALE_RANGE)
+
+
+def round_significant(value: float, digits: int = SCALE_DIGITS) -> float:
+    return float(f"{value:.{digits - 1}e}")
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """What the calibration found: the pilot's value at the spec's coefficients, and k."""
+
+    target: float
+    pilot: float
+    scale: float
+
+    def describe(self) -> dict[str, float]:
+        return {"target": self.target, "pilot": self.pilot, "calibration_scale": self.scale}
+
+
+PILOT_SHRINK = 2
+PILOT_SAMPLES = 4
+PILOT_FRAME_STEP = 2
+"""The pilot renders every 2nd RGB frame at half the width and height with 4 samples, 1/32 of
+the work of the dataset's own opacity pass (docs/generator.md measures what this costs in
+accuracy)."""
+
+
+def pilot_job(job: WorkerJob, folder: Path) -> WorkerJob:
+    """The render stage of `job` reduced to a small RGB smoke opacity pass at the spec's
+    coefficients (density scale 1), written under `folder`."""
+    cam = job.cameras["rgb"]
+    small = ImageSize(max(1, cam.render.width // PILOT_SHRINK), max(1, cam.render.height // PILOT_SHRINK),
+                      cam.render.fl_x * (cam.render.width // PILOT_SHRINK) / cam.render.width)
+    pilot = replace(cam, render=small, depth=small, samples=min(cam.samples, PILOT_SAMPLES),
+                    frames=cam.frames[::PILOT_FRAME_STEP])
+    return replace(job, raw_dir=str(folder / "raw"), summary_path=str(folder / "worker_summary.json"),
+                   density_scale=1.0, passes={"rgb": ("smoke_alpha",)}, cameras={**job.cameras, "rgb": pilot})
+
+
+def pilot_alphas(folder: Path) -> np.ndarray:
+    files = sorted((folder / "raw" / "rgb" / "smoke_alpha").glob("*.exr"))
+    return np.stack([read_alpha(f) for f in files]) if files else np.zeros((0, 0, 0))
+
+
+def calibrate(alphas: np.ndarray, target: float, source: str) -> Calibration:
+    """k from the pilot's opacities; a pilot with no smoke in any view cannot be calibrated."""
+    pilot = mean_optical_depth(alphas)
+    if pilot <= 0:
+        raise GeneratorError(f"{source}: smoke.optical_depth: no RGB view shows any smoke at the spec's coefficients, "
+                             "so no density meets the target; move the sources or the cameras")
+    scale = round_significant(scale_for_target(alphas, target))
+    if not SCALE_RANGE[0] < scale < SCALE_RANGE[1]:
+        raise GeneratorError(f"{source}: smoke.optical_depth: {target:g} needs the smoke {scale:.3g} times as dense "
+                             f"as smoke.extinction_per_m gives (mean optical depth {pilot:.3g}); "
+                             f"set extinction_per_m nearer")
+    return Calibration(target=target, pilot=pilot, scale=scale)
+
+
+def dataset_alphas(dataset: Path) -> np.ndarray:
+    """Every RGB smoke-opacity image of a finished dataset, stacked (frames, H, W)."""
+    folder = dataset / PASS_FILES[("rgb", "smoke_alpha")][0].folder
+    files = sorted(folder.glob("*.exr"))
+    if not files:
+        return np.zeros((0, 0, 0), dtype=np.float32)
+    return np.stack([read_exr_channel(f, "A") for f in files])
+
+
+@dataclass
+class SmokeCalibrator:
+    """Run between the bake and the render (`generator.worker_client.run_worker`): renders the
+    pilot into WORK/pilot (kept for a resumed run) and returns the job with every smoke
+    coefficient times the calibrated k."""
+
+    target: float
+    work: Path
+    source: str
+    show_progress: bool = True
+    result: Calibration | None = None
+    seconds: float = 0.0
+
+    def __call__(self, job: WorkerJob) -> WorkerJob:
+        started = time.perf_counter()
+        folder = self.work / "pilot"
+        render_baked(pilot_job(job, folder), folder / "job.json", self.work / "logs" / "worker.log",
+                     self.show_progress)
+        self.result = calibrate(pilot_alphas(folder), self.target, self.source)
+        self.seconds = time.perf_counter() - started
+        log.info("smoke calibrated: mean RGB optical depth %.3f at the spec's coefficients, x%.4g for the target %.3f "
+                 "(%.1f s)", self.result.pilot, self.result.scale, self.target, self.seconds)
+        return replace(job, density_scale=job.density_scale * self.result.scale)
