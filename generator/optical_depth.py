@@ -9,10 +9,11 @@ threshold (a threshold would make the value jump as faint pixels cross it). Scal
 coefficient by k scales each ray's tau by k, and this mean then rises strictly and continuously
 with k, from 0 to infinity, so every target has exactly one k.
 
-The calibration renders a small RGB `smoke_alpha` pass of the baked scene at the spec's
-coefficients (the pilot), finds the k whose mean meets the target, and the dataset is rendered
-with every smoke coefficient times k. The bake is deterministic and the pilot is a Cycles render
-with the scene's seed, so the spec alone gives the same k again.
+The calibration renders a small RGB `smoke_alpha` pass of the baked scene (a pilot) at the
+spec's coefficients, finds the k whose mean meets the target, renders a second pilot at that k
+and refines it; the dataset is rendered with every smoke coefficient times k. The bake is
+deterministic and the pilots are Cycles renders with the scene's seed, so the spec alone gives
+the same k again.
 """
 from __future__ import annotations
 
@@ -21,11 +22,11 @@ import math
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
-from blender.job import ImageSize, WorkerJob
+from blender.job import WorkerJob
 from contracts.dataset_format import PASS_FILES
 from contracts.imageio import read_exr_channel
 from generator.errors import GeneratorError
@@ -86,34 +87,34 @@ def round_significant(value: float, digits: int = SCALE_DIGITS) -> float:
 
 @dataclass(frozen=True)
 class Calibration:
-    """What the calibration found: the pilot's value at the spec's coefficients, and k."""
+    """What the calibration found: each pilot's scale and mean optical depth, and the final k."""
 
     target: float
-    pilot: float
+    pilots: tuple[tuple[float, float], ...]
     scale: float
 
-    def describe(self) -> dict[str, float]:
-        return {"target": self.target, "pilot": self.pilot, "calibration_scale": self.scale}
+    def describe(self) -> dict[str, Any]:
+        return {"target": self.target, "calibration_scale": self.scale,
+                "pilots": [{"scale": k, "optical_depth": value} for k, value in self.pilots]}
 
 
-PILOT_SHRINK = 2
-PILOT_SAMPLES = 4
+PILOT_ROUNDS = 2
+PILOT_SAMPLES = 1
 PILOT_FRAME_STEP = 2
-"""The pilot renders every 2nd RGB frame at half the width and height with 4 samples, 1/32 of
-the work of the dataset's own opacity pass (docs/generator.md measures what this costs in
-accuracy)."""
+"""Two pilots, each every 2nd RGB frame at the camera's size with 1 sample (the opacity pass
+carries each ray's exact transmittance, blender/materials.py, so one sample a pixel is enough;
+1/(2 x samples) of the work of the dataset's own opacity pass): the first at the spec's
+coefficients, the second at the k the first gives, so the second's k is an interpolation near
+1 rather than an extrapolation (docs/generator.md measures what is left)."""
 
 
-def pilot_job(job: WorkerJob, folder: Path) -> WorkerJob:
-    """The render stage of `job` reduced to a small RGB smoke opacity pass at the spec's
-    coefficients (density scale 1), written under `folder`."""
+def pilot_job(job: WorkerJob, folder: Path, scale: float) -> WorkerJob:
+    """The render stage of `job` reduced to the RGB smoke opacity of every 2nd frame with one
+    sample, with every smoke coefficient times `scale`, written under `folder`."""
     cam = job.cameras["rgb"]
-    small = ImageSize(max(1, cam.render.width // PILOT_SHRINK), max(1, cam.render.height // PILOT_SHRINK),
-                      cam.render.fl_x * (cam.render.width // PILOT_SHRINK) / cam.render.width)
-    pilot = replace(cam, render=small, depth=small, samples=min(cam.samples, PILOT_SAMPLES),
-                    frames=cam.frames[::PILOT_FRAME_STEP])
+    pilot = replace(cam, samples=PILOT_SAMPLES, frames=cam.frames[::PILOT_FRAME_STEP])
     return replace(job, raw_dir=str(folder / "raw"), summary_path=str(folder / "worker_summary.json"),
-                   density_scale=1.0, passes={"rgb": ("smoke_alpha",)}, cameras={**job.cameras, "rgb": pilot})
+                   density_scale=scale, passes={"rgb": ("smoke_alpha",)}, cameras={**job.cameras, "rgb": pilot})
 
 
 def pilot_alphas(folder: Path) -> np.ndarray:
@@ -121,18 +122,16 @@ def pilot_alphas(folder: Path) -> np.ndarray:
     return np.stack([read_alpha(f) for f in files]) if files else np.zeros((0, 0, 0))
 
 
-def calibrate(alphas: np.ndarray, target: float, source: str) -> Calibration:
-    """k from the pilot's opacities; a pilot with no smoke in any view cannot be calibrated."""
-    pilot = mean_optical_depth(alphas)
-    if pilot <= 0:
-        raise GeneratorError(f"{source}: smoke.optical_depth: no RGB view shows any smoke at the spec's coefficients, "
-                             "so no density meets the target; move the sources or the cameras")
-    scale = round_significant(scale_for_target(alphas, target))
+def next_scale(alphas: np.ndarray, rendered_at: float, target: float, source: str) -> float:
+    """The k on the spec's coefficients that meets `target`, from a pilot rendered at `rendered_at`."""
+    if mean_optical_depth(alphas) <= 0:
+        raise GeneratorError(f"{source}: smoke.optical_depth: no RGB view shows any smoke, so no density meets the "
+                             "target; move the sources or the cameras")
+    scale = round_significant(rendered_at * scale_for_target(alphas, target))
     if not SCALE_RANGE[0] < scale < SCALE_RANGE[1]:
         raise GeneratorError(f"{source}: smoke.optical_depth: {target:g} needs the smoke {scale:.3g} times as dense "
-                             f"as smoke.extinction_per_m gives (mean optical depth {pilot:.3g}); "
-                             f"set extinction_per_m nearer")
-    return Calibration(target=target, pilot=pilot, scale=scale)
+                             f"as smoke.extinction_per_m gives; set extinction_per_m nearer")
+    return scale
 
 
 def dataset_alphas(dataset: Path) -> np.ndarray:
@@ -159,11 +158,17 @@ class SmokeCalibrator:
 
     def __call__(self, job: WorkerJob) -> WorkerJob:
         started = time.perf_counter()
-        folder = self.work / "pilot"
-        render_baked(pilot_job(job, folder), folder / "job.json", self.work / "logs" / "worker.log",
-                     self.show_progress)
-        self.result = calibrate(pilot_alphas(folder), self.target, self.source)
+        scale, pilots = 1.0, []
+        for i in range(PILOT_ROUNDS):
+            folder = self.work / "pilot" / f"round{i + 1}"
+            render_baked(pilot_job(job, folder, scale), folder / "job.json", self.work / "logs" / "worker.log",
+                         self.show_progress)
+            alphas = pilot_alphas(folder)
+            pilots.append((scale, mean_optical_depth(alphas)))
+            scale = next_scale(alphas, scale, self.target, self.source)
+        self.result = Calibration(self.target, tuple(pilots), scale)
         self.seconds = time.perf_counter() - started
-        log.info("smoke calibrated: mean RGB optical depth %.3f at the spec's coefficients, x%.4g for the target %.3f "
-                 "(%.1f s)", self.result.pilot, self.result.scale, self.target, self.seconds)
-        return replace(job, density_scale=job.density_scale * self.result.scale)
+        log.info("smoke calibrated in %.1f s: mean RGB optical depth %s at scales %s; x%.4g for the target %.3f",
+                 self.seconds, ", ".join(f"{v:.3f}" for _, v in pilots), ", ".join(f"{k:.4g}" for k, _ in pilots),
+                 scale, self.target)
+        return replace(job, density_scale=job.density_scale * scale)

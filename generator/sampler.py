@@ -42,7 +42,7 @@ NEAR_M = 0.05
 CLEAN_SAMPLES = {"rgb": 64, "thermal": 32}
 """The random set's clean passes: 64 RGB samples (docs/generator.md, "The scene sampler")."""
 THERMAL_SAMPLES = 8
-EXTINCTION_PER_OPTICAL_DEPTH = 8.0
+EXTINCTION_PER_OPTICAL_DEPTH = 3.0
 """The pilot render's extinction per unit target optical depth (1/m per unit grid density): a
 guess that puts the pilot near the target, so the calibration factor stays near 1."""
 
