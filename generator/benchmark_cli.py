@@ -200,7 +200,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.random < 1 or args.workers < 1 or args.seed_base < 0:
             parser.error("--random and --workers must be at least 1, --seed-base at least 0")
         return run_random_set(args.random, args.seed_base, args.set, args.out, args.workers, args.scheduler,
-                              args.force)
+                              args.force, args.quiet)
     if args.profile is None:
         parser.error("give --profile NAME (the ten scenes) or --random N (drawn scenes)")
     if args.set:

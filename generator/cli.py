@@ -34,7 +34,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("spec", nargs="?", type=Path, help="scene spec YAML (or use --preset or --random)")
     p.add_argument("--preset", help="a built-in scene (see --list-presets)")
     p.add_argument("--random", type=int, metavar="SEED",
-                   help="draw a scene from SEED (docs/generator.md, 'The scene sampler'); its scene.yaml regenerates it")
+                   help="draw a scene from SEED (docs/generator.md, 'The scene sampler'); its scene.yaml "
+                        "regenerates it")
     p.add_argument("--set", action="append", default=[], metavar="AXIS=VALUE",
                    help="with --random: pin a sampler axis to a value or a range LO:HI, e.g. smoke.particles=soot, "
                         "fire=false, optical_depth=0.5:2")

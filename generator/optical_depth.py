@@ -9,7 +9,7 @@ threshold (a threshold would make the value jump as faint pixels cross it). Scal
 coefficient by k scales each ray's tau by k, and this mean then rises strictly and continuously
 with k, from 0 to infinity, so every target has exactly one k.
 
-The calibration renders a small RGB `smoke_alpha` pass of the baked scene (a pilot) at the
+The calibration renders a reduced RGB `smoke_alpha` pass of the baked scene (a pilot) at the
 spec's coefficients, finds the k whose mean meets the target, renders a second pilot at that k
 and refines it; the dataset is rendered with every smoke coefficient times k. The bake is
 deterministic and the pilots are Cycles renders with the scene's seed, so the spec alone gives
@@ -99,20 +99,23 @@ class Calibration:
 
 
 PILOT_ROUNDS = 2
-PILOT_SAMPLES = 1
+PILOT_SAMPLES = 4
 PILOT_FRAME_STEP = 2
-"""Two pilots, each every 2nd RGB frame at the camera's size with 1 sample (the opacity pass
-carries each ray's exact transmittance, blender/materials.py, so one sample a pixel is enough;
-1/(2 x samples) of the work of the dataset's own opacity pass): the first at the spec's
-coefficients, the second at the k the first gives, so the second's k is an interpolation near
-1 rather than an extrapolation (docs/generator.md measures what is left)."""
+"""Two pilots, each every 2nd RGB frame at the camera's size with 4 samples (at most the
+camera's): 1/8 of the work of the dataset's own 16-sample opacity pass. The opacity pass carries
+each ray's exact transmittance (blender/materials.py), so even one sample a pixel is smooth, but
+a pixel that averages fewer rays shows more optical depth where the smoke varies within it: at
+one sample the achieved value fell 1.5-6 % short of the target, at four 1-3 %
+(docs/experiments/2026-12-05-random-scene-sampler.md). The first pilot renders at the spec's
+coefficients, the second at the k the first gives, because Cycles' optical depth grows a little
+less than linearly with the coefficients where it is large; the second's k is then a short step."""
 
 
 def pilot_job(job: WorkerJob, folder: Path, scale: float) -> WorkerJob:
-    """The render stage of `job` reduced to the RGB smoke opacity of every 2nd frame with one
-    sample, with every smoke coefficient times `scale`, written under `folder`."""
+    """The render stage of `job` reduced to the RGB smoke opacity of every 2nd frame with a few
+    samples, with every smoke coefficient times `scale`, written under `folder`."""
     cam = job.cameras["rgb"]
-    pilot = replace(cam, samples=PILOT_SAMPLES, frames=cam.frames[::PILOT_FRAME_STEP])
+    pilot = replace(cam, samples=min(cam.samples, PILOT_SAMPLES), frames=cam.frames[::PILOT_FRAME_STEP])
     return replace(job, raw_dir=str(folder / "raw"), summary_path=str(folder / "worker_summary.json"),
                    density_scale=scale, passes={"rgb": ("smoke_alpha",)}, cameras={**job.cameras, "rgb": pilot})
 

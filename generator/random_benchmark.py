@@ -94,7 +94,7 @@ def markdown_table(records: list[dict[str, Any]], summary: dict[str, Any]) -> st
 
 
 def run_random_set(count: int, seed_base: int, pins: list[str], out: Path, workers: int, scheduler: str,
-                   force: bool) -> int:
+                   force: bool, quiet: bool = False) -> int:
     """Generate the set; prints a line per scene and writes benchmark.json and benchmark.md."""
     seeds = list(range(seed_base, seed_base + count))
     try:  # bad pins or seeds are one line before any scene starts
@@ -124,7 +124,8 @@ def run_random_set(count: int, seed_base: int, pins: list[str], out: Path, worke
         return ok, fail
 
     jobs = [(random_scene_task, (seed, pins, str(out.resolve()), threads, force), *done(seed)) for seed in seeds]
-    with open_executor(workers, scheduler) as ex, tqdm(total=len(jobs), desc="scenes", unit="scene") as bar:
+    with (open_executor(workers, scheduler) as ex,
+          tqdm(total=len(jobs), desc="scenes", unit="scene", disable=quiet) as bar):
         drain(ex, jobs, bar)
         where = ex.description
     ordered = [records[s] for s in seeds if s in records]

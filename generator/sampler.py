@@ -227,24 +227,25 @@ def cameras_clear_of(spec: SceneSpec, margin: float = 0.3) -> bool:
 def _trajectory(rng: np.random.Generator, kind: str, centre: np.ndarray, distance: float) -> TrajectorySpec:
     """A path `distance` from the look-at centre, shaped by draws from `rng` (taken up front, so
     refitting the distance leaves the shape alone)."""
+    def point(v: np.ndarray) -> tuple[float, float, float]:
+        return tuple(rounded(c) for c in v)  # type: ignore[return-value]
+
     if kind == "orbit":
         elevation, start, sweep = rng.uniform(15.0, 40.0), rng.uniform(0.0, 360.0), rng.uniform(60.0, 150.0)
         sign = 1.0 if rng.random() < 0.5 else -1.0
         e = math.radians(elevation)
-        return TrajectorySpec(kind="orbit", center=tuple(rounded(v) for v in centre), radius=rounded(distance * math.cos(e)),
-                              height=rounded(distance * math.sin(e)), start_deg=rounded(start, 1), sweep_deg=rounded(sign * sweep, 1))
+        return TrajectorySpec(kind="orbit", center=point(centre), radius=rounded(distance * math.cos(e)),
+                              height=rounded(distance * math.sin(e)), start_deg=rounded(start, 1),
+                              sweep_deg=rounded(sign * sweep, 1))
     heading, depression = rng.uniform(0.0, 2 * math.pi), math.radians(rng.uniform(25.0, 50.0))
     half_path, pan = rng.uniform(0.3, 0.6), rng.uniform(0.0, 0.5)
     view = np.array([math.cos(heading), math.sin(heading), 0.0])
     along = np.array([-view[1], view[0], 0.0])
     mid = centre + distance * (-math.cos(depression) * view + np.array([0.0, 0.0, math.sin(depression)]))
-
-    def point(v: np.ndarray) -> tuple[float, float, float]:
-        return tuple(rounded(c) for c in v)  # type: ignore[return-value]
-
     return TrajectorySpec(kind="flyover", start=point(mid - half_path * distance * along),
                           end=point(mid + half_path * distance * along),
-                          look_from=point(centre - pan * distance * along), look_to=point(centre + pan * distance * along))
+                          look_from=point(centre - pan * distance * along),
+                          look_to=point(centre + pan * distance * along))
 
 
 def _fit_rig(seed: int, spec: SceneSpec, kind: str, placed: list[Placed]) -> SceneSpec:
@@ -302,8 +303,8 @@ def draw_spec(seed: int, pins: dict[str, Pin] | None = None, manifest: Manifest 
         "lights": {"sun_strength": rounded(light_rng.uniform(2.5, 5.0), 2),
                    "sun_elevation_deg": rounded(axes["lights.sun_elevation_deg"], 1),
                    "sun_azimuth_deg": rounded(light_rng.uniform(0.0, 360.0), 1),
-                   "sky_color": [rounded(v) for v in np.clip(np.array([0.55, 0.65, 0.85]) + light_rng.uniform(-0.08, 0.08, 3),
-                                                        0.0, 1.0)],
+                   "sky_color": [rounded(v) for v in np.clip(np.array([0.55, 0.65, 0.85])
+                                                             + light_rng.uniform(-0.08, 0.08, 3), 0.0, 1.0)],
                    "sky_strength": rounded(light_rng.uniform(0.5, 1.1), 2),
                    "sky_temperature_k": rounded(ambient - light_rng.uniform(25.0, 50.0), 2),
                    "ambient_temperature_k": ambient},

@@ -97,11 +97,6 @@ class Pin:
     value: Any = None
     range: tuple[float, float] | None = None
 
-    def text(self) -> str:
-        shown = f"{self.range[0]:g}:{self.range[1]:g}" if self.range else str(self.value).lower() \
-            if isinstance(self.value, bool) else str(self.value)
-        return f"{self.axis}={shown}"
-
 
 def _number(axis: Axis, key: str, raw: str) -> float:
     value = read_set_value(key, raw, PIN_FLAG)

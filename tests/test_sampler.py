@@ -279,7 +279,8 @@ def test_the_opacity_pass_carries_each_rays_transmittance(tmp_path: Path) -> Non
     assert np.sqrt(np.mean((blocks(four) - blocks(reference)) ** 2)) < 0.03
     # ... and not quantised in steps of 1/samples: most smoke pixels of the 1-sample image differ.
     assert len(np.unique(np.round(one[smoke], 4))) > 0.5 * smoke.sum()
-    print(f"mean opacity: scattering x1024 {reference.mean():.4f}, extinction x4 {four.mean():.4f}, x1 {one.mean():.4f}")
+    print(f"mean opacity: scattering x1024 {reference.mean():.4f}, extinction x4 {four.mean():.4f}, "
+          f"x1 {one.mean():.4f}")
 
 
 @pytest.mark.blender
