@@ -22,6 +22,7 @@ from scipy.spatial.transform import Rotation
 from generator import benchmark_cli, cli
 from generator.api import random_spec
 from generator.assets import load_manifest
+from generator.errors import SpecError
 from generator.footprints import local_bounds
 from generator.optical_depth import mean_optical_depth, scale_for_target
 from generator.rig import rgb_frames, timeline
@@ -223,6 +224,22 @@ def test_optical_depth_statistic_and_its_calibration() -> None:
     # Extremes: no smoke is 0, opaque smoke is finite, nothing is NaN.
     assert mean_optical_depth(np.zeros((3, 4, 4))) == 0.0
     assert math.isfinite(mean_optical_depth(np.ones((3, 4, 4)))) and math.isfinite(mean_optical_depth(alphas, 1e6))
+
+
+def test_optical_depth_is_an_optional_spec_field_that_leaves_older_digests_alone() -> None:
+    from generator.presets import load_preset
+
+    demo = load_preset("demo")
+    data = demo.to_dict()
+    assert demo.smoke.optical_depth is None and "optical_depth" not in data["smoke"]
+    data["smoke"]["optical_depth"] = 1.25
+    spec = parse_spec(data, "scene.yaml")
+    assert spec.smoke.optical_depth == 1.25 and spec.sha256() != demo.sha256()
+    assert parse_spec(yaml.safe_load(spec.to_yaml()), "scene.yaml") == spec
+    for bad in (0, -1.0, "thick", 51.0):
+        data["smoke"]["optical_depth"] = bad
+        with pytest.raises(SpecError, match="scene.yaml: smoke.optical_depth: must be"):
+            parse_spec(data, "scene.yaml")
 
 
 def _blender_script(name: str, tmp_path: Path, *args: str) -> dict:
