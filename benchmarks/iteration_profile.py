@@ -76,7 +76,8 @@ from benchmarks.iteration_attribution import (DENSIFY_STEP, LABEL, PART_ORDER, a
 from contracts.atomic import write_dataclass_csv, write_text  # noqa: E402
 from contracts.train_log import read_train_log  # noqa: E402
 from smokeseer import api  # noqa: E402
-from smokeseer.config import DensifyConfig, DensifyWindow, TrainConfig, make_config, parse_set_items  # noqa: E402
+from contracts.set_items import parse_set_items  # noqa: E402
+from smokeseer.config import DensifyConfig, DensifyWindow, TrainConfig, make_config  # noqa: E402
 from smokeseer.model.deform import MOTION_KEYS, motion_tensors  # noqa: E402
 from smokeseer.model.gaussians import GaussianSet, edit_rows, quat_to_rotmat  # noqa: E402
 from smokeseer.model.optim import Adam  # noqa: E402

@@ -238,6 +238,24 @@ def rgb_smoke(spec: RgbSmokeJob) -> bpy.types.Material:
     return mat
 
 
+def rgb_smoke_extinction(spec: RgbSmokeJob) -> bpy.types.Material:
+    """The RGB smoke's per-channel extinction (scattering plus absorption) as pure absorption,
+    for the smoke opacity pass. Cycles ends a camera sample that scatters, so through the
+    scattering material each sample's transparency is all or nothing and a pixel's opacity is
+    quantised in steps of 1/samples; through this one every sample carries the ray's exact
+    transmittance, and the expected opacity is the same."""
+    extinction = [spec.scatter_density * s + spec.absorb_density * (1.0 - a)
+                  for s, a in zip(spec.scatter_color, spec.absorb_color)]
+    top = max(extinction)
+    mat, tree = _tree("smoke.rgb.extinction")
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    absorb = tree.nodes.new("ShaderNodeVolumeAbsorption")
+    absorb.inputs["Color"].default_value = (*[1.0 - e / top if top > 0 else 1.0 for e in extinction], 1.0)
+    tree.links.new(_density(tree, top), absorb.inputs["Density"])
+    tree.links.new(absorb.outputs["Volume"], out.inputs["Volume"])
+    return mat
+
+
 def thermal_smoke(spec: ThermalSmokeJob) -> bpy.types.Material:
     """LWIR: absorption with the Mie extinction and Kirchhoff emission sigma_a * L_band(T).
 

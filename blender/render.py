@@ -31,6 +31,7 @@ class PassSetup:
     depth_pass: bool = False
     denoise: str = "none"  # OpenImageDenoise guides, or none
     volume_step_rate: float = 1.0
+    smoke_material: str = ""  # the smoke domain's material in this pass
 
 
 #: Cycles' denoising inputs for each `denoise` setting of the spec.
@@ -40,16 +41,18 @@ DENOISE_INPUTS = {"color": "RGB", "albedo": "RGB_ALBEDO", "albedo_normal": "RGB_
 def pass_setup(modality: str, name: str, camera: CameraJob) -> PassSetup:
     """Only the smoky image (what a real camera records) is denoised; ground truth stays exact."""
     samples, step_rate = camera.samples, camera.volume_step_rate
+    smoke = f"smoke.{modality}"
     if name == "depth":
-        return PassSetup(False, False, 1, 0, True, "EXR", depth_pass=True)
-    if name == "smoke_alpha":
-        return PassSetup(True, True, samples, 0, False, "EXR", volume_step_rate=step_rate)
+        return PassSetup(False, False, 1, 0, True, "EXR", depth_pass=True, smoke_material=smoke)
+    if name == "smoke_alpha":  # RGB: the extinction as absorption, so each sample carries the ray's transmittance
+        return PassSetup(True, True, samples, 0, False, "EXR", volume_step_rate=step_rate,
+                         smoke_material="smoke.rgb.extinction" if modality == "rgb" else smoke)
     fmt = "PNG" if modality == "rgb" else "EXR"
     bounces = 4 if modality == "rgb" else 0
     denoise = camera.denoise if name == "smoky" else "none"
     samples = camera.clean_samples if name == "clean" else samples
     return PassSetup(name in SMOKE_PASSES, False, samples, bounces, False, fmt, denoise=denoise,
-                     volume_step_rate=step_rate)
+                     volume_step_rate=step_rate, smoke_material=smoke)
 
 
 def configure_engine(seed: int, threads: int) -> None:
@@ -84,7 +87,8 @@ def configure_engine(seed: int, threads: int) -> None:
 
 
 def select_modality(modality: str, built: BuiltScene) -> None:
-    """Swap every material and the world to the modality's set; lights only light RGB."""
+    """Swap every surface material and the world to the modality's set; lights only light RGB
+    (the smoke's material is the pass's, `apply_pass`)."""
     scene = bpy.context.scene
     slot = 0 if modality == "rgb" else 1
     for obj_name, names in built.surfaces.items():
@@ -94,10 +98,6 @@ def select_modality(modality: str, built: BuiltScene) -> None:
     scene.world = bpy.data.worlds[f"world.{modality}"]
     if built.sun:
         bpy.data.objects[built.sun].hide_render = modality != "rgb"
-    if built.domain:
-        dom = bpy.data.objects[built.domain]
-        dom.data.materials.clear()
-        dom.data.materials.append(bpy.data.materials[f"smoke.{modality}"])
 
 
 def apply_pass(setup: PassSetup, built: BuiltScene, camera: ImageSize) -> None:
@@ -116,6 +116,10 @@ def apply_pass(setup: PassSetup, built: BuiltScene, camera: ImageSize) -> None:
     if cycles.use_denoising:
         cycles.denoising_input_passes = DENOISE_INPUTS[setup.denoise]
     render.film_transparent = setup.holdout_surfaces
+    if built.domain:  # the twin shares the domain's mesh, so its material too
+        dom = bpy.data.objects[built.domain]
+        dom.data.materials.clear()
+        dom.data.materials.append(bpy.data.materials[setup.smoke_material])
     for obj_name in built.surfaces:
         bpy.data.objects[obj_name].is_holdout = setup.holdout_surfaces
     scene.view_layers[0].use_pass_z = setup.depth_pass

@@ -260,5 +260,6 @@ def build(job: WorkerJob) -> BuiltScene:
         add_obstacles(objects, built)
         build_smoke(job, built)
         materials.rgb_smoke(job.smoke_rgb)
+        materials.rgb_smoke_extinction(job.smoke_rgb)
         materials.thermal_smoke(job.smoke_thermal)
     return built

@@ -10,11 +10,9 @@ trainer's return value, so cached and fresh runs go through the same reader.
 
 from __future__ import annotations
 
-import concurrent.futures as cf
 import fcntl
 import json
 import logging
-import multiprocessing
 import os
 import shutil
 import sys
@@ -30,6 +28,7 @@ import numpy as np
 from tqdm import tqdm
 
 from contracts.atomic import write_json
+from contracts.executors import Executor, drain, open_executor
 from contracts.provenance import provenance
 from contracts.results_format import ResultsFormatError, read_metrics
 from contracts.source import code_digest
@@ -250,57 +249,6 @@ def _train_run(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int, dev
     return res
 
 
-# ---------------------------------------------------------------- execution back-ends
-
-
-@dataclass
-class _Executor:
-    submit: Callable[..., Any]
-    as_completed: Callable[[list[Any]], Iterator[Any]]
-    description: str
-
-
-@contextmanager
-def open_executor(workers: int, scheduler: str | None) -> Iterator[_Executor]:
-    """A spawn-context process pool by default; "local" starts a Dask LocalCluster with
-    one single-threaded worker per slot; any other value is a Dask scheduler address."""
-    if scheduler is None:
-        ctx = multiprocessing.get_context("spawn")  # bpy/torch state must not be forked
-        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-            yield _Executor(pool.submit, cf.as_completed, f"process pool, {workers} worker(s)")
-        return
-    from dask.distributed import Client, LocalCluster, as_completed
-
-    cluster = None
-    if scheduler == "local":
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True)
-        client = Client(cluster)
-    else:
-        client = Client(scheduler, timeout="30s")
-    try:
-        yield _Executor(lambda fn, *a: client.submit(fn, *a, pure=False), as_completed,
-                        f"dask scheduler {client.scheduler.address}")
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
-
-
-def _drain(ex: _Executor, jobs: list[tuple[Any, tuple[Any, ...], Callable[[Any], None],
-                                           Callable[[BaseException], None]]], bar: tqdm) -> None:
-    """Submit every job, then route each result (or a worker crash) to its callback."""
-    futures = {ex.submit(fn, *args): (ok, fail) for fn, args, ok, fail in jobs}
-    for fut in ex.as_completed(list(futures)):
-        ok, fail = futures[fut]
-        try:
-            value = fut.result()
-        except Exception as exc:  # a worker died (e.g. a native abort): the task failed
-            fail(exc)
-        else:
-            ok(value)
-        bar.update(1)
-
-
 # ---------------------------------------------------------------- orchestration
 
 
@@ -364,7 +312,7 @@ def plan_dehazed(cfg: HarnessConfig, sources: list[DatasetJob]) -> list[DatasetJ
     return jobs
 
 
-def produce_datasets(ex: _Executor, jobs: list[DatasetJob], desc: str, finished_only: bool = False) -> None:
+def produce_datasets(ex: Executor, jobs: list[DatasetJob], desc: str, finished_only: bool = False) -> None:
     """Run every job that is not cached; a job whose source failed fails without running; with
     ``finished_only`` a job not yet done stays pending."""
     pending = []
@@ -393,7 +341,7 @@ def produce_datasets(ex: _Executor, jobs: list[DatasetJob], desc: str, finished_
         pending.append((dataset_task, (o, job.make), ok, fail))
     if pending:
         with tqdm(total=len(pending), desc=desc, unit="scene", file=sys.stderr) as bar:
-            _drain(ex, pending, bar)
+            drain(ex, pending, bar)
 
 
 def plan_runs(cfg: HarnessConfig, datasets: dict[str, DatasetOutcome],
@@ -481,7 +429,7 @@ def _line(r: RunResult) -> str:
     return f"[FAILED] {head}: {r.error.splitlines()[0] if r.error else 'unknown error'}"
 
 
-def execute_runs(cfg: HarnessConfig, ex: _Executor, plan: Plan, train_fn: TrainFn,
+def execute_runs(cfg: HarnessConfig, ex: Executor, plan: Plan, train_fn: TrainFn,
                  datasets: dict[str, DatasetOutcome], dehazed: dict[str, DatasetOutcome]) -> list[RunResult]:
     """Collect cached runs and those a finished Full run stands for (eval/twins.py), run the rest
     (or, with ``finished_only``, list them as pending); a run whose dataset failed is failed, not
@@ -532,7 +480,7 @@ def execute_runs(cfg: HarnessConfig, ex: _Executor, plan: Plan, train_fn: TrainF
                         leaders.get(str(run_dir), "") if leaders.get(str(run_dir)) in training else ""), ok, fail)
             for spec, run_dir, prep, ok, fail in pending]
     if jobs:
-        _drain(ex, jobs, bar)
+        drain(ex, jobs, bar)
     bar.close()
     order = {(s.scene, s.variant, s.seed): i for i, s in enumerate(specs)}
     return sorted(results, key=lambda r: order[(r.scene, r.variant, r.seed)])

@@ -19,7 +19,8 @@ from eval.runs import ABLATIONS, METHODS, VARIANTS
 from eval.settings import default_workers
 from generator.cli import parse_size
 from generator.profiles import get_profile
-from smokeseer.config import LPIPS_NETS, parse_set_items
+from contracts.set_items import parse_set_items
+from smokeseer.config import LPIPS_NETS
 
 
 def _list(s: str) -> list[str]:

@@ -2,10 +2,13 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Sequence
 
 from generator.pipeline import generate as _generate
 from generator.presets import PRESET_DIR, load_preset
-from generator.spec import Overrides, SceneSpec, apply_overrides, load_spec_file
+from generator.sampler import draw_spec
+from generator.sampler_axes import parse_pins
+from generator.spec import Overrides, SceneSpec, apply_overrides, load_spec_file, parse_spec
 
 
 def resolve_spec(preset_or_spec: str | Path, overrides: Overrides | None = None) -> tuple[SceneSpec, str]:
@@ -18,10 +21,27 @@ def resolve_spec(preset_or_spec: str | Path, overrides: Overrides | None = None)
     return apply_overrides(spec, overrides or Overrides()), source
 
 
+def random_spec(seed: int, pins: Sequence[str] = (), overrides: Overrides | None = None) -> tuple[SceneSpec, str]:
+    """The scene drawn from `seed` with `pins` (`AXIS=VALUE` items, docs/generator.md), with
+    overrides applied; also returns the source name."""
+    source = f"random scene {seed}"
+    spec = parse_spec(draw_spec(seed, parse_pins(list(pins))), source)
+    return apply_overrides(spec, overrides or Overrides()), source
+
+
 def generate(preset_or_spec: str | Path, out: Path, *, force: bool = False, show_progress: bool = True,
              threads: int | None = None, bake_store: Path | None = None, **overrides: object) -> Path:
     """Generate a dataset; keyword overrides are the CLI's (frames, resolution, samples, ...);
     `bake_store` keeps the bake for other datasets of the same simulation (generator.bakes)."""
     spec, source = resolve_spec(preset_or_spec, Overrides(**overrides))  # type: ignore[arg-type]
+    return _generate(spec, Path(out), source=source, force=force, show_progress=show_progress, threads=threads,
+                     bake_store=bake_store)
+
+
+def generate_random(seed: int, out: Path, *, pins: Sequence[str] = (), force: bool = False,
+                    show_progress: bool = True, threads: int | None = None, bake_store: Path | None = None,
+                    **overrides: object) -> Path:
+    """Draw the scene of `seed` (with `pins`) and generate it; its scene.yaml regenerates it."""
+    spec, source = random_spec(seed, pins, Overrides(**overrides))  # type: ignore[arg-type]
     return _generate(spec, Path(out), source=source, force=force, show_progress=show_progress, threads=threads,
                      bake_store=bake_store)

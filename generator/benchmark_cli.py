@@ -33,11 +33,12 @@ from generator.api import generate, resolve_spec
 from generator.assets import load_manifest
 from generator.clean_refresh import clean_refresh_needed, refresh_clean
 from generator.clean_reuse import generate_reusing_clean
-from contracts.dataset_format import PASS_FILES
 from contracts.errors import DatasetError
-from contracts.imageio import read_exr_channel
 from generator.errors import GeneratorError
 from generator.job import resolve_asset_materials
+from generator.optical_depth import dataset_alphas, solve_increasing
+from generator.pipeline import made_from
+from generator.random_benchmark import run_random_set
 from generator.profiles import (
     BENCHMARK_SCENES,
     OPACITY_PER_DENSITY,
@@ -55,15 +56,6 @@ def folder_size(path: Path) -> tuple[int, int]:
     return sum(p.stat().st_size for p in files), len(files)
 
 
-def smoke_alphas(dataset: Path) -> np.ndarray:
-    """Every RGB smoke-opacity image of a dataset, stacked (frames, H, W)."""
-    folder = dataset / PASS_FILES[("rgb", "smoke_alpha")][0].folder
-    files = sorted(folder.glob("*.exr"))
-    if not files:
-        return np.zeros((0, 0, 0), dtype=np.float32)
-    return np.stack([read_exr_channel(f, "A") for f in files])
-
-
 def extinction_scale(alphas: np.ndarray, threshold: float, target: float) -> float:
     """Factor k on the extinction that brings the mean opacity inside the smoke to `target`.
 
@@ -76,24 +68,12 @@ def extinction_scale(alphas: np.ndarray, threshold: float, target: float) -> flo
     if inside.size == 0 or not 0.0 < target < 1.0:
         return float("nan")
     log_clear = np.log1p(-inside)
-    lo, hi = np.log(1e-3), np.log(1e3)
-    for _ in range(80):
-        mid = 0.5 * (lo + hi)
-        if float(np.mean(-np.expm1(np.exp(mid) * log_clear))) < target:
-            lo = mid
-        else:
-            hi = mid
-    return float(np.exp(0.5 * (lo + hi)))
+    return solve_increasing(lambda k: float(np.mean(-np.expm1(k * log_clear))), target, 1e-3, 1e3)
 
 
 def _resolved(scene: str, profile: Profile, density_scale: float | None) -> SceneSpec:
     spec, source = resolve_spec(scene, replace(profile.overrides, density_scale=density_scale))
     return resolve_asset_materials(spec, load_manifest(), source)
-
-
-def _finished(out: Path, spec: SceneSpec) -> bool:
-    meta = out / "dataset.json"
-    return meta.is_file() and json.loads(meta.read_text()).get("spec_sha256") == spec.sha256()
 
 
 def run_scene(scene: str, profile: Profile, out_root: Path, force: bool, threads: int | None,
@@ -104,7 +84,7 @@ def run_scene(scene: str, profile: Profile, out_root: Path, force: bool, threads
     folder whose dataset of the scene provides the clean passes (generator.clean_reuse)."""
     spec = _resolved(scene, profile, density_scale)
     out = out_root / scene
-    reused = not force and _finished(out, spec)
+    reused = not force and made_from(out, spec)
     refreshed = not reused and not force and clean_refresh_needed(out, spec)
     started = time.perf_counter()
     if refreshed:
@@ -121,7 +101,7 @@ def run_scene(scene: str, profile: Profile, out_root: Path, force: bool, threads
     size, n_files = folder_size(out)
     frames = {m: len(json.loads((out / f"transforms_{m}.json").read_text())["frames"])
               for m in ("rgb", "thermal") if (out / f"transforms_{m}.json").is_file()}
-    alphas = smoke_alphas(out)
+    alphas = dataset_alphas(out)
     threshold = spec.smoke.mask_threshold
     inside = alphas[alphas > threshold]
     target = OPACITY_PER_DENSITY * spec.smoke.density
@@ -176,8 +156,20 @@ def markdown_table(records: list[dict[str, Any]], profile: Profile) -> str:
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="generate-benchmark",
-                                description="Generate the ten-scene synthetic smoke benchmark at one profile.")
-    p.add_argument("--profile", required=True, choices=sorted(PROFILES), help="size profile (docs/benchmark.md)")
+                                description="Generate the ten-scene synthetic smoke benchmark at one profile, "
+                                            "or a set of drawn scenes (--random N).")
+    p.add_argument("--profile", choices=sorted(PROFILES), help="size profile (docs/benchmark.md)")
+    p.add_argument("--random", type=int, metavar="N",
+                   help="instead of the ten scenes, N scenes drawn by the scene sampler, named random_SEED, at the "
+                        "random sets' size (docs/generator.md, 'The scene sampler')")
+    p.add_argument("--seed-base", type=int, default=0, metavar="S", help="with --random: seeds S to S+N-1 (default 0)")
+    p.add_argument("--set", action="append", default=[], metavar="AXIS=VALUE",
+                   help="with --random: pin a sampler axis in every scene, e.g. fire=false or optical_depth=1:3")
+    p.add_argument("--workers", type=int, default=1, metavar="W",
+                   help="with --random: scenes generated at once, each rendering with cores/W threads (default 1)")
+    p.add_argument("--scheduler", default="local",
+                   help="with --random: a Dask scheduler address (tcp://host:8786), or 'local' (default) for a "
+                        "LocalCluster of W workers")
     p.add_argument("--out", type=Path, required=True, help="output folder; one dataset per scene inside it")
     p.add_argument("--scenes", help=f"comma-separated subset of: {','.join(BENCHMARK_SCENES)}")
     p.add_argument("--force", action="store_true", help="regenerate scenes that are already finished")
@@ -195,7 +187,24 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s: %(message)s", datefmt="%H:%M:%S")
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.random is not None:
+        given = [flag for flag, value in (("--profile", args.profile), ("--scenes", args.scenes),
+                                          ("--threads", args.threads), ("--density-scale", args.density_scale),
+                                          ("--bake-cache", args.bake_cache), ("--clean-from", args.clean_from))
+                 if value is not None]
+        if given:
+            parser.error(f"{', '.join(given)}: not with --random (drawn scenes have their own size; "
+                         "--workers sets the threads)")
+        if args.random < 1 or args.workers < 1 or args.seed_base < 0:
+            parser.error("--random and --workers must be at least 1, --seed-base at least 0")
+        return run_random_set(args.random, args.seed_base, args.set, args.out, args.workers, args.scheduler,
+                              args.force, args.quiet)
+    if args.profile is None:
+        parser.error("give --profile NAME (the ten scenes) or --random N (drawn scenes)")
+    if args.set:
+        parser.error("--set pins the axes of drawn scenes: use it with --random N")
     scenes = list(BENCHMARK_SCENES) if not args.scenes else [s.strip() for s in args.scenes.split(",") if s.strip()]
     unknown = [s for s in scenes if s not in BENCHMARK_SCENES]
     if unknown:

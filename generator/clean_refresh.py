@@ -19,8 +19,6 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from contracts.atomic import write_json
 from contracts.dataset_format import PASS_FILES, file_path, transforms_name, validate_dataset
 from generator import postprocess
@@ -105,7 +103,7 @@ def finish_clean_swap(dataset: Path, meta: dict[str, Any], target: SceneSpec, cl
     meta["stats"] = postprocess.scene_stats(dataset, stems, target.passes)
     meta[key] = record
     write_json(dataset / "dataset.json", meta)
-    (dataset / "scene.yaml").write_text(yaml.safe_dump(target.to_dict(), sort_keys=False))
+    (dataset / "scene.yaml").write_text(target.to_yaml())
     validate_dataset(dataset)
 
 

@@ -31,8 +31,16 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="generate-scene",
         description="Generate a paired RGB + thermal smoke dataset with Blender and Mantaflow.")
-    p.add_argument("spec", nargs="?", type=Path, help="scene spec YAML (or use --preset)")
+    p.add_argument("spec", nargs="?", type=Path, help="scene spec YAML (or use --preset or --random)")
     p.add_argument("--preset", help="a built-in scene (see --list-presets)")
+    p.add_argument("--random", type=int, metavar="SEED",
+                   help="draw a scene from SEED (docs/generator.md, 'The scene sampler'); its scene.yaml "
+                        "regenerates it")
+    p.add_argument("--set", action="append", default=[], metavar="AXIS=VALUE",
+                   help="with --random: pin a sampler axis to a value or a range LO:HI, e.g. smoke.particles=soot, "
+                        "fire=false, optical_depth=0.5:2")
+    p.add_argument("--print-spec", action="store_true",
+                   help="print the scene spec (drawn, with the size options applied) as YAML and exit")
     p.add_argument("--out", type=Path, help="output dataset folder")
     p.add_argument("--list-presets", action="store_true", help="list the built-in scenes and exit")
     p.add_argument("--validate", type=Path, metavar="DIR", help="check a dataset against docs/dataset-format.md")
@@ -65,17 +73,28 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
         frames = ", ".join(f"{m}: {', '.join(p)}" for m, p in meta["passes"].items() if p)
         print(f"{args.validate}: valid {meta['format']} v{meta['format_version']} (scene {meta['scene']}; {frames})")
         return 0
-    if (args.spec is None) == (args.preset is None):
-        parser.error("give exactly one of SPEC.yaml or --preset NAME")
+    if sum(x is not None for x in (args.spec, args.preset, args.random)) != 1:
+        parser.error("give exactly one of SPEC.yaml, --preset NAME or --random SEED")
+    if args.set and args.random is None:
+        parser.error("--set pins the axes of a drawn scene: use it with --random SEED")
+    from generator.api import random_spec, resolve_spec
+    from generator.pipeline import generate
+    from generator.spec import Overrides
+
+    overrides = Overrides(frames=args.frames, resolution=args.resolution, thermal_resolution=args.thermal_resolution,
+                          samples=args.samples, sim_resolution=args.sim_resolution, seed=args.seed,
+                          passes=args.passes, density_scale=args.density_scale)
+    if args.random is not None:
+        spec, source = random_spec(args.random, args.set, overrides)
+    else:
+        spec, source = resolve_spec(args.spec or args.preset, overrides)
+    if args.print_spec:
+        sys.stdout.write(spec.to_yaml())
+        return 0
     if args.out is None:
         parser.error("--out DIR is required")
-    from generator.api import generate
-
-    out = generate(args.spec or args.preset, args.out, force=args.force, show_progress=not args.quiet,
-                   threads=args.threads, frames=args.frames, resolution=args.resolution,
-                   thermal_resolution=args.thermal_resolution, samples=args.samples,
-                   sim_resolution=args.sim_resolution, seed=args.seed, passes=args.passes,
-                   density_scale=args.density_scale, bake_store=args.bake_cache)
+    out = generate(spec, args.out, source=source, force=args.force, show_progress=not args.quiet,
+                   threads=args.threads, bake_store=args.bake_cache)
     print(out)
     return 0
 

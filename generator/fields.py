@@ -143,7 +143,7 @@ def spec_field(default: Any, *, minimum: float | None = None, maximum: float | N
 def read_fields(cls: type, f: Fields, defaults: Any = None, skip: Sequence[str] = (),
                 nested: Callable[..., Any] | None = None) -> dict[str, Any]:
     """Read every metadata-carrying field of dataclass `cls` from `f`, typed by its annotation:
-    int, float, str, bool, a tuple of floats, a mapping, or (through `nested`) another spec
+    int, float (or float | None), str, bool, a tuple of floats, a mapping, or (through `nested`) another spec
     dataclass. Defaults come from `defaults` (an instance) when given, else from the field."""
     hints = typing.get_type_hints(cls)
     out: dict[str, Any] = {}
@@ -169,6 +169,9 @@ def read_fields(cls: type, f: Fields, defaults: Any = None, skip: Sequence[str] 
             out[fld.name] = f.integer(key, default, *bounds)
         elif kind is float:
             out[fld.name] = f.number(key, default, *bounds, exclusive_minimum=meta["exclusive_minimum"])
+        elif kind == float | None:  # optional: absent or null means None
+            out[fld.name] = None if f.raw(key, None) is None else f.number(
+                key, default, *bounds, exclusive_minimum=meta["exclusive_minimum"])
         elif kind is str:
             out[fld.name] = f.string(key, default, meta["choices"])
         elif typing.get_origin(kind) is tuple:

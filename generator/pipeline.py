@@ -19,7 +19,6 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-import yaml
 from tqdm import tqdm
 
 from generator import postprocess
@@ -31,6 +30,7 @@ from contracts.dataset_format import FORMAT, FORMAT_VERSION, PASS_FILES, file_pa
 from generator.errors import GeneratorError
 from generator.job import (Plan, effective_denoise, load_scene_meshes, make_job, make_plan, resolve_asset_materials,
                            smoke_coefficients, without_absent_passes)
+from generator.optical_depth import Calibration, SmokeCalibrator, dataset_alphas, mean_optical_depth
 from generator.optics.sensor import ThermalSensor, ThermalSensorConfig
 from generator.rig import FrameSample, Intrinsics
 from generator.spec import SceneSpec
@@ -127,20 +127,22 @@ def _postprocess(spec: SceneSpec, plan: Plan, work: Path, sensor: ThermalSensor 
     return time.perf_counter() - t0
 
 
-def rendered_coefficients(spec: SceneSpec, plan: Plan) -> dict[str, Any] | None:
-    """The smoke coefficients per unit grid density as rendered: the density scale k times the
-    spec's (the worker applies k as a weight on every coefficient)."""
+def rendered_coefficients(spec: SceneSpec, plan: Plan, calibration: Calibration | None = None) -> dict[str, Any] | None:
+    """The smoke coefficients per unit grid density as rendered: the density scale k (times the
+    optical-depth calibration's, when there is one) times the spec's (the worker applies the
+    product as a weight on every coefficient)."""
     if not spec.has_smoke:
         return None
     coeffs = smoke_coefficients(spec, plan.optics)
-    k = spec.smoke.density_scale
+    k = spec.smoke.density_scale * (calibration.scale if calibration is not None else 1.0)
     return {**coeffs, **{name: k * coeffs[name] for name in ("scatter_density", "absorb_density", "lwir_absorption")}}
 
 
 def _metadata(spec: SceneSpec, plan: Plan, sensor: ThermalSensor | None, summary: dict[str, Any],
-              stats: dict[str, Any], timings: dict[str, Any], code: str, bake: dict[str, Any] | None) -> dict[str, Any]:
+              stats: dict[str, Any], timings: dict[str, Any], code: str, bake: dict[str, Any] | None,
+              calibration: Calibration | None, achieved: float | None) -> dict[str, Any]:
     optics = plan.optics
-    coeffs = rendered_coefficients(spec, plan)
+    coeffs = rendered_coefficients(spec, plan, calibration)
     meta: dict[str, Any] = {
         "format": FORMAT, "format_version": FORMAT_VERSION, "scene": spec.name, "seed": spec.seed,
         "spec_sha256": spec.sha256(), "code_sha256": code,
@@ -166,9 +168,17 @@ def _metadata(spec: SceneSpec, plan: Plan, sensor: ThermalSensor | None, summary
         "versions": {**versions(), "blender": summary.get("bpy", "")},
         "timings_s": timings,
     }
+    if calibration is not None:  # achieved: measured on the dataset's RGB smoke opacity, as rendered (at k)
+        meta["smoke"]["optical_depth"] = {**calibration.describe(), "achieved": achieved}
     if sensor is not None:
         meta["thermal_sensor"] = sensor.describe()
     return meta
+
+
+def made_from(out: Path, spec: SceneSpec) -> bool:
+    """Whether a finished dataset is at `out` and was made from this very spec."""
+    meta = out / "dataset.json"
+    return meta.is_file() and json.loads(meta.read_text()).get("spec_sha256") == spec.sha256()
 
 
 def generate(spec: SceneSpec, out: Path, manifest: Manifest | None = None, source: str = "spec",
@@ -203,7 +213,10 @@ def generate(spec: SceneSpec, out: Path, manifest: Manifest | None = None, sourc
              spec.name, len(plan.frames["rgb"]), len(plan.frames["thermal"]),
              ",".join(f"{m}.{p}" for m, ps in spec.passes.items() for p in ps), spec.sim.resolution,
              plan.last_frame)
-    summary = run_worker(job, work, show_progress) if job.passes else {"timings": {}, "passes": {}}
+    calibrator = None
+    if job.sources and spec.smoke.optical_depth is not None:
+        calibrator = SmokeCalibrator(spec.smoke.optical_depth, work, source, show_progress)
+    summary = run_worker(job, work, show_progress, calibrator) if job.passes else {"timings": {}, "passes": {}}
     log.info("worker finished in %.1f s", summary.get("wall_s", 0.0))
     sensor = sensor_for(spec) if spec.passes.get("thermal") else None
     post_s = _postprocess(spec, plan, work, sensor, show_progress)
@@ -214,14 +227,21 @@ def generate(spec: SceneSpec, out: Path, manifest: Manifest | None = None, sourc
         write_json(dataset / transforms_name(modality),
                     _transforms(modality, plan.intrinsics[modality], cam.fps, cam.time_offset_s,
                                 plan.frames[modality]))
-    (dataset / "scene.yaml").write_text(yaml.safe_dump(spec.to_dict(), sort_keys=False))
+    (dataset / "scene.yaml").write_text(spec.to_yaml())
     stems = {m: [f.stem for f in plan.frames[m]] for m in spec.passes}
     stats = postprocess.scene_stats(dataset, stems, spec.passes)
     timings = {"bake": summary["timings"].get("bake"), "build": summary["timings"].get("build"),
                "worker": summary.get("wall_s"), "postprocess": post_s,
                "render": {k: v["seconds_per_frame"] for k, v in summary["passes"].items()},
                "total": time.perf_counter() - started}
-    write_json(dataset / "dataset.json", _metadata(spec, plan, sensor, summary, stats, timings, code, bake))
+    calibration = calibrator.result if calibrator is not None else None
+    achieved = None
+    if calibration is not None:
+        timings["calibration"] = calibrator.seconds
+        if "smoke_alpha" in spec.passes.get("rgb", ()):
+            achieved = mean_optical_depth(dataset_alphas(dataset))
+    write_json(dataset / "dataset.json",
+               _metadata(spec, plan, sensor, summary, stats, timings, code, bake, calibration, achieved))
     validate_dataset(dataset)
     if out.exists():
         shutil.rmtree(out)

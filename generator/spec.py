@@ -113,13 +113,17 @@ class SmokeSpec:
     """`density` is the paper's per-scene smoke density (0.2-1.0); `extinction_per_m` maps it
     to a visible extinction coefficient per unit Mantaflow grid density. `density_scale` k
     multiplies every smoke coefficient at render time, the same bake rendered k times denser:
-    opacity becomes 1 - (1 - alpha)^k, and k = 0 is the smoke-free scene (the density axis)."""
+    opacity becomes 1 - (1 - alpha)^k, and k = 0 is the smoke-free scene (the density axis).
+    `optical_depth`, when set, is the mean RGB optical depth the smoke must have over the RGB
+    views at k = 1: the generator calibrates every coefficient to it after the bake
+    (generator.optical_depth)."""
 
     density: float = spec_field(0.7, minimum=0.0, maximum=100.0)
     density_scale: float = spec_field(1.0, minimum=0.0, maximum=1000.0)
     extinction_per_m: float = spec_field(8.0, minimum=0.0, maximum=1e4)
     particles: str = spec_field("organic_smoke", choices=PARTICLE_KINDS)
     mask_threshold: float = spec_field(0.02, minimum=0.0, maximum=1.0, exclusive_minimum=True)
+    optical_depth: float | None = spec_field(None, minimum=0.0, maximum=50.0, exclusive_minimum=True)
 
 
 @dataclass(frozen=True)
@@ -220,7 +224,13 @@ class SceneSpec:
         for source in d["sources"]:
             source["type"] = source.pop("kind")
         d["passes"] = [f"{m}.{p}" for m, names in self.passes.items() for p in names]
+        if d["smoke"]["optical_depth"] is None:  # unset: absent, so older specs keep their digest
+            del d["smoke"]["optical_depth"]
         return d
+
+    def to_yaml(self) -> str:
+        """The spec as YAML in its fields' order (the bytes a dataset's scene.yaml holds)."""
+        return yaml.safe_dump(self.to_dict(), sort_keys=False)
 
     def sha256(self) -> str:
         text = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))

@@ -9,7 +9,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any, Callable, TextIO
 
 from tqdm import tqdm
 
@@ -29,8 +29,11 @@ class MantaCleanupAbort(Exception):
     """The render worker died of Mantaflow's cache-cleanup abort (SIGABRT)."""
 
 
-def run_worker(job: WorkerJob, work: Path, show_progress: bool = True) -> dict[str, Any]:
-    """Bake, then render, each in its own worker process (see blender/worker.py for why)."""
+def run_worker(job: WorkerJob, work: Path, show_progress: bool = True,
+               before_render: Callable[[WorkerJob], WorkerJob] | None = None) -> dict[str, Any]:
+    """Bake, then render, each in its own worker process (see blender/worker.py for why).
+    `before_render` may change the job's render-only fields once the bake exists (the smoke's
+    calibration, generator.optical_depth)."""
     job_path = work / "job.json"
     job.write(job_path)
     log_path = work / "logs" / "worker.log"
@@ -39,11 +42,36 @@ def run_worker(job: WorkerJob, work: Path, show_progress: bool = True) -> dict[s
     counts = {True: 0, False: 0}
     started = time.perf_counter()
     _run_stage(job_path, "bake", log_path, bars, counts, show_progress)
+    if before_render is not None:
+        job = before_render(job)
+        job.write(job_path)
+    restarts = _render_stage(job_path, log_path, bars, counts, show_progress)
+    for bar in bars.values():
+        bar.close()
+    log.info("rendered %d images, reused %d from an earlier run", counts[True], counts[False])
+    summary = json.loads(Path(job.summary_path).read_text())
+    summary["wall_s"] = time.perf_counter() - started
+    summary["render_restarts"] = restarts
+    return summary
+
+
+def render_baked(job: WorkerJob, job_path: Path, log_path: Path, show_progress: bool = True) -> int:
+    """Only the render stage of `job`, whose bake already exists; returns the restarts."""
+    job.write(job_path)
+    bars: dict[str, tqdm] = {}
+    restarts = _render_stage(job_path, log_path, bars, {True: 0, False: 0}, show_progress)
+    for bar in bars.values():
+        bar.close()
+    return restarts
+
+
+def _render_stage(job_path: Path, log_path: Path, bars: dict[str, tqdm], counts: dict[bool, int],
+                  show_progress: bool) -> int:
     restarts = 0
     while True:
         try:
             _run_stage(job_path, "render", log_path, bars, counts, show_progress)
-            break
+            return restarts
         except MantaCleanupAbort:
             restarts += 1
             if restarts > MAX_RENDER_RESTARTS:
@@ -52,13 +80,6 @@ def run_worker(job: WorkerJob, work: Path, show_progress: bool = True) -> dict[s
             log.warning("the render worker aborted in Mantaflow's cache cleanup (a pip-bpy defect, "
                         "docs/generator.md); resuming from the finished images (restart %d of %d)",
                         restarts, MAX_RENDER_RESTARTS)
-    for bar in bars.values():
-        bar.close()
-    log.info("rendered %d images, reused %d from an earlier run", counts[True], counts[False])
-    summary = json.loads(Path(job.summary_path).read_text())
-    summary["wall_s"] = time.perf_counter() - started
-    summary["render_restarts"] = restarts
-    return summary
 
 
 def _run_stage(job_path: Path, stage: str, log_path: Path, bars: dict[str, tqdm], counts: dict[bool, int],

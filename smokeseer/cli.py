@@ -13,7 +13,8 @@ from pathlib import Path
 from typing import Any
 
 from contracts.errors import DatasetError
-from smokeseer.config import LPIPS_NETS, MODES, PROFILES, parse_set_items
+from contracts.set_items import parse_set_items
+from smokeseer.config import LPIPS_NETS, MODES, PROFILES
 from smokeseer.raster.extension import KernelBuildError
 from smokeseer.train.util import NaNDetected
 

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from eval.shared_stage2 import rgb_stage2_sha_of, stage2_sha_of, take_finished_stage2
-from smokeseer.config import parse_set_items
+from contracts.set_items import parse_set_items
 
 if __name__ == "__main__":
     run, donor, mode, profile, seed, *items = sys.argv[1:]

@@ -11,8 +11,6 @@ import json
 from dataclasses import dataclass, field
 from typing import Any
 
-import yaml
-
 from scenes.thermal_scale import check_thermal_scale
 
 MODES: tuple[str, ...] = (
@@ -576,18 +574,3 @@ def _coerce(key: str, current: Any, value: Any) -> Any:
     except (KeyError, TypeError, ValueError):
         kind = {bool: "true or false", int: "an integer", float: "a number", tuple: "a list such as [0.0, 0.5]"}
         raise ValueError(f"overrides: {key!r} needs {kind.get(type(current), 'a string')}, got {value!r}") from None
-
-
-def parse_set_items(items: list[str], flag: str = "--set") -> dict[str, Any]:
-    """``KEY=VALUE`` strings to overrides, each value read as YAML (``3``, ``1e-3``, ``true``,
-    ``[0.0, 1.0]``), so the trainer's and the harness's ``--set`` read values the same way."""
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            raise ValueError(f"{flag}: expected KEY=VALUE, got {item!r}")
-        try:
-            out[key.strip()] = yaml.safe_load(value)
-        except yaml.YAMLError as exc:
-            raise ValueError(f"{flag}: {key.strip()}: value {value!r} is not valid YAML ({exc.problem})") from None
-    return out
