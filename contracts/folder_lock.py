@@ -3,20 +3,28 @@ take the same lock, so two of them never write the same folder at once.
 
 The lock is a POSIX ``flock`` on a hidden file beside the folder (``.NAME.lock``), so it is
 released when its process dies and it survives the folder being deleted and made again. It is
-re-entrant within a process: the harness locks a run folder, then calls the trainer in the same
-process, which takes the lock it already holds. The holder's process id is written into the
+re-entrant within a thread: the harness locks a run folder, then calls the trainer in the same
+thread, which takes the lock it already holds (another thread of the process waits, as another
+process does). The holder's process id is written into the
 file, so a refusal can name it.
 """
 from __future__ import annotations
 
 import fcntl
 import os
+import threading
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
-_HELD: dict[Path, int] = {}
-"""Locks this process holds (by lock file) and how many times each was entered."""
+_LOCAL = threading.local()
+"""``held``: the locks this thread holds (by lock file) and how many times each was entered."""
+
+
+def _held() -> dict[Path, int]:
+    if not hasattr(_LOCAL, "held"):
+        _LOCAL.held = {}
+    return _LOCAL.held
 
 
 class FolderBusy(ValueError):
@@ -43,14 +51,14 @@ def _busy(folder: Path, lock: Path) -> FolderBusy:
 def folder_lock(folder: Path, wait: bool = True) -> Iterator[None]:
     """Hold ``folder``'s lock for the block: wait for another holder to finish, or with
     ``wait=False`` raise FolderBusy at once."""
-    lock = lock_path(folder)
+    lock, held = lock_path(folder), _held()
     key = lock.resolve() if lock.exists() else lock
-    if key in _HELD:
-        _HELD[key] += 1
+    if key in held:
+        held[key] += 1
         try:
             yield
         finally:
-            _HELD[key] -= 1
+            held[key] -= 1
         return
     lock.parent.mkdir(parents=True, exist_ok=True)
     with lock.open("a+") as fh:
@@ -59,21 +67,21 @@ def folder_lock(folder: Path, wait: bool = True) -> Iterator[None]:
         except BlockingIOError:
             raise _busy(Path(folder), lock) from None
         key = lock.resolve()
-        _HELD[key] = 1
+        held[key] = 1
         try:
             fh.truncate(0)
             fh.write(str(os.getpid()))
             fh.flush()
             yield
         finally:
-            del _HELD[key]
+            del held[key]
             fcntl.flock(fh, fcntl.LOCK_UN)
 
 
 def lock_held(folder: Path) -> bool:
-    """Whether another process holds ``folder``'s lock now (one training in it). Creates nothing."""
+    """Whether another process (or thread) holds ``folder``'s lock now (one training in it). Creates nothing."""
     lock = lock_path(folder)
-    if not lock.is_file() or lock.resolve() in _HELD:
+    if not lock.is_file() or lock.resolve() in _held():
         return False
     with lock.open("a") as fh:
         try:
