@@ -4,6 +4,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -15,8 +16,28 @@ PROVENANCE_KEYS = ("commit", "version", "source_digest", "threads", "machine")
 RENDER_DIRS = ("composite", "surface", "smoke")
 STAGE3_PLAN_KEYS = ("smoke_colour", "mask_floor", "depth_prior", "depth_camera", "loss_weights", "dropped")
 """metrics.json ``stages.stage3_plan``: what Stage 3 trained with (smokeseer/train/plan.py writes it)."""
-WARNING_KEYS = ("code", "message", "statistic", "value", "limit")
-"""metrics.json ``warnings[i]``: what the trainer found wrong with its input or its optimisation."""
+
+
+@dataclass(frozen=True)
+class RunWarning:
+    """metrics.json ``warnings[i]``: what the trainer found wrong with its input or its optimisation, as
+    a machine-readable code, a sentence, and the statistic that crossed its limit."""
+
+    code: str
+    message: str
+    statistic: str
+    value: float
+    limit: float
+
+    def record(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def line(self) -> str:
+        """The log line."""
+        return f"warning {self.code}: {self.message}"
+
+
+WARNING_KEYS = tuple(f.name for f in fields(RunWarning))
 DIVERGED_KEYS = ("stage", "checkpoint", "iteration", "loss", "best", "best_iteration", "rise", "factor")
 """metrics.json ``diverged``: where a stage's loss ran away (status ``diverged``)."""
 

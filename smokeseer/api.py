@@ -19,7 +19,7 @@ from contracts.atomic import write_json
 from contracts.folder_lock import folder_lock, refuse_if_busy
 from contracts.provenance import provenance
 from contracts.recorded_paths import recorded_path
-from contracts.results_format import RESULTS_FORMAT, RESULTS_FORMAT_VERSION
+from contracts.results_format import RESULTS_FORMAT, RESULTS_FORMAT_VERSION, RunWarning
 from scenes.cameras import sample_in_view
 from scenes.load import load_scene
 from scenes.scene import ModalityData, SceneData
@@ -30,7 +30,7 @@ from smokeseer.evaluation.figures import write_test_figures
 from smokeseer.evaluation.scoring import heldout_psnr, score, score_validation, write_plys, write_renders
 from smokeseer.model.scene import Placed, SceneModel, init_gaussians, render
 from smokeseer.stage1.haze_lines import HazeLineSettings, SmokeColourEstimate, estimate_smoke_colour
-from smokeseer.stage1.input_checks import InputWarning, input_warnings
+from smokeseer.stage1.input_checks import input_warnings
 from smokeseer.stage1.pipeline import Stage1Report, run_stage1
 from smokeseer.train.depth_prior import DepthPriorMaps, file_depth_prior, monocular_depth_prior, rendered_depth_prior
 from smokeseer.train.divergence import StageDiverged
@@ -81,7 +81,7 @@ class PreparedRun:
     provenance: dict[str, Any]
     """Taken before training: a commit made or a file edited during a long run must not be
     credited with its result."""
-    warnings: list[InputWarning]
+    warnings: list[RunWarning]
     """What the input checks found (``smokeseer.stage1.input_checks``), thermal-flat included."""
 
 
@@ -127,7 +127,7 @@ def train_and_evaluate(dataset: Path, out: Path, mode: str = "full", profile: st
             doc = _metrics_doc(prep, "diverged")
             doc["error"] = f"{type(exc).__name__}: {exc}"
             doc["diverged"] = exc.record()
-            doc["warnings"].append(exc.warning())
+            doc["warnings"].append(exc.warning().record())
             write_json(out / "metrics.json", doc)
             raise
         except Exception as exc:

@@ -55,13 +55,12 @@ class LossWeights:
     1 is the paper's plain L1). It sets how much of a dense smoke's darkening the surface may
     absorb: at 0.4 a pixel whose smoke is 0.8 opaque can be explained by half that smoke over a
     darker surface (docs/experiments/2026-11-24-dense-smoke-colour.md)."""
-    divergence_factor: float = 10.0
-    """A stage whose loss, averaged over ``divergence_span`` iterations, rises past this many times
-    its best average stops as diverged (``smokeseer/train/divergence.py``). The committed runs'
-    averages rose at most 4.1× over their best (docs/method.md, "Input and optimisation checks")."""
+    divergence_factor: float = 20.0
+    """A stage whose loss, smoothed over ``divergence_span`` iterations, rises past this many times
+    its best smoothed value stops as diverged (``smokeseer/train/divergence.py``). The committed runs'
+    rose at most 5.4× over their best (docs/method.md, "Input and optimisation checks")."""
     divergence_span: int = 100
-    """Iterations the divergence watch averages over (its moving average's span), and the
-    iterations it waits, from a stage's start or an opacity reset, before it takes a best."""
+    """Iterations the divergence watch smooths the loss over (its moving average's span)."""
     mask_floor_where: str = "all"
     """Which masked pixels the floor acts on (``smokeseer/train/mask_floor.py``): "all";
     "never-clear", those whose surface point no other training view sees smoke-free, so that

@@ -24,11 +24,10 @@ the degenerate case it is for.
 from __future__ import annotations
 
 import itertools
-from dataclasses import asdict, dataclass
-from typing import Any
 
 import numpy as np
 
+from contracts.results_format import RunWarning
 from scenes.cameras import SceneBounds, camera_center
 from scenes.scene import ModalityData, SceneData
 
@@ -41,24 +40,6 @@ MIN_PARALLAX = 0.02
 """Camera baseline over distance to the scene under which ``no-parallax`` warns (about 1.1°)."""
 LEVEL = 1.0 / 255.0
 """One 8-bit level of the trainer's [0, 1] values: the noise floor of noise-free frames."""
-
-
-@dataclass(frozen=True)
-class InputWarning:
-    """One finding: a machine-readable code, a sentence, and the statistic that crossed its limit."""
-
-    code: str
-    message: str
-    statistic: str
-    value: float
-    limit: float
-
-    def record(self) -> dict[str, Any]:
-        """metrics.json ``warnings[i]``."""
-        return asdict(self)
-
-    def line(self) -> str:
-        return f"warning {self.code}: {self.message}"
 
 
 def clipped_share(images: np.ndarray) -> float:
@@ -86,7 +67,7 @@ def parallax(mod: ModalityData, bounds: SceneBounds) -> float:
     return diameter / distance if distance > 0 else 0.0
 
 
-def thermal_flat(scene: SceneData) -> InputWarning | None:
+def thermal_flat(scene: SceneData) -> RunWarning | None:
     """``thermal-flat`` when the training thermal frames carry no contrast; None when they do or
     there are none."""
     if scene.thermal is None:
@@ -94,23 +75,23 @@ def thermal_flat(scene: SceneData) -> InputWarning | None:
     value = contrast(scene.thermal.images[scene.thermal.indices("train")])
     if value >= MIN_CONTRAST:
         return None
-    return InputWarning("thermal-flat", f"the thermal frames carry no contrast (spread {value:.3g} × their noise, "
+    return RunWarning("thermal-flat", f"the thermal frames carry no contrast (spread {value:.3g} × their noise, "
                         f"under {MIN_CONTRAST:g}), so this run trains without thermal, as RGB-only does",
                         "contrast", value, MIN_CONTRAST)
 
 
-def input_warnings(scene: SceneData, bounds: SceneBounds) -> list[InputWarning]:
+def input_warnings(scene: SceneData, bounds: SceneBounds) -> list[RunWarning]:
     """The RGB and camera checks (the thermal one decides the plan: ``thermal_flat``)."""
     rgb = scene.rgb.images[scene.rgb.indices("train")]
     found = []
     share = clipped_share(rgb)
     if share >= MAX_CLIPPED_SHARE:
-        found.append(InputWarning("rgb-saturated", f"{100 * share:.0f} % of the training RGB values are clipped at 0 or "
+        found.append(RunWarning("rgb-saturated", f"{100 * share:.0f} % of the training RGB values are clipped at 0 or "
                                   f"1 (warned from {100 * MAX_CLIPPED_SHARE:.0f} %): what lies there is lost to training "
                                   "and to scoring", "clipped_share", share, MAX_CLIPPED_SHARE))
     level = contrast(rgb)
     if level < MIN_CONTRAST:
-        found.append(InputWarning("rgb-constant", f"the training RGB frames carry no contrast (spread {level:.3g} × "
+        found.append(RunWarning("rgb-constant", f"the training RGB frames carry no contrast (spread {level:.3g} × "
                                   f"their noise, under {MIN_CONTRAST:g}): there is no scene in them to fit",
                                   "contrast", level, MIN_CONTRAST))
     mods = [scene.rgb] + ([scene.thermal] if scene.thermal is not None else [])
@@ -118,7 +99,7 @@ def input_warnings(scene: SceneData, bounds: SceneBounds) -> list[InputWarning]:
     flat = [name for name, v in spreads.items() if v < MIN_PARALLAX]
     if flat:
         least = min(spreads.values())
-        found.append(InputWarning("no-parallax", f"the training {' and '.join(flat)} cameras lie within "
+        found.append(RunWarning("no-parallax", f"the training {' and '.join(flat)} cameras lie within "
                                   f"{100 * least:.3g} % of their distance to the scene of one another (warned under "
                                   f"{100 * MIN_PARALLAX:g} %): depth cannot be triangulated, so the geometry is a guess",
                                   "parallax", least, MIN_PARALLAX))

@@ -21,11 +21,11 @@ from typing import Any
 
 import numpy as np
 
-from contracts.results_format import STAGE3_PLAN_KEYS
+from contracts.results_format import STAGE3_PLAN_KEYS, RunWarning
 from scenes.scene import SceneData
 from smokeseer.config import TrainConfig
 from smokeseer.stage1.haze_lines import SmokeColourEstimate
-from smokeseer.stage1.input_checks import InputWarning, thermal_flat
+from smokeseer.stage1.input_checks import thermal_flat
 
 TERMS = ("render", "smoke_alpha", "smoke_color", "mono", "depth", "mask", "thermal_smoke_opacity")
 """Stage 3's loss terms (``render`` weighs the RGB and the thermal render losses)."""
@@ -66,7 +66,7 @@ def depth_camera(cfg: TrainConfig, use_thermal: bool) -> str:
     return cfg.depth_camera
 
 
-def thermal_input(cfg: TrainConfig, scene: SceneData) -> tuple[str | None, InputWarning | None]:
+def thermal_input(cfg: TrainConfig, scene: SceneData) -> tuple[str | None, RunWarning | None]:
     """Why the run trains without thermal (None: it trains with it), and the ``thermal-flat`` warning
     when the reason is frames without contrast: a method that would use them then trains as RGB-only
     does, since they teach Stage 2 no geometry."""
@@ -112,7 +112,7 @@ class Stage3Plan:
     once Stage 2 has given the geometry and the smoke colour is settled); None: everywhere."""
     thermal_dropped: str | None = None
     """Why the run trains without thermal (metrics.json ``stages.thermal_dropped``); None when it uses it."""
-    thermal_warning: InputWarning | None = None
+    thermal_warning: RunWarning | None = None
     """The ``thermal-flat`` warning when flat thermal frames were the reason."""
 
     def drop(self, term: str, why: str) -> None:
@@ -167,8 +167,6 @@ def plan_stage3(cfg: TrainConfig, scene: SceneData) -> Stage3Plan:
                       smoke_colour=colour, mask_floor="all",
                       depth_prior=cfg.depth_prior if depth_on else None, depth_camera=camera,
                       weights=mode_weights(cfg), thermal_dropped=thermal_dropped, thermal_warning=thermal_warning)
-    if thermal_warning is not None:
-        plan.notes.append(f"thermal input dropped: {thermal_warning.message}")
     if not depth_on:
         plan.drop("depth", "the deformable-3dgs baseline has no Stage 3" if deformable
                   else "depth_prior is none" if cfg.depth_prior == "none"
