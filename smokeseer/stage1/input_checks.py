@@ -23,9 +23,8 @@ the degenerate case it is for.
 """
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
+from scipy.spatial.distance import pdist
 
 from contracts.results_format import RunWarning
 from scenes.cameras import SceneBounds, camera_center
@@ -62,7 +61,7 @@ def contrast(images: np.ndarray) -> float:
 def parallax(mod: ModalityData, bounds: SceneBounds) -> float:
     """One modality's training cameras: their diameter over their mean distance to the scene centre."""
     centres = np.stack([camera_center(v) for v in mod.cameras("train")[0]])
-    diameter = max((float(np.linalg.norm(a - b)) for a, b in itertools.combinations(centres, 2)), default=0.0)
+    diameter = float(pdist(centres).max()) if len(centres) > 1 else 0.0
     distance = float(np.linalg.norm(centres - bounds.center, axis=1).mean())
     return diameter / distance if distance > 0 else 0.0
 

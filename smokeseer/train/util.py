@@ -175,8 +175,9 @@ class RunContext:
 
     @contextmanager
     def seeded_torch(self, name: str) -> Iterator[None]:
-        """Torch's global generators seeded on stream ``name`` inside the block and put back after it:
-        for draws made by code that takes no generator (a module's default weight initialisation)."""
+        """Torch's global generators seeded on stream ``name`` inside the block, for draws made by code
+        that takes no generator (a module's default weight initialisation); the CPU one is put back
+        after it (nothing else draws from a GPU's)."""
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(stream_seed(self.cfg.seed, name))
             yield
