@@ -4,6 +4,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +16,30 @@ PROVENANCE_KEYS = ("commit", "version", "source_digest", "threads", "machine")
 RENDER_DIRS = ("composite", "surface", "smoke")
 STAGE3_PLAN_KEYS = ("smoke_colour", "mask_floor", "depth_prior", "depth_camera", "loss_weights", "dropped")
 """metrics.json ``stages.stage3_plan``: what Stage 3 trained with (smokeseer/train/plan.py writes it)."""
+
+
+@dataclass(frozen=True)
+class RunWarning:
+    """metrics.json ``warnings[i]``: what the trainer found wrong with its input or its optimisation, as
+    a machine-readable code, a sentence, and the statistic that crossed its limit."""
+
+    code: str
+    message: str
+    statistic: str
+    value: float
+    limit: float
+
+    def record(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def line(self) -> str:
+        """The log line."""
+        return f"warning {self.code}: {self.message}"
+
+
+WARNING_KEYS = tuple(f.name for f in fields(RunWarning))
+DIVERGED_KEYS = ("stage", "checkpoint", "iteration", "loss", "best", "best_iteration", "rise", "factor")
+"""metrics.json ``diverged``: where a stage's loss ran away (status ``diverged``)."""
 
 
 class ResultsFormatError(ValueError):
@@ -46,14 +71,20 @@ def read_metrics(run_dir: Path) -> dict[str, Any]:
     for key in PROVENANCE_KEYS:
         if not isinstance(doc["provenance"], dict) or key not in doc["provenance"]:
             raise ResultsFormatError(f"{mpath}: missing field 'provenance.{key}'")
-    if doc["status"] == "failed":
+    warnings(doc, mpath)
+    if doc["status"] in ("failed", "diverged"):
         if not doc.get("error"):
-            raise ResultsFormatError(f"{mpath}: a failed run needs field 'error'")
+            raise ResultsFormatError(f"{mpath}: a {doc['status']} run needs field 'error'")
         if "metrics" in doc:
-            raise ResultsFormatError(f"{mpath}: a failed run must not carry 'metrics'")
+            raise ResultsFormatError(f"{mpath}: a {doc['status']} run must not carry 'metrics'")
+        if doc["status"] == "diverged":
+            diverged = doc.get("diverged")
+            for key in DIVERGED_KEYS:
+                if not isinstance(diverged, dict) or key not in diverged:
+                    raise ResultsFormatError(f"{mpath}: missing field 'diverged.{key}'")
         return doc
     if doc["status"] != "ok":
-        raise ResultsFormatError(f"{mpath}: field 'status' must be 'ok' or 'failed', got {doc['status']!r}")
+        raise ResultsFormatError(f"{mpath}: field 'status' must be 'ok', 'failed' or 'diverged', got {doc['status']!r}")
     metrics = doc.get("metrics")
     if not isinstance(metrics, dict):
         raise ResultsFormatError(f"{mpath}: missing field 'metrics'")
@@ -71,6 +102,20 @@ def read_metrics(run_dir: Path) -> dict[str, Any]:
             raise ResultsFormatError(f"{mpath}: missing field {key!r}")
     stage3_plan(doc, mpath)
     return doc
+
+
+def warnings(doc: dict[str, Any], mpath: Path) -> list[dict[str, Any]]:
+    """``warnings`` of a metrics.json, checked; empty for runs written before it was recorded."""
+    found = doc.get("warnings", [])
+    if not isinstance(found, list):
+        raise ResultsFormatError(f"{mpath}: field 'warnings' must be a list")
+    for i, entry in enumerate(found):
+        for key in WARNING_KEYS:
+            if not isinstance(entry, dict) or key not in entry:
+                raise ResultsFormatError(f"{mpath}: missing field 'warnings[{i}].{key}'")
+        for key in ("value", "limit"):
+            _finite_or_null(mpath, f"warnings[{i}].{key}", entry[key])
+    return found
 
 
 def stage3_plan(doc: dict[str, Any], mpath: Path) -> dict[str, Any] | None:

@@ -10,7 +10,6 @@ trainer's return value, so cached and fresh runs go through the same reader.
 
 from __future__ import annotations
 
-import fcntl
 import json
 import logging
 import os
@@ -29,6 +28,7 @@ from tqdm import tqdm
 
 from contracts.atomic import write_json
 from contracts.executors import Executor, drain, open_executor
+from contracts.folder_lock import folder_lock, lock_held
 from contracts.provenance import provenance
 from contracts.results_format import ResultsFormatError, read_metrics
 from contracts.source import code_digest
@@ -79,7 +79,7 @@ def dataset_task(o: DatasetOutcome, make: Callable[[Path], Any]) -> tuple[str, s
     """Produce one dataset folder under its lock and mark it done before the lock is released,
     so an overlapping invocation reuses it; returns (status, error, seconds)."""
     path = Path(o.path)
-    with _folder_lock(path):
+    with folder_lock(path):
         seconds = finished_dataset(path, o.hash)
         if seconds is not None:
             return "ok", "", seconds
@@ -122,49 +122,17 @@ def finished_run(spec: RunSpec, run_dir: Path) -> RunResult | None:
     return None
 
 
-def _lock_path(folder: Path) -> Path:
-    return folder.with_name(f".{folder.name}.lock")
-
-
-@contextmanager
-def _folder_lock(folder: Path) -> Iterator[None]:
-    """Invocations that share an --out folder may plan the same dataset or run: the second waits
-    for the first instead of deleting the folder it works in (POSIX flock, released if it dies)."""
-    lock = _lock_path(folder)
-    lock.parent.mkdir(parents=True, exist_ok=True)
-    with lock.open("a") as fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(fh, fcntl.LOCK_UN)
-
-
-def _lock_held(folder: Path) -> bool:
-    """Whether a process holds the folder's lock now (a run training in it)."""
-    lock = _lock_path(folder)
-    if not lock.is_file():
-        return False
-    with lock.open("a") as fh:
-        try:
-            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            return True
-        fcntl.flock(fh, fcntl.LOCK_UN)
-        return False
-
-
 def wait_for_stage2(leader: Path, stage2_sha: str, poll_s: float = 2.0, start_grace_s: float = 60.0) -> float:
     """Wait while the run folder ``leader`` is training and has no finished Stage 2 of these
     settings; returns the seconds waited. The leader was handed to a worker first
     (``leaders_first``) but may not have taken its lock yet, so it gets ``start_grace_s`` to
     start; one that is not running after that (finished or dead) is not waited for."""
     t0 = time.perf_counter()
-    while not _lock_held(leader) and not (leader / "train_log.csv").exists() \
+    while not lock_held(leader) and not (leader / "train_log.csv").exists() \
             and time.perf_counter() - t0 < start_grace_s:
         time.sleep(min(poll_s, 0.5))
     checkpoint, seen = leader / "checkpoints" / "stage2.pt", None
-    while _lock_held(leader):
+    while lock_held(leader):
         stamp = checkpoint.stat().st_mtime_ns if checkpoint.is_file() else None
         if stamp is not None and stamp != seen and stage2_done(leader, stage2_sha):
             break
@@ -179,7 +147,7 @@ def run_task(spec: RunSpec, run_dir: str, train_fn: TrainFn, threads: int, prep_
     is released; a run another invocation finished meanwhile is returned as cached. A run that
     has not started takes a finished Stage 2 from one of ``stage2_donors`` when one has it,
     after waiting for ``stage2_leader`` (its group's first run) if that one is in Stage 2 now."""
-    with _folder_lock(Path(run_dir)):
+    with folder_lock(Path(run_dir)):
         done = finished_run(spec, Path(run_dir))
         if done is not None:
             return done

@@ -5,12 +5,12 @@ the same Stage 2 again.
 
 A run whose Stage 3 starts from two surfaces also trains an RGB Stage 2 after the thermal one
 (``stage2_rgb.pt``, ``stage3.surface_init=by-smoke-colour``); a taker gets that one too when the
-donor has finished it, or trains it itself (the same bytes: it continues from the thermal
-Stage 2's stored RNG state).
+donor has finished it, or trains it itself (the same bytes: its random streams are seeded from
+the run seed, not left by the thermal Stage 2).
 
 The trainer keys its Stage-2 checkpoint by the settings Stage 2 depends on
-(``TrainConfig.stage2_sha256``) and stores the run's RNG state in it, so a run that resumes from
-a finished Stage 2 ends with the bytes of one that trained it (tests/test_trainer.py). The
+(``TrainConfig.stage2_sha256``), and every stage draws from its own streams, so a run that resumes
+from a finished Stage 2 ends with the bytes of one that trained it (tests/test_trainer.py). The
 donor's Stage-2 rows of train_log.csv come along, so the taker's logged wall time counts the
 Stage 2 it did not train, and its harness record names the donor.
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import platform
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -16,20 +16,24 @@ import numpy as np
 import torch
 
 from contracts.atomic import write_json
+from contracts.folder_lock import folder_lock, refuse_if_busy
 from contracts.provenance import provenance
 from contracts.recorded_paths import recorded_path
-from contracts.results_format import RESULTS_FORMAT, RESULTS_FORMAT_VERSION
+from contracts.results_format import RESULTS_FORMAT, RESULTS_FORMAT_VERSION, RunWarning
 from scenes.cameras import sample_in_view
 from scenes.load import load_scene
 from scenes.scene import ModalityData, SceneData
 from scenes.thermal_scale import ThermalScaleSpec
 from smokeseer.config import TrainConfig, make_config
+from smokeseer.config.streams import numpy_stream, stream_seed
 from smokeseer.evaluation.figures import write_test_figures
 from smokeseer.evaluation.scoring import heldout_psnr, score, score_validation, write_plys, write_renders
 from smokeseer.model.scene import Placed, SceneModel, init_gaussians, render
 from smokeseer.stage1.haze_lines import HazeLineSettings, SmokeColourEstimate, estimate_smoke_colour
+from smokeseer.stage1.input_checks import input_warnings
 from smokeseer.stage1.pipeline import Stage1Report, run_stage1
 from smokeseer.train.depth_prior import DepthPriorMaps, file_depth_prior, monocular_depth_prior, rendered_depth_prior
+from smokeseer.train.divergence import StageDiverged
 from smokeseer.train.mask_floor import estimated_dense, never_seen_clear
 from smokeseer.train.plan import Stage3Plan, plan_stage3
 from smokeseer.train.stage2 import train_stage2, views_of
@@ -60,8 +64,8 @@ def _metrics_doc(prep: PreparedRun, status: str) -> dict[str, Any]:
     cfg = prep.cfg
     return {"format": RESULTS_FORMAT, "format_version": RESULTS_FORMAT_VERSION, "scene": prep.scene.name,
             "dataset": recorded_path(prep.dataset), "method": cfg.mode, "profile": cfg.profile,
-            "seed": cfg.seed, "status": status, "versions": _versions(), "config_sha256": cfg.sha256(),
-            "provenance": prep.provenance}
+            "seed": cfg.seed, "status": status, "warnings": [w.record() for w in prep.warnings],
+            "versions": _versions(), "config_sha256": cfg.sha256(), "provenance": prep.provenance}
 
 
 @dataclass
@@ -77,6 +81,8 @@ class PreparedRun:
     provenance: dict[str, Any]
     """Taken before training: a commit made or a file edited during a long run must not be
     credited with its result."""
+    warnings: list[RunWarning]
+    """What the input checks found (``smokeseer.stage1.input_checks``), thermal-flat included."""
 
 
 def prepare(dataset: Path, mode: str = "full", profile: str = "quick", seed: int = 0,
@@ -96,27 +102,39 @@ def prepare(dataset: Path, mode: str = "full", profile: str = "quick", seed: int
                        cfg.validation_every)
     report = run_stage1(cfg, scene)
     plan = plan_stage3(cfg, scene)
-    return PreparedRun(cfg, dataset, scene, report, plan, time.perf_counter() - t, code)
+    warnings = input_warnings(scene, report.bounds) + ([plan.thermal_warning] if plan.thermal_warning else [])
+    return PreparedRun(cfg, dataset, scene, report, plan, time.perf_counter() - t, code, warnings)
 
 
 def train_and_evaluate(dataset: Path, out: Path, mode: str = "full", profile: str = "quick", seed: int = 0,
                        overrides: dict[str, Any] | None = None) -> dict[str, Any]:
     """Train ``mode`` on ``dataset``, evaluate the held-out views, write RUN_DIR ``out``;
-    returns the metrics.json content. Raises DatasetError/ValueError for bad input (nothing is
-    written then) and NaNDetected for a diverged run (after writing a failed metrics.json)."""
+    returns the metrics.json content. Raises DatasetError/ValueError for bad input and FolderBusy
+    for a run folder another process is training in (nothing is written then), NaNDetected for a
+    non-finite run (after writing a failed metrics.json) and StageDiverged for a loss that ran
+    away (after writing a diverged one, with no scores). The run folder is locked while it trains
+    (``contracts.folder_lock``, the harness's lock: a harness that holds it may call this)."""
     out = Path(out)
     check_run_dir(out)
+    refuse_if_busy(out)
     prep = prepare(dataset, mode, profile, seed, overrides)
-    cfg = prep.cfg
-    (out / "checkpoints").mkdir(parents=True, exist_ok=True)
-    write_json(out / "config.json", cfg.to_dict())
-    try:
-        return _run(prep, out)
-    except Exception as exc:
-        doc = _metrics_doc(prep, "failed")
-        doc["error"] = f"{type(exc).__name__}: {exc}"
-        write_json(out / "metrics.json", doc)
-        raise
+    with folder_lock(out, wait=False):
+        (out / "checkpoints").mkdir(parents=True, exist_ok=True)
+        write_json(out / "config.json", prep.cfg.to_dict())
+        try:
+            return _run(prep, out)
+        except StageDiverged as exc:
+            doc = _metrics_doc(prep, "diverged")
+            doc["error"] = f"{type(exc).__name__}: {exc}"
+            doc["diverged"] = exc.record()
+            doc["warnings"].append(exc.warning().record())
+            write_json(out / "metrics.json", doc)
+            raise
+        except Exception as exc:
+            doc = _metrics_doc(prep, "failed")
+            doc["error"] = f"{type(exc).__name__}: {exc}"
+            write_json(out / "metrics.json", doc)
+            raise
 
 
 def check_device(device: str) -> None:
@@ -158,7 +176,7 @@ def estimate_cpu_seconds(ctx: RunContext, geo: ModalityData, init: np.ndarray) -
 
 def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
     cfg, scene, report, plan = prep.cfg, prep.scene, prep.report, prep.plan
-    torch.manual_seed(cfg.seed)
+    torch.manual_seed(stream_seed(cfg.seed, "torch.global"))
     wall: dict[str, float] = {"stage1": prep.load_s}
     t_start = time.perf_counter() - prep.load_s
     log_path = out / "train_log.csv"
@@ -187,8 +205,9 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
                      f"{r['centre_rmse']:.3g}, rotation rms {r['rotation_rms_deg']:.3g} deg, {r['geometry']} path")
     for note in plan.notes:
         ctx.log_line(f"stage 3: {note}")
-    rng = np.random.default_rng(cfg.seed)
-    init = _init_points(scene, geo, cfg.stage2.init_points, b, rng)
+    for warning in prep.warnings:
+        ctx.log_line(warning.line())
+    init = _init_points(scene, geo, cfg.stage2.init_points, b, numpy_stream(cfg.seed, f"init.points.{geo.name}"))
     deformable = cfg.mode == "deformable-3dgs"
     estimate = None
     smoke_colour: SmokeColourEstimate | None = None
@@ -207,7 +226,9 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
         return heldout_psnr(m, scene, dev)
 
     t = time.perf_counter()
-    s2 = train_stage2(ctx, geo, init, deformable=deformable, heldout_psnr=s2_psnr)
+    # Flat thermal frames: the Stage 2 is RGB-only's, keyed as its own is.
+    s2_sha = replace(cfg, mode="rgb-only").stage2_sha256() if plan.thermal_warning is not None else None
+    s2 = train_stage2(ctx, geo, init, deformable=deformable, heldout_psnr=s2_psnr, sha=s2_sha)
     wall["stage2"] = time.perf_counter() - t
     ctx.log_line(f"stage 2: {s2.gaussians.n} Gaussians from {geo.name} in {wall['stage2']:.1f} s")
     t = time.perf_counter()
@@ -217,7 +238,8 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
         wall["stage3"] = 0.0
         ctx.log_line("stage 3: skipped (deformable-3dgs baseline has one deformable set)")
     else:
-        smoke_pts = _sample(scene.rgb, cfg.stage3.smoke_points, b, rng) if plan.use_smoke else None
+        smoke_pts = (_sample(scene.rgb, cfg.stage3.smoke_points, b, numpy_stream(cfg.seed, "init.smoke"))
+                     if plan.use_smoke else None)
         by_colour = cfg.stage3.surface_init == "by-smoke-colour" and plan.use_thermal
         rgb_views = views_of(scene.rgb, scene.rgb.indices("train"), dev)
         rgb_depth = (rendered_depth_prior(s2.gaussians, rgb_views, "rgb")
@@ -236,7 +258,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
             ctx.log_line(f"stage 3: {note}")
         if rgb_share > 0.0:
             t_rgb = time.perf_counter()
-            rgb_init = _init_points(scene, scene.rgb, cfg.stage2.init_points, b, np.random.default_rng(cfg.seed))
+            rgb_init = _init_points(scene, scene.rgb, cfg.stage2.init_points, b, numpy_stream(cfg.seed, "init.points.rgb"))
             joined = join_surfaces(ctx, scene.rgb, rgb_init, s2, rgb_depth, rgb_share)
             wall["stage2_rgb"] = time.perf_counter() - t_rgb
             plan.notes.append(joined.describe())
@@ -295,6 +317,8 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
                      "smoke_colour": smoke_colour_record(plan, smoke_colour),
                      "surface_union": joined.record if joined else None,
                      "thermal_scale": thermal_record,
+                     "thermal_used": plan.use_thermal, "thermal_dropped": plan.thermal_dropped,
+                     "loss_rise": {name: round(rise, 4) for name, rise in ctx.loss_rise.items()},
                      "stage3_plan": None if deformable else plan.record(),
                      "notes": list(report.notes) + list(plan.notes)}
     write_json(out / "metrics.json", doc)
@@ -306,7 +330,8 @@ def haze_line_smoke_colour(cfg: TrainConfig, depth: DepthPriorMaps, rgb: Modalit
     geometry rendered as depth at each of those frames (``depth``) saying which pixels see the
     same point."""
     return estimate_smoke_colour(rgb.images[rgb.indices("train")], depth.maps.cpu().numpy(),
-                                 depth.valid.cpu().numpy(), *rgb.cameras("train"), np.random.default_rng(cfg.seed + 2),
+                                 depth.valid.cpu().numpy(), *rgb.cameras("train"),
+                                 numpy_stream(cfg.seed, "stage1.haze-lines"),
                                  HazeLineSettings.of(cfg.stage3))
 
 

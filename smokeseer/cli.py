@@ -1,8 +1,11 @@
 """``train-and-evaluate DATASET --mode MODE --out RUN_DIR [--profile quick|standard|paper]``.
 
-Bad input (options, dataset, a damaged checkpoint) prints one error line and exits 2, and
-leaves nothing new in RUN_DIR; a diverged run (NaN) exits 1 after writing the last good state
-to checkpoints/stageN_nan.pt (stage2_rgb_nan.pt for the RGB Stage 2 of a two-surface run) and a failed metrics.json.
+Bad input (options, settings that cannot train, the dataset, a damaged checkpoint, a RUN_DIR
+another running process trains in) prints one error line and exits 2, and leaves nothing new in
+RUN_DIR; a diverged run (NaN) exits 1 after writing the last good state to
+checkpoints/stageN_nan.pt (stage2_rgb_nan.pt for the RGB Stage 2 of a two-surface run) and a
+failed metrics.json; a loss that runs away (loss.divergence_factor) exits 1 with one line and a
+metrics.json whose status is diverged, with no scores.
 """
 from __future__ import annotations
 
@@ -16,6 +19,7 @@ from contracts.errors import DatasetError
 from contracts.set_items import parse_set_items
 from smokeseer.config import LPIPS_NETS, MODES, PROFILES
 from smokeseer.raster.extension import KernelBuildError
+from smokeseer.train.divergence import StageDiverged
 from smokeseer.train.util import NaNDetected
 
 
@@ -81,6 +85,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except NaNDetected as exc:
         print(f"train-and-evaluate: diverged: {exc}; last good state in {exc.last_good}", file=sys.stderr)
+        return 1
+    except StageDiverged as exc:
+        print(f"train-and-evaluate: diverged: {exc}; no scores written ({args.out / 'metrics.json'}: status "
+              "diverged)", file=sys.stderr)
         return 1
     m = doc["metrics"]
     print(json.dumps({"status": doc["status"], "psnr": m["psnr"], "psnr_input": m["psnr_input"],

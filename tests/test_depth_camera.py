@@ -38,7 +38,7 @@ def test_depth_term_runs_at_the_chosen_camera(splat: Path, tmp_path: Path, camer
 
 def test_rgb_only_has_no_thermal_camera_and_says_so(splat: Path, tmp_path: Path) -> None:
     prep = prepare(splat, mode="rgb-only", overrides={"depth_camera": "thermal"})
-    assert depth_camera(prep.cfg, prep.scene) == "rgb" and prep.plan.depth_camera == "rgb"
+    assert depth_camera(prep.cfg, prep.plan.use_thermal) == "rgb" and prep.plan.depth_camera == "rgb"
     run = tmp_path / "rgb-only"
     assert main([str(splat), "--mode", "rgb-only", "--out", str(run), "--set", "depth_camera=thermal"] + TINY) == 0
     stages = json.loads((run / "metrics.json").read_text())["stages"]

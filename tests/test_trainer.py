@@ -14,6 +14,7 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import pytest
@@ -27,6 +28,7 @@ from smokeseer.evaluation.figures import figure_path
 from smokeseer.config import DeformConfig
 from smokeseer.model.deform import fourier_bases, motion_offsets, motion_tensors
 from smokeseer.raster import read_ply
+from smokeseer.train.stage2 import Stage2Problem
 from smokeseer.train.stage3 import Stage3Problem, smoke_free_centres
 from contracts.results_format import validate_run_dir
 from tests.test_smokeseer_data import write_splat_dataset
@@ -45,6 +47,8 @@ def _log_rows(run: Path) -> list[dict[str, str]]:
 def _assert_complete(run: Path, thermal: bool = True) -> dict:
     doc = validate_run_dir(run)
     assert doc["status"] == "ok"
+    assert doc["warnings"] == [], doc["warnings"]  # well-formed input, a sound optimisation: nothing to say
+    assert doc["stages"]["thermal_used"] is thermal
     stems = [e["file_stem"] for e in doc["per_image"]]
     assert stems
     for sub in ("composite", "surface", "smoke") + (("thermal",) if thermal else ()):
@@ -214,36 +218,104 @@ class _Interrupted(Exception):
     """Stands for a killed process: raised inside Stage 3, caught by the test."""
 
 
-def run_stopped_and_resumed(dataset: Path, run: Path, args: list[str], stop_at: int,
-                            monkeypatch: pytest.MonkeyPatch) -> None:
-    """Train ``dataset`` into ``run``, stopped (``_Interrupted``) at Stage-3 iteration ``stop_at``,
-    then started again to the end."""
-    forward = Stage3Problem.forward
+DENSIFY = ["--set", "stage2.densify.start=0.17", "--set", "stage2.densify.every=4",
+           "--set", "stage2.densify.grad_threshold=0", "--set", "stage3.smoke_densify.start=0.17",
+           "--set", "stage3.smoke_densify.every=4", "--set", "stage3.smoke_densify.grad_threshold=0"]
+"""Clone or split every Gaussian every 4 iterations of both stages (the split positions draw from their streams)."""
 
-    def stopping(self: Stage3Problem, it: int):
+
+def run_stopped_and_resumed(dataset: Path, run: Path, args: list[str], stop_at: int,
+                            monkeypatch: pytest.MonkeyPatch, problem: type = Stage3Problem,
+                            before_resume: Callable[[], None] | None = None) -> None:
+    """Train ``dataset`` into ``run``, stopped (``_Interrupted``) at iteration ``stop_at`` of
+    ``problem``'s stage, then (after ``before_resume``) started again to the end."""
+    forward = problem.forward
+
+    def stopping(self, it: int):
         if it == stop_at:
             raise _Interrupted
         return forward(self, it)
 
-    monkeypatch.setattr(Stage3Problem, "forward", stopping)
+    monkeypatch.setattr(problem, "forward", stopping)
     with pytest.raises(_Interrupted):
         main([str(dataset), "--out", str(run)] + args)
-    monkeypatch.setattr(Stage3Problem, "forward", forward)
+    monkeypatch.setattr(problem, "forward", forward)
+    if before_resume is not None:
+        before_resume()
     assert main([str(dataset), "--out", str(run)] + args) == 0
 
 
-@pytest.mark.parametrize("stop_at", [1, 8])
+def _recording_draws(monkeypatch: pytest.MonkeyPatch) -> list[tuple[int, int]]:
+    """Every view index the stages draw, as (stage, index), in order."""
+    import smokeseer.train.stage2 as stage2
+    import smokeseer.train.stage3 as stage3
+
+    drawn: list[tuple[int, int]] = []
+    real = stage2.draw_index
+
+    def recording(stage: int):
+        def draw(generator: torch.Generator, n: int) -> int:
+            drawn.append((stage, real(generator, n)))
+            return drawn[-1][1]
+        return draw
+
+    for module, stage in ((stage2, 2), (stage3, 3)):
+        monkeypatch.setattr(module, "draw_index", recording(stage))
+    return drawn
+
+
+@pytest.mark.parametrize("stage, stop_at", [(3, 1), (3, 8), (2, 8)])
 def test_interrupted_run_resumes_to_the_same_model(splat: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-                                                   stop_at: int) -> None:
-    """A run stopped in Stage 3 and started again ends with the same bytes as one that never
-    stopped: at iteration 1 it restarts Stage 3 from the finished Stage 2, at 8 from the Stage 3
-    checkpoint of iteration 6. Both need the view-drawing RNG's state in the checkpoint."""
-    assert main([str(splat), "--out", str(tmp_path / "whole")] + TINY) == 0
+                                                   stage: int, stop_at: int) -> None:
+    """A run stopped and started again draws exactly the views and splits of one that never stopped,
+    and ends with the same bytes: stopped at Stage 3's first iteration it restarts Stage 3 from the
+    finished Stage 2, at 8 from the Stage 3 checkpoint of iteration 6, and stopped in Stage 2 from
+    Stage 2's. Densification splits every 4 iterations, so the split streams' states in the
+    checkpoints matter as much as the view streams'."""
+    drawn = _recording_draws(monkeypatch)
+    assert main([str(splat), "--out", str(tmp_path / "whole")] + TINY + DENSIFY) == 0
+    whole = list(drawn)
     run = tmp_path / "stopped"
-    run_stopped_and_resumed(splat, run, TINY, stop_at, monkeypatch)
-    assert (run / "ply" / "surface.ply").read_bytes() == (tmp_path / "whole" / "ply" / "surface.ply").read_bytes()
-    whole = json.loads((tmp_path / "whole" / "metrics.json").read_text())["metrics"]["psnr"]
-    assert json.loads((run / "metrics.json").read_text())["metrics"]["psnr"] == whole
+    run_stopped_and_resumed(splat, run, TINY + DENSIFY, stop_at, monkeypatch,
+                            Stage3Problem if stage == 3 else Stage2Problem, drawn.clear)
+    resumed_at = 0 if stop_at == 1 else 6   # the last checkpoint before the stop
+    redrawn = (12 - resumed_at) * (2 if stage == 3 else 1) + (24 if stage == 2 else 0)  # Stage 3 draws RGB + thermal
+    assert len(drawn) == redrawn and drawn == whole[-redrawn:]
+    for ply in ("surface.ply", "smoke_t0.50.ply"):
+        assert (run / "ply" / ply).read_bytes() == (tmp_path / "whole" / "ply" / ply).read_bytes()
+    whole_psnr = json.loads((tmp_path / "whole" / "metrics.json").read_text())["metrics"]["psnr"]
+    assert json.loads((run / "metrics.json").read_text())["metrics"]["psnr"] == whole_psnr
+
+
+def test_view_order_does_not_depend_on_densification(splat: Path, tmp_path: Path,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """Views and split positions draw from separate streams: a run whose densification splits every
+    4 iterations (drawing split positions) draws the same views in the same order as one that never
+    densifies, in both stages, though the models differ. RGB-only's Stage 3 draws the same RGB views
+    as Full's, which also draws thermal ones."""
+    drawn = _recording_draws(monkeypatch)
+    counts, orders = {}, {}
+    for name, extra in (("plain", []), ("densified", DENSIFY)):
+        drawn.clear()
+        assert main([str(splat), "--out", str(tmp_path / name)] + TINY + extra) == 0
+        orders[name] = list(drawn)
+        counts[name] = json.loads((tmp_path / name / "metrics.json").read_text())["stages"]["smoke_gaussians"]
+    assert counts["densified"] > counts["plain"]
+    assert orders["densified"] == orders["plain"] and len(orders["plain"]) == 12 + 24
+
+    rgb: dict[str, list[int]] = {}
+    forward = Stage3Problem.forward
+
+    def recording(self, it: int):
+        out = forward(self, it)
+        rgb[self.cfg.mode].append(out.extra["index"])
+        return out
+
+    monkeypatch.setattr(Stage3Problem, "forward", recording)
+    for mode in ("full", "rgb-only"):
+        rgb[mode] = []
+        assert main([str(splat), "--out", str(tmp_path / f"views-{mode}"), "--mode", mode] + TINY) == 0
+    assert rgb["full"] == rgb["rgb-only"] and len(rgb["full"]) == 12
 
 
 def test_same_seed_gives_the_same_model(splat: Path, tmp_path: Path) -> None:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -52,6 +53,12 @@ class LossWeights:
     1 is the paper's plain L1). It sets how much of a dense smoke's darkening the surface may
     absorb: at 0.4 a pixel whose smoke is 0.8 opaque can be explained by half that smoke over a
     darker surface (docs/experiments/2026-11-24-dense-smoke-colour.md)."""
+    divergence_factor: float = 20.0
+    """A stage whose loss, smoothed over ``divergence_span`` iterations, rises past this many times
+    its best smoothed value stops as diverged (``smokeseer/train/divergence.py``). The committed runs'
+    rose at most 5.4× over their best (docs/method.md, "Input and optimisation checks")."""
+    divergence_span: int = 100
+    """Iterations the divergence watch smooths the loss over (its moving average's span)."""
     mask_floor_where: str = "all"
     """Which masked pixels the floor acts on (``smokeseer/train/mask_floor.py``): "all";
     "never-clear", those whose surface point no other training view sees smoke-free, so that
@@ -338,10 +345,9 @@ class TrainConfig:
             raise ValueError(f"mode: {self.mode!r} is not one of {', '.join(MODES)}")
         if self.profile not in PROFILES:
             raise ValueError(f"profile: {self.profile!r} is not one of {', '.join(PROFILES)}")
-        for name, value in (("stage2.iterations", self.stage2.iterations),
-                            ("stage3.iterations", self.stage3.iterations)):
-            if value < 0:
-                raise ValueError(f"{name}: must be >= 0, got {value}")
+        if self.seed < 0:
+            raise ValueError(f"seed: must be >= 0, got {self.seed}")
+        self._check_trainable()
         check_thermal_scale(self.thermal_scale, self.thermal_equalised_share)
         if not 0 <= self.sh_degree <= 3:
             raise ValueError(f"sh_degree: must be in 0..3, got {self.sh_degree}")
@@ -428,6 +434,47 @@ class TrainConfig:
         for t in self.smoke_ply_times:
             if not 0.0 <= t <= 1.0:
                 raise ValueError(f"smoke_ply_times: {t} is outside [0, 1]")
+
+    def _check_trainable(self) -> None:
+        """Refuse settings under which a stage cannot train (nothing to iterate, no step to take,
+        nothing to fit), naming the field: such a run would finish and report an untrained model."""
+        at_least_one = {"stage2.iterations": self.stage2.iterations, "stage3.iterations": self.stage3.iterations,
+                        "stage2.init_points": self.stage2.init_points, "log_every": self.log_every,
+                        "loss.divergence_span": self.loss.divergence_span, "deform.depth": self.deform.depth,
+                        "deform.width": self.deform.width}
+        for name, value in at_least_one.items():
+            if value < 1:
+                raise ValueError(f"{name}: must be at least 1, got {value} (a stage needs it to train)")
+        positive = {**{f"lr.{f.name}": getattr(self.lr, f.name) for f in dataclasses.fields(self.lr)},
+                    "deform.lr_init": self.deform.lr_init, "deform.lr_final": self.deform.lr_final,
+                    "loss.render": self.loss.render, "stage2.init_scale_max": self.stage2.init_scale_max,
+                    "stage3.smoke_init_scale": self.stage3.smoke_init_scale}
+        for name, value in positive.items():
+            if not (value > 0 and math.isfinite(value)):
+                raise ValueError(f"{name}: must be a positive finite number, got {value}")
+        for name in ("smoke_alpha", "smoke_color", "mono", "depth", "mask", "thermal_smoke_opacity"):
+            value = getattr(self.loss, name)
+            if not (value >= 0 and math.isfinite(value)):
+                raise ValueError(f"loss.{name}: must be a finite weight >= 0, got {value}")
+        if not 0.0 <= self.loss.dssim <= 1.0:
+            raise ValueError(f"loss.dssim: must be in [0, 1], got {self.loss.dssim}")
+        if not self.loss.divergence_factor > 1.0:
+            raise ValueError(f"loss.divergence_factor: must exceed 1, got {self.loss.divergence_factor}")
+        for name, value in (("stage2.init_opacity", self.stage2.init_opacity),
+                            ("stage3.smoke_init_opacity", self.stage3.smoke_init_opacity)):
+            if not 0.0 < value < 1.0:
+                raise ValueError(f"{name}: must be in (0, 1), got {value}")
+        for name, value in (("stage3.smoke_points", self.stage3.smoke_points), ("checkpoint_every", self.checkpoint_every),
+                            ("stage3.test_every", self.stage3.test_every), ("max_width", self.max_width),
+                            ("deform.xyz_frequencies", self.deform.xyz_frequencies),
+                            ("deform.t_frequencies", self.deform.t_frequencies)):
+            if value < 0:
+                raise ValueError(f"{name}: must be >= 0, got {value}")
+        for name, densify in (("stage2.densify", self.stage2.densify), ("stage3.smoke_densify", self.stage3.smoke_densify),
+                              ("stage3.surface_densify", self.stage3.surface_densify)):
+            if densify.every < 0 or densify.max_gaussians < 1 or not densify.grad_threshold >= 0:
+                raise ValueError(f"{name}: every must be >= 0, max_gaussians at least 1 and grad_threshold >= 0 "
+                                 f"(got {densify.every}, {densify.max_gaussians}, {densify.grad_threshold})")
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

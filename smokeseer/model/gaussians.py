@@ -159,14 +159,23 @@ class DensifyStrategy:
         """Run densification/pruning/reset if ``it`` (1-based) is on the schedule."""
         c = self.window
         report = {"cloned": 0, "split": 0, "pruned": 0}
-        if c.every <= 0 or it < c.start or it > c.stop:
+        if not self._active(it):
             return report
         if it % c.every == 0 and self.state is not None and self.state.count.numel() == gset.n:
             report = self._densify_and_prune(gset, opt, generator, prune_big=self._prunes_big(it))
             self.reset(gset.n, gset["means"].device)
-        if c.opacity_reset_every and it % c.opacity_reset_every == 0:
+        if self.resets_opacity(it):
             self.reset_opacity(gset, opt)
         return report
+
+    def _active(self, it: int) -> bool:
+        c = self.window
+        return c.every > 0 and c.start <= it <= c.stop
+
+    def resets_opacity(self, it: int) -> bool:
+        """Whether ``step`` resets the opacities at iteration ``it``."""
+        reset = self.window.opacity_reset_every
+        return self._active(it) and bool(reset) and it % reset == 0
 
     def _prunes_big(self, it: int) -> bool:
         """3DGS prunes oversized Gaussians only after the first opacity reset."""
@@ -240,7 +249,7 @@ class DensifyStrategy:
     @staticmethod
     def _split_positions(gset: GaussianSet, idx: Tensor, generator: torch.Generator) -> Tensor:
         """Two samples from each split Gaussian's own distribution (3DGS). The normal draws come
-        from the run's CPU generator (the same stream on every device) and move to the means."""
+        from the stage's CPU split stream (the same draws on every device) and move to the means."""
         means = gset["means"].detach()[idx]
         if idx.numel() == 0:
             return means.new_zeros((2, 0, 3))

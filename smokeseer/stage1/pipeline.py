@@ -26,6 +26,7 @@ from scenes.rig import RigExtrinsic, parse_rig
 from scenes.scene import ModalityData, SceneData
 from scenes.similarity import Sim3
 from smokeseer.config import TrainConfig
+from smokeseer.config.streams import numpy_stream
 from smokeseer.stage1.poses_from_images import pose_from_images
 from smokeseer.stage1.registration import register_rig
 from smokeseer.stage1.smoke_presence import ESTIMATOR, decide_smoke_presence
@@ -103,7 +104,7 @@ def run_stage1(cfg: TrainConfig, scene: SceneData) -> Stage1Report:
                           np.array([f.width for f in train]))
     noisy = cfg.pose_noise_rot_deg > 0 or cfg.pose_noise_trans > 0
     if noisy:
-        rng = np.random.default_rng(cfg.seed + 7)
+        rng = numpy_stream(cfg.seed, "stage1.pose-noise")
         for m in mods:
             perturb_poses(m, cfg.pose_noise_rot_deg, cfg.pose_noise_trans * bounds.extent, rng)
     return Stage1Report(registered, scale, rmse, inliers, noisy, bounds, registration, masks, notes)

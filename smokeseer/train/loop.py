@@ -1,5 +1,5 @@
-"""The one training-stage loop Stages 2 and 3 share: resume, iterate, NaN guard, optimiser
-steps, densification, logging, progress bar and checkpoints.
+"""The one training-stage loop Stages 2 and 3 share: resume, iterate, NaN guard, divergence
+watch, optimiser steps, densification, logging, progress bar and checkpoints.
 
 A stage describes itself as a ``StageProblem`` (what one iteration computes, which tensors to
 guard, what a checkpoint holds); the loop owns everything else, so a fix to checkpointing or
@@ -17,6 +17,7 @@ import torch
 from tqdm import tqdm
 
 from smokeseer.raster.finite import first_non_finite
+from smokeseer.train.divergence import LossWatch
 from smokeseer.train.util import NaNDetected, RunContext, load_checkpoint, save_checkpoint
 
 
@@ -36,6 +37,9 @@ class StageProblem(ABC):
     name: str
     checkpoint: str
     """The checkpoint's file stem under ``checkpoints/`` (``stage2``, ``stage3``, ...)."""
+    streams: dict[str, torch.Generator]
+    """The random streams the stage draws from while it trains, by name (``smokeseer.config.streams``):
+    their states go into every checkpoint and come back at a resume."""
 
     @abstractmethod
     def forward(self, it: int) -> IterationOutput:
@@ -72,6 +76,11 @@ class StageProblem(ABC):
     def heldout_psnr(self, it: int) -> dict[str, float | None] | None:
         """Held-out PSNRs for the log (``val_psnr``, ``test_psnr``), or None where the stage has none."""
         return None
+
+    def raised_loss(self, it: int) -> bool:
+        """Whether ``after_step`` of iteration ``it`` raised the loss on purpose (an opacity reset), so
+        that the divergence watch starts over."""
+        return False
 
 
 _ATOMS = frozenset({int, float, bool, str, bytes, type(None)})
@@ -146,10 +155,10 @@ def collect_every(iterations: int) -> Iterator[Any]:
             gc.enable()
 
 
-def resume(ctx: RunContext, problem: StageProblem, sched: StageSchedule) -> tuple[int, bool]:
+def resume(ctx: RunContext, problem: StageProblem, sched: StageSchedule, watch: LossWatch) -> tuple[int, bool]:
     """Load the stage's checkpoint if there is one for these settings: (start iteration, done). It
-    also puts the run's RNG back where it stood, so a resumed run draws the views and splits an
-    uninterrupted one would."""
+    also puts the stage's random streams and its divergence watch back where they stood, so a
+    resumed run draws the views and splits an uninterrupted one would and watches its loss alike."""
     path = ctx.checkpoint_path(problem.checkpoint)
     payload = load_checkpoint(path, sched.checkpoint_sha, ctx.log_line)
     if payload is None:
@@ -157,11 +166,15 @@ def resume(ctx: RunContext, problem: StageProblem, sched: StageSchedule) -> tupl
     problem.load_state(payload)
     start, done = int(payload["iteration"]), bool(payload.get("done"))
     ctx.log_line(f"{problem.name}: resumed from {path} at iteration {start}{' (finished)' if done else ''}")
-    if "rng_state" in payload:
-        ctx.generator.set_state(payload["rng_state"])
+    states = payload.get("rng_state")
+    if isinstance(states, dict) and set(problem.streams) <= set(states):
+        for name, generator in problem.streams.items():
+            generator.set_state(states[name])
     else:
-        ctx.log_line(f"{path.name}: holds no RNG state (written by an older version), so the view draws and "
-                     "splits from here on differ from an uninterrupted run's")
+        ctx.log_line(f"{path.name}: holds no state of the streams {', '.join(problem.streams)} (written by an older "
+                     "version), so the view draws and splits from here on differ from an uninterrupted run's")
+    if payload.get("loss_watch") is not None:
+        watch.load_state(payload["loss_watch"])
     return start, done
 
 
@@ -171,15 +184,20 @@ def run_stage(ctx: RunContext, problem: StageProblem, sched: StageSchedule) -> N
     ``<checkpoint>_nan.pt`` holding the state that passed the previous iteration's check, and raises
     NaNDetected. That state is a snapshot taken before the step, so a step or a densification
     that produces non-finite values never reaches the checkpoint. Loss terms are checked with
-    the gradients after backward (a non-finite loss still names itself first)."""
-    start, done = resume(ctx, problem, sched)
+    the gradients after backward (a non-finite loss still names itself first). A loss that runs
+    away without going non-finite raises StageDiverged (``smokeseer.train.divergence``)."""
+    loss = ctx.cfg.loss
+    watch = LossWatch(loss.divergence_factor, loss.divergence_span)
+    start, done = resume(ctx, problem, sched, watch)
+    ctx.loss_rise[problem.checkpoint] = watch.max_rise
     if done:
         return
     nan_path = ctx.checkpoint_path(f"{problem.checkpoint}_nan")
 
     def payload(it: int, finished: bool, state: dict[str, Any]) -> dict[str, Any]:
         return {"stage": problem.stage, "iteration": it, "done": finished, "config_sha256": sched.checkpoint_sha,
-                "rng_state": ctx.generator.get_state(), **state}
+                "rng_state": {name: g.get_state() for name, g in problem.streams.items()},
+                "loss_watch": watch.state(), **state}
 
     total = sched.iterations
     bar = tqdm(range(start + 1, total + 1), desc=problem.name, disable=not ctx.cfg.progress, leave=False)
@@ -193,9 +211,13 @@ def run_stage(ctx: RunContext, problem: StageProblem, sched: StageSchedule) -> N
                 save_checkpoint(nan_path, payload(it - 1, False, problem.state()))
                 exc.last_good = nan_path
                 raise
+            watch.update(problem.stage, problem.checkpoint, it, float(out.loss.detach()))
+            ctx.loss_rise[problem.checkpoint] = watch.max_rise
             last_good = detached_copy(problem.state())
             problem.optimizer_step(it)
             problem.after_step(it, out)
+            if problem.raised_loss(it):
+                watch.restart()
             try:
                 guard(problem.stage, it, problem.named_parameters())
             except NaNDetected as exc:

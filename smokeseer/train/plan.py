@@ -21,10 +21,11 @@ from typing import Any
 
 import numpy as np
 
-from contracts.results_format import STAGE3_PLAN_KEYS
+from contracts.results_format import STAGE3_PLAN_KEYS, RunWarning
 from scenes.scene import SceneData
 from smokeseer.config import TrainConfig
 from smokeseer.stage1.haze_lines import SmokeColourEstimate
+from smokeseer.stage1.input_checks import thermal_flat
 
 TERMS = ("render", "smoke_alpha", "smoke_color", "mono", "depth", "mask", "thermal_smoke_opacity")
 """Stage 3's loss terms (``render`` weighs the RGB and the thermal render losses)."""
@@ -57,12 +58,24 @@ def mode_weights(cfg: TrainConfig) -> dict[str, float]:
     return weights
 
 
-def depth_camera(cfg: TrainConfig, scene: SceneData) -> str:
+def depth_camera(cfg: TrainConfig, use_thermal: bool) -> str:
     """The camera the depth term compares at: ``cfg.depth_camera``, except that a run without
-    thermal input (rgb-only, or a capture without thermal) has only the RGB camera."""
-    if cfg.depth_camera == "thermal" and (cfg.mode == "rgb-only" or scene.thermal is None):
+    thermal input (rgb-only, a capture without thermal, or flat thermal frames) has only the RGB camera."""
+    if cfg.depth_camera == "thermal" and not use_thermal:
         return "rgb"
     return cfg.depth_camera
+
+
+def thermal_input(cfg: TrainConfig, scene: SceneData) -> tuple[str | None, RunWarning | None]:
+    """Why the run trains without thermal (None: it trains with it), and the ``thermal-flat`` warning
+    when the reason is frames without contrast: a method that would use them then trains as RGB-only
+    does, since they teach Stage 2 no geometry."""
+    if cfg.mode in ("rgb-only", "deformable-3dgs"):
+        return f"{cfg.mode} reads no thermal", None
+    if scene.thermal is None:
+        return "the dataset has no thermal frames", None
+    flat = thermal_flat(scene)
+    return (flat.message, flat) if flat is not None else (None, None)
 
 
 @dataclass
@@ -97,6 +110,10 @@ class Stage3Plan:
     floor_pixels: np.ndarray | None = None
     """(training RGB frames, H, W) bool: where the mask floor acts (never-clear or estimated-meeting, set
     once Stage 2 has given the geometry and the smoke colour is settled); None: everywhere."""
+    thermal_dropped: str | None = None
+    """Why the run trains without thermal (metrics.json ``stages.thermal_dropped``); None when it uses it."""
+    thermal_warning: RunWarning | None = None
+    """The ``thermal-flat`` warning when flat thermal frames were the reason."""
 
     def drop(self, term: str, why: str) -> None:
         """Take ``term`` out of the loss; the record says why when the mode asked for it."""
@@ -134,21 +151,22 @@ class Stage3Plan:
 
 def plan_stage3(cfg: TrainConfig, scene: SceneData) -> Stage3Plan:
     """The plan from the config and the data after Stage 1. No smoke in the masks → no smoke Gaussians and no deformation network; static smoke →
-    no deformation network; no thermal → rgb-only. Raises ValueError when the config asks for
+    no deformation network; no thermal, or thermal frames without contrast → rgb-only. Raises ValueError when the config asks for
     depth maps the data does not have."""
     masks = scene.rgb.masks
     deformable = cfg.mode == "deformable-3dgs"
     smoke_seen = scene.smoke_present and (masks is None or bool((masks[scene.rgb.indices("train")] > 0).any()))
     use_smoke = smoke_seen and not deformable
-    use_thermal = scene.thermal is not None and cfg.mode not in ("rgb-only", "deformable-3dgs")
+    thermal_dropped, thermal_warning = thermal_input(cfg, scene)
+    use_thermal = thermal_dropped is None
     depth_on = depth_term_on(cfg)
-    camera = depth_camera(cfg, scene) if depth_on else None
+    camera = depth_camera(cfg, use_thermal) if depth_on else None
     colour = "none" if not use_smoke else cfg.stage3.smoke_color
     plan = Stage3Plan(use_thermal=use_thermal, use_smoke=use_smoke,
                       use_deform=deformable or (use_smoke and not scene.smoke_static), use_masks=masks is not None,
                       smoke_colour=colour, mask_floor="all",
                       depth_prior=cfg.depth_prior if depth_on else None, depth_camera=camera,
-                      weights=mode_weights(cfg))
+                      weights=mode_weights(cfg), thermal_dropped=thermal_dropped, thermal_warning=thermal_warning)
     if not depth_on:
         plan.drop("depth", "the deformable-3dgs baseline has no Stage 3" if deformable
                   else "depth_prior is none" if cfg.depth_prior == "none"

@@ -57,9 +57,9 @@ def make_background(cfg: TrainConfig, channels: int, device: torch.device) -> En
     return EnvironmentBackground(channels, cfg.background_sh_degree, device)
 
 
-def draw_index(ctx: RunContext, n: int) -> int:
-    """A uniformly drawn training-view index from the run's seeded CPU generator."""
-    return int(torch.randint(n, (1,), generator=ctx.generator, device=ctx.generator.device))
+def draw_index(generator: torch.Generator, n: int) -> int:
+    """A uniformly drawn training-view index from a view-order stream (a seeded CPU generator)."""
+    return int(torch.randint(n, (1,), generator=generator, device=generator.device))
 
 
 Stage2HeldoutPsnr = Callable[[GaussianSet, DeformNetwork | None, EnvironmentBackground | None, int],
@@ -84,7 +84,12 @@ class Stage2Problem(StageProblem):
         else:
             add_rgb_sh(tensors, cfg.sh_degree)
         self.g = GaussianSet(tensors)
-        self.deform = DeformNetwork(_deform_cfg(cfg, deformable), ctx.extent, dev) if deformable else None
+        self.deform = None
+        if deformable:
+            with ctx.seeded_torch("stage2.deform"):
+                self.deform = DeformNetwork(_deform_cfg(cfg, deformable), ctx.extent, dev)
+        self.views_stream, self.splits_stream = (ctx.stream(f"stage2.{mod.name}.{part}") for part in ("views", "splits"))
+        self.streams = {f"stage2.{mod.name}.views": self.views_stream, f"stage2.{mod.name}.splits": self.splits_stream}
         self.background = make_background(cfg, mod.channels, dev)
         self.optimizer = make_optimizer(self.g, stage2_lrs(cfg, self.g, ctx.extent))
         self.deform_optimizer = (Adam(self.deform.parameters(), lr=cfg.deform.lr_init)
@@ -99,7 +104,7 @@ class Stage2Problem(StageProblem):
 
     def forward(self, it: int) -> IterationOutput:
         cfg = self.cfg
-        k = draw_index(self.ctx, len(self.views))
+        k = draw_index(self.views_stream, len(self.views))
         view = self.views[k]
         deform_on = self.deform is not None and it > self.deform_warmup
         placed = place_deformed(self.g, self.deform, view.time, self.ctx.center, deform_on)
@@ -129,7 +134,10 @@ class Stage2Problem(StageProblem):
         raster, view = out.extra["raster"], out.extra["view"]
         if raster.means2d.grad is not None:
             self.strategy.accumulate(raster.means2d.grad[0], raster.radii[0], view.width, view.height)
-        self.strategy.step(it, self.g, self.optimizer, self.ctx.generator)
+        self.strategy.step(it, self.g, self.optimizer, self.splits_stream)
+
+    def raised_loss(self, it: int) -> bool:
+        return self.strategy.resets_opacity(it)
 
     def state(self) -> dict[str, Any]:
         return {"gaussians": self.g.state_dict(), "optimizer": self.optimizer.state_dict(),

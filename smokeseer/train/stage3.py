@@ -16,6 +16,7 @@ import torch
 
 from scenes.scene import ModalityData
 from smokeseer.config import TrainConfig, at_iteration
+from smokeseer.config.streams import numpy_stream
 from smokeseer.model.deform import DeformNetwork, motion_tensors
 from smokeseer.model.planes import PlaneField
 from smokeseer.model.gaussians import DensifyStrategy, GaussianSet, make_optimizer
@@ -37,9 +38,10 @@ def build_scene_model(ctx: RunContext, s2: Stage2Result, plan: Stage3Plan,
                       smoke_points: np.ndarray | None, smoke_static: bool,
                       rgb_s2: Stage2Result | None = None, surface: GaussianSet | None = None) -> SceneModel:
     """Surface from Stage 2 gains an RGB SH colour beside its thermal one (RGB-only runs already
-    have it), unless ``surface`` gives it (both Stage 2s joined); smoke starts random in the
-    scene bounds. Each Stage 2's environment carries over for its modality (``rgb_s2`` is the RGB
-    Stage 2 of a two-surface run); a modality without one starts grey."""
+    have it), unless ``surface`` gives it (both Stage 2s joined); smoke starts at ``smoke_points``
+    with temporal opacities drawn from the stream ``init.smoke.temporal``. Each Stage 2's
+    environment carries over for its modality (``rgb_s2`` is the RGB Stage 2 of a two-surface run);
+    a modality without one starts grey."""
     cfg = ctx.cfg
     if surface is None:
         tensors = {k: v.to(ctx.device) for k, v in s2.gaussians.state_dict().items()}
@@ -50,12 +52,15 @@ def build_scene_model(ctx: RunContext, s2: Stage2Result, plan: Stage3Plan,
     deform = None
     if plan.use_smoke and smoke_points is not None:
         smoke = make_smoke(smoke_points, cfg.stage3.smoke_init_opacity, cfg.stage3.smoke_init_scale,
-                           cfg.stage2.init_scale_max * ctx.extent, np.random.default_rng(cfg.seed + 1), ctx.device)
+                           cfg.stage2.init_scale_max * ctx.extent, numpy_stream(cfg.seed, "init.smoke.temporal"),
+                           ctx.device)
         if plan.use_deform and cfg.deform.kind == "mlp":
-            deform = DeformNetwork(cfg.deform, ctx.extent, ctx.device)
+            with ctx.seeded_torch("stage3.deform"):
+                deform = DeformNetwork(cfg.deform, ctx.extent, ctx.device)
         elif plan.use_deform and cfg.deform.kind == "planes":
-            deform = PlaneField(cfg.deform, *planes_domain(smoke_points, cfg.deform.planes_margin, ctx.extent),
-                                ctx.extent, ctx.device)
+            with ctx.seeded_torch("stage3.deform"):
+                deform = PlaneField(cfg.deform, *planes_domain(smoke_points, cfg.deform.planes_margin, ctx.extent),
+                                    ctx.extent, ctx.device)
         elif plan.use_deform:
             smoke = GaussianSet({**smoke.state_dict(), **motion_tensors(smoke.n, cfg.deform, ctx.device)})
     thermal_geometry = s2.color == "thermal"
@@ -120,6 +125,8 @@ class Stage3Problem(StageProblem):
         refine = cfg.stage3.train_surface_geometry and cfg.stage3.surface_densify.every > 0
         self.surface_strategy = (DensifyStrategy(cfg.stage3.surface_densify, cfg.stage3.iterations, ("opacity",), ctx.extent)
                                  if refine else None)
+        self.streams = {name: ctx.stream(name) for name in ("stage3.views.rgb", "stage3.views.thermal",
+                                                             "stage3.splits.smoke", "stage3.splits.surface")}
         rgb_idx = rgb.indices("train")
         self.rgb_views = views_of(rgb, rgb_idx, dev)
         self.rgb_imgs = torch.as_tensor(rgb.images[rgb_idx], device=dev)
@@ -153,7 +160,7 @@ class Stage3Problem(StageProblem):
         cfg, model, weights = self.cfg, self.model, self.weights
         deform_on = it > self.deform_warmup
         degree = min(cfg.sh_degree, (it - 1) // max(cfg.sh_increase_every, 1))
-        k = draw_index(self.ctx, len(self.rgb_views))
+        k = draw_index(self.streams["stage3.views.rgb"], len(self.rgb_views))
         view = self.rgb_views[k]
         motion = model.smoke_motion(deform_on, cfg.deform.shared_position,
                                     cfg.deform.view_cull_margin * self.ctx.extent if cfg.deform.view_cull else None)
@@ -162,7 +169,7 @@ class Stage3Problem(StageProblem):
         terms: dict[str, torch.Tensor] = {"render_rgb": render_loss(out.colors[0], self.rgb_imgs[k], cfg.loss.dssim)}
         depth_source = (out, k)
         if self.th_imgs is not None:
-            j = draw_index(self.ctx, len(self.th_views))
+            j = draw_index(self.streams["stage3.views.thermal"], len(self.th_views))
             tout = model.render_thermal(self.th_views[j], deform_active=deform_on,
                                         surface_depth=self.depth_on_thermal, depth=False, motion=motion)
             terms["render_thermal"] = render_loss(tout.colors[0], self.th_imgs[j], cfg.loss.dssim)
@@ -238,9 +245,12 @@ class Stage3Problem(StageProblem):
             if smoke:
                 self.strategy.accumulate(grad[0, ns:], raster.radii[0, ns:], view.width, view.height)
         if self.surface_strategy is not None:
-            self.surface_strategy.step(it, model.surface, self.surface_optimizer, self.ctx.generator)
+            self.surface_strategy.step(it, model.surface, self.surface_optimizer, self.streams["stage3.splits.surface"])
         if smoke:
-            self.strategy.step(it, model.smoke, self.smoke_optimizer, self.ctx.generator)
+            self.strategy.step(it, model.smoke, self.smoke_optimizer, self.streams["stage3.splits.smoke"])
+
+    def raised_loss(self, it: int) -> bool:
+        return any(s is not None and s.resets_opacity(it) for s in (self.strategy, self.surface_strategy))
 
     def _smoke_cover(self, raster: RasterOutput, k: int) -> torch.Tensor | None:
         """Where this RGB view has smoke: the smoke alpha of the same render pass, and the Stage 1

@@ -1,18 +1,20 @@
-"""Shared training plumbing: the run log, checkpoints, NaN detection and LR schedules."""
+"""Shared training plumbing: the run log, checkpoints, NaN detection, LR schedules and the run context."""
 from __future__ import annotations
 
 import csv
 import math
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any, Callable, Iterable, Iterator, Sequence
 
 import torch
 from tqdm import tqdm
 
 from contracts.atomic import atomic_path
 from smokeseer.config import TrainConfig
+from smokeseer.config.streams import stream_seed
 from smokeseer.model.optim import Adam
 
 
@@ -152,20 +154,34 @@ def load_checkpoint(path: Path, config_sha: str, log_line: Callable[[str], None]
 
 
 class RunContext:
-    """What every stage needs: config, device, output folders, the log and the RNG. The RNG lives
-    on the CPU so a seed draws the same views and splits on every device; its draws are moved to
-    the parameters' device where they meet them."""
+    """What every stage needs: config, device, output folders, the log and the random streams.
+    Streams live on the CPU so a seed draws the same views and splits on every device; their
+    draws are moved to the parameters' device where they meet them."""
 
     def __init__(self, cfg: Any, out: Path, log: RunLog, scene_center: torch.Tensor, extent: float) -> None:
         self.cfg = cfg
         self.out = out
         self.log = log
         self.device = torch.device(cfg.device)
-        self.generator = torch.Generator(device="cpu").manual_seed(cfg.seed)
         self.center = scene_center.to(self.device)
         self.extent = extent
         self.config_sha = cfg.sha256()
         self.stage2_sha = cfg.stage2_sha256()
+        self.loss_rise: dict[str, float] = {}
+        """Each stage's largest smoothed-loss rise over its best (``LossWatch.max_rise``), for metrics.json."""
+
+    def stream(self, name: str) -> torch.Generator:
+        """A fresh CPU generator on the run seed's stream ``name`` (``smokeseer.config.streams``)."""
+        return torch.Generator(device="cpu").manual_seed(stream_seed(self.cfg.seed, name))
+
+    @contextmanager
+    def seeded_torch(self, name: str) -> Iterator[None]:
+        """Torch's global generators seeded on stream ``name`` inside the block, for draws made by code
+        that takes no generator (a module's default weight initialisation); the CPU one is put back
+        after it (nothing else draws from a GPU's)."""
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(stream_seed(self.cfg.seed, name))
+            yield
 
     def log_line(self, msg: str) -> None:
         """One human-readable line per stage event, kept clear of the progress bars."""
