@@ -247,8 +247,8 @@ def _build_lpips(net: str, backbone: dict[str, Any], heads: dict[str, Any]) -> C
         if w is None or tuple(w.shape) != (1, cout, 1, 1):
             raise ValueError(f"heads_path: lin{k}.model.1.weight missing or not shaped (1, {cout}, 1, 1)")
         lins.append(w.float())
-    shift = torch.tensor(_LPIPS_SHIFT).view(1, 3, 1, 1)
-    scale = torch.tensor(_LPIPS_SCALE).view(1, 3, 1, 1)
+    shift = torch.tensor(_LPIPS_SHIFT, device="cpu").view(1, 3, 1, 1)  # the images come from numpy: CPU
+    scale = torch.tensor(_LPIPS_SCALE, device="cpu").view(1, 3, 1, 1)
     last = max(spec.taps)
 
     def features(x: torch.Tensor) -> list[torch.Tensor]:
@@ -276,7 +276,7 @@ def _build_lpips(net: str, backbone: dict[str, Any], heads: dict[str, Any]) -> C
                 feats = features(batch)
             except RuntimeError:  # a pooling window larger than the feature map
                 raise ValueError(f"pred: {p.shape[0]}x{p.shape[1]} px is too small for LPIPS-{net}") from None
-            total = torch.zeros(())
+            total = torch.zeros((), device=batch.device)
             for f, w in zip(feats, lins):
                 f = f / (torch.sqrt(torch.sum(f * f, dim=1, keepdim=True)) + 1e-10)
                 d = (f[0:1] - f[1:2]) ** 2
