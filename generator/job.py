@@ -41,11 +41,17 @@ class Plan:
         return max(last_baked_frame(f) for f in self.frames.values() if f)
 
 
+SMOKE_ONLY_PASSES = ("shadowed", "smoke_alpha")
+"""Passes a smoke-free scene does not need: no smoke opacity, and its shadowed frames would be
+its clean ones."""
+
+
 def without_absent_passes(spec: SceneSpec) -> SceneSpec:
-    """A smoke-free scene has no smoke opacity to render: drop that pass from the request."""
+    """A smoke-free scene has no smoke opacity and no smoke shadow to render: drop those passes."""
     if spec.has_smoke:
         return spec
-    return replace(spec, passes={m: tuple(p for p in ps if p != "smoke_alpha") for m, ps in spec.passes.items()})
+    return replace(spec, passes={m: tuple(p for p in ps if p not in SMOKE_ONLY_PASSES)
+                                 for m, ps in spec.passes.items()})
 
 
 def make_plan(spec: SceneSpec) -> Plan:

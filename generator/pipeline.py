@@ -23,6 +23,7 @@ import yaml
 from tqdm import tqdm
 
 from generator import postprocess
+from generator.dataset_stats import scene_stats
 from generator.assets import Manifest, load_manifest
 from generator.bakes import bake_folder, bake_in, bake_key, is_baked
 from contracts.atomic import write_json
@@ -138,7 +139,7 @@ def rendered_coefficients(spec: SceneSpec, plan: Plan) -> dict[str, Any] | None:
 
 
 def _metadata(spec: SceneSpec, plan: Plan, sensor: ThermalSensor | None, summary: dict[str, Any],
-              stats: dict[str, Any], timings: dict[str, Any], code: str, bake: dict[str, Any] | None) -> dict[str, Any]:
+              timings: dict[str, Any], code: str, bake: dict[str, Any] | None) -> dict[str, Any]:
     optics = plan.optics
     coeffs = rendered_coefficients(spec, plan)
     meta: dict[str, Any] = {
@@ -162,7 +163,7 @@ def _metadata(spec: SceneSpec, plan: Plan, sensor: ThermalSensor | None, summary
         "render": {m: {"samples": cam.samples, "clean_samples": cam.clean_samples,
                        "denoise": effective_denoise(spec, cam), "volume_step_rate": cam.volume_step_rate}
                    for m, cam in (("rgb", spec.rig.rgb), ("thermal", spec.rig.thermal)) if spec.passes.get(m)},
-        "stats": stats,
+        "stats": {},
         "versions": {**versions(), "blender": summary.get("bpy", "")},
         "timings_s": timings,
     }
@@ -215,13 +216,13 @@ def generate(spec: SceneSpec, out: Path, manifest: Manifest | None = None, sourc
                     _transforms(modality, plan.intrinsics[modality], cam.fps, cam.time_offset_s,
                                 plan.frames[modality]))
     (dataset / "scene.yaml").write_text(yaml.safe_dump(spec.to_dict(), sort_keys=False))
-    stems = {m: [f.stem for f in plan.frames[m]] for m in spec.passes}
-    stats = postprocess.scene_stats(dataset, stems, spec.passes)
     timings = {"bake": summary["timings"].get("bake"), "build": summary["timings"].get("build"),
                "worker": summary.get("wall_s"), "postprocess": post_s,
                "render": {k: v["seconds_per_frame"] for k, v in summary["passes"].items()},
                "total": time.perf_counter() - started}
-    write_json(dataset / "dataset.json", _metadata(spec, plan, sensor, summary, stats, timings, code, bake))
+    meta = _metadata(spec, plan, sensor, summary, timings, code, bake)
+    meta["stats"] = scene_stats(dataset, meta)
+    write_json(dataset / "dataset.json", meta)
     validate_dataset(dataset)
     if out.exists():
         shutil.rmtree(out)

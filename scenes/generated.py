@@ -18,8 +18,8 @@ from typing import Callable
 import numpy as np
 import yaml
 
-from contracts.dataset_format import (GROUND_TRUTH_FOLDERS, dataset_files, file_path, load_transforms, pass_file,
-                                      read_pass_image, transforms_name, validate_dataset)
+from contracts.dataset_format import (GROUND_TRUTH_FOLDERS, SPEC_FILE, dataset_files, file_path, load_transforms,
+                                      pass_file, read_pass_image, transforms_name, validate_dataset)
 from contracts.errors import DatasetError
 from scenes.cameras import GL_TO_CV_AXES
 from scenes.images import box_downscale, check_finite, downscale_depth, gray, rgb01, thermal_images, working_factor
@@ -28,8 +28,6 @@ from scenes.scene import ModalityData, SceneData, set_times
 from scenes.splits import hold_out_validation
 from scenes.thermal_scale import LINEAR_SCALE, ThermalScaleSpec
 from scenes.transforms import frames_from_transforms
-
-SPEC_FILE = "scene.yaml"
 
 
 def load_generated(path: Path, max_width: int, thermal_scale: ThermalScaleSpec = LINEAR_SCALE,
