@@ -25,6 +25,7 @@ from contracts.errors import DatasetError
 from contracts.imageio import image01, read_exr_channel, read_png, write_exr
 from generator.api import resolve_spec
 from generator.assets import load_manifest
+from generator.cli import main as cli_main
 from generator.errors import GeneratorError
 from generator.ground_truth_refresh import SMOKE_CHECK_RMS, Refresh, refresh_ground_truth, refresh_plan
 from generator.job import resolve_asset_materials
@@ -171,6 +172,12 @@ def test_shadowed_is_added_to_a_finished_dataset_alone(shadow_scene: tuple[Path,
     assert check["frames"] == 2 and check["max_frame_rms"] <= SMOKE_CHECK_RMS
     assert meta["stats"]["test_views"]["psnr_shadowed_vs_clean"] is not None
     assert not any(p.name.startswith(".") for p in tmp_path.iterdir()), "staging folder left behind"
+
+    # The statistics of a finished dataset are computed again from its files alone.
+    stats = meta.pop("stats")
+    (lacking / "dataset.json").write_text(json.dumps(meta))
+    assert cli_main(["--update-stats", str(lacking)]) == 0
+    assert json.loads((lacking / "dataset.json").read_text())["stats"] == stats
 
 
 def test_the_validator_takes_a_dataset_with_and_without_shadowed(tmp_path: Path) -> None:
