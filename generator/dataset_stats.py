@@ -131,7 +131,8 @@ def scene_stats(root: Path, meta: dict[str, Any]) -> dict[str, Any]:
             stats[f"{modality}_mean_smoke_alpha"] = float(np.mean([_alpha(root, modality, s).mean() for s in stems]))
             stats[f"{modality}_smoke_fraction"] = float(np.mean([(m > 0).mean() for m in masks]))
     if {"smoky", "clean"} <= set(passes.get("rgb", ())):
-        stats["psnr_smoky_vs_clean"] = _mean_psnr(root, "smoky", "clean", [f["file_stem"] for f in _frames(root, "rgb")])
+        every = [f["file_stem"] for f in _frames(root, "rgb")]
+        stats["psnr_smoky_vs_clean"] = _mean_psnr(root, "smoky", "clean", every)
     if passes.get("rgb"):
         stats["test_views"] = _test_views(root, passes, threshold)
     if {"clean", "depth"} <= set(passes.get("thermal", ())):

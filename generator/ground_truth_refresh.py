@@ -39,7 +39,7 @@ from generator.dataset_stats import scene_stats
 from generator.errors import GeneratorError, SpecError
 from generator.job import without_absent_passes
 from generator.pipeline import generate, render_code_digest, versions
-from generator.spec import PASSES, SceneSpec, load_spec_file
+from generator.spec import MODALITIES, PASSES, SceneSpec, load_spec_file
 
 log = logging.getLogger("generate-scene")
 CLEAN = "clean"
@@ -105,12 +105,11 @@ class Refresh:
     def render_passes(self, checked: bool) -> dict[str, tuple[str, ...]]:
         """The passes to render, with the smoke check beside them when ``checked``."""
         wanted = self.items() | ({SMOKE_CHECK} if checked else set())
-        return {m: tuple(p for p in PASSES if (m, p) in wanted) for m in ("rgb", "thermal")
-                if any(w[0] == m for w in wanted)}
+        return {m: tuple(p for p in PASSES if (m, p) in wanted) for m in MODALITIES if any(w[0] == m for w in wanted)}
 
     def swapped(self) -> list[str]:
         """The passes whose files come from the new render, as MODALITY.PASS."""
-        return [f"{m}.{p}" for m in ("rgb", "thermal") for p in PASSES if (m, p) in self.items()]
+        return [f"{m}.{p}" for m in MODALITIES for p in PASSES if (m, p) in self.items()]
 
     @property
     def needs_smoke(self) -> bool:
@@ -131,7 +130,7 @@ def refresh_plan(dataset: Path, target: SceneSpec) -> Refresh | None:
     added = {m: ps for m, ps in added.items() if ps}
     if not all(ground_truth_only(m, p) for m, ps in added.items() for p in ps):
         return None
-    samples = {m: getattr(target.rig, m).clean_samples for m in ("rgb", "thermal")}
+    samples = {m: getattr(target.rig, m).clean_samples for m in MODALITIES}
     if with_clean_samples(replace(recorded, passes=target.passes), samples) != target:
         return None
     resampled = {m: tuple(p for p in ps if p in CLEAN_SAMPLE_PASSES) for m, ps in recorded.passes.items()
@@ -214,7 +213,7 @@ def refresh_ground_truth(dataset: Path, target: SceneSpec, threads: int | None =
                     dataset.name)
     rendered = staging / "render"
     log.info("%s: rendering %s (clean samples %s, were %s)%s", dataset.name, ", ".join(plan.swapped()),
-             {m: getattr(target.rig, m).clean_samples for m in ("rgb", "thermal")}, before,
+             {m: getattr(target.rig, m).clean_samples for m in MODALITIES}, before,
              f", with {'.'.join(SMOKE_CHECK)} to check the bake" if checked else "")
     if not (rendered / "dataset.json").is_file():
         generate(replace(target, passes=plan.render_passes(checked)), rendered, threads=threads, force=True,

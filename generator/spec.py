@@ -348,9 +348,9 @@ def check_render_budget(spec: SceneSpec, source: str, fields: dict[str, str]) ->
         days = total / PIXEL_SAMPLES_PER_S / 86400
         raise SpecError(source, fields[largest],
                         f"{total:.2g} pixel-samples in all ({frames} {largest} frames of {width}x{height} at {samples} "
-                        f"samples, {clean_samples[largest]} for clean and shadowed, {len(spec.passes[largest])} passes), "
-                        f"about {days:,.0f} days at "
-                        f"{PIXEL_SAMPLES_PER_S:.0e} pixel-samples/s on 2 CPU cores; the limit is {MAX_PIXEL_SAMPLES:.0e}")
+                        f"samples, {clean_samples[largest]} for clean and shadowed, {len(spec.passes[largest])} "
+                        f"passes), about {days:,.0f} days at {PIXEL_SAMPLES_PER_S:.0e} pixel-samples/s on 2 CPU cores; "
+                        f"the limit is {MAX_PIXEL_SAMPLES:.0e}")
 
 
 def load_spec_file(path: Path) -> SceneSpec:

@@ -104,8 +104,8 @@ def _modality(root: Path, modality: str, passes: list[str], max_width: int, read
         masks = np.stack([box_downscale(gray(a) / 255.0, factor) for a in images("smoke_alpha", "png")])
     check_finite(smoky, root / modality / "smoky")
     return ModalityData(name=modality, frames=frames, images=smoky.astype(np.float32),
-                        clean=clean, shadowed=shadowed, masks=None if masks is None else masks.astype(np.float32), depth=depth,
-                        scale=scale)
+                        clean=clean, shadowed=shadowed, masks=None if masks is None else masks.astype(np.float32),
+                        depth=depth, scale=scale)
 
 
 def spec_rig(root: Path) -> RigExtrinsic:
