@@ -51,6 +51,10 @@ MODALITY_PASSES: dict[str, tuple[str, ...]] = {
 """The passes each camera has. `shadowed` is RGB only: the thermal render has no lights, so the
 smoke casts no shadow there."""
 
+SMOKE_ONLY_PASSES = ("shadowed", "smoke_alpha")
+"""The passes a scene without smoke does not have: no smoke opacity, and its shadowed frames would
+be its clean ones."""
+
 GROUND_TRUTH_FOLDERS: frozenset[str] = frozenset(
     pf.folder for (_, name), files in PASS_FILES.items() if name in ("clean", "shadowed", "depth", "smoke_alpha")
     for pf in files if pf.folder.rsplit("/", 1)[1] != "smoke_mask")

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from contracts.atomic import atomic_path
+from contracts.dataset_format import SMOKE_ONLY_PASSES
 from blender.job import (SMOKE_PASSES, AssetJob, CameraJob, FireJob, FrameJob, ImageSize, MaterialJob, ObjectJob,
                         RgbSmokeJob, SimJob, SourceJob, TextureJob, ThermalSmokeJob, WorkerJob, WorldJob)
 from generator.assets import Manifest, MeshArrays, load_mesh
@@ -39,11 +40,6 @@ class Plan:
     def last_frame(self) -> int:
         """The bake must reach the last frame any camera's instant interpolates from."""
         return max(last_baked_frame(f) for f in self.frames.values() if f)
-
-
-SMOKE_ONLY_PASSES = ("shadowed", "smoke_alpha")
-"""Passes a smoke-free scene does not need: no smoke opacity, and its shadowed frames would be
-its clean ones."""
 
 
 def without_absent_passes(spec: SceneSpec) -> SceneSpec:
