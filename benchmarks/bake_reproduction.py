@@ -61,7 +61,8 @@ def main() -> None:
                          "rms": float(np.sqrt(np.mean((x - y) ** 2))), "mean_difference": float(np.mean(x - y)),
                          "mean_alpha": float(np.mean(y))})
         mine = [r for r in rows if r["comparison"] == name]
-        print(f"{name}: largest per-frame RMS {max(r['rms'] for r in mine):.4f}, mean {np.mean([r['rms'] for r in mine]):.4f}; "
+        rms = [r["rms"] for r in mine]
+        print(f"{name}: largest per-frame RMS {max(rms):.4f}, mean {np.mean(rms):.4f}; "
               f"mean difference {np.mean([r['mean_difference'] for r in mine]):+.5f} (mean alpha "
               f"{np.mean([r['mean_alpha'] for r in mine]):.4f})")
     print(f"load average {load_before:.2f} before, {os.getloadavg()[0]:.2f} after")
