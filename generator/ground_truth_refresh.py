@@ -200,6 +200,8 @@ def refresh_ground_truth(dataset: Path, target: SceneSpec, threads: int | None =
         os.replace(staging / "dataset", dataset)
         shutil.rmtree(staging)
         return dataset
+    if not (dataset / "dataset.json").is_file():
+        raise GeneratorError(f"{dataset}: no finished dataset to render ground truth into")
     plan = refresh_plan(dataset, target)
     if plan is None:
         raise GeneratorError(f"{dataset / 'scene.yaml'}: the dataset differs from spec {target.name!r} in more "

@@ -180,6 +180,13 @@ def test_shadowed_is_added_to_a_finished_dataset_alone(shadow_scene: tuple[Path,
     assert json.loads((lacking / "dataset.json").read_text())["stats"] == stats
 
 
+def test_refresh_of_no_dataset_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    assert cli_main(["--preset", "demo", "--out", str(tmp_path / "none"), "--refresh", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"generate-scene: error: {tmp_path / 'none'}: no finished dataset to render ground truth into"]
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_the_validator_takes_a_dataset_with_and_without_shadowed(tmp_path: Path) -> None:
     with_pass = write_splat_dataset(tmp_path / "with", n_rgb=4, n_thermal=3)
     without = write_splat_dataset(tmp_path / "without", n_rgb=4, n_thermal=3, shadowed=False)
