@@ -18,17 +18,19 @@ from pathlib import Path
 from typing import Any
 
 from contracts.atomic import write_text
+from contracts.dataset_format import MODALITY_PASSES
 
 Vec3 = tuple[float, float, float]
 
 DENOISERS = ("none", "color", "albedo", "albedo_normal")
 TEXTURE_KINDS = ("none", "noise", "checker", "brick", "wave", "voronoi", "magic")
 SOURCE_KINDS = ("smoke", "fire", "both")
-MODALITY_PASSES = {"rgb": ("smoky", "clean", "depth", "smoke_alpha"),
-                   "thermal": ("smoky", "clean", "depth", "smoke_alpha")}
-SMOKE_PASSES = ("smoky", "smoke_alpha")
-"""The passes that show the smoke. A job that asks for none of them (clean ground truth alone,
-depth) needs no smoke domain and so no bake."""
+CLEAN_SAMPLE_PASSES = ("clean", "shadowed")
+"""The ground-truth images, rendered at the camera's `clean_samples` and never denoised."""
+SMOKE_PASSES = ("smoky", "shadowed", "smoke_alpha")
+"""The passes that need the smoke domain: those that show the smoke, and `shadowed`, lit through
+it. A job that asks for none of them (clean ground truth alone, depth) needs no smoke domain and
+so no bake."""
 
 
 def built_scene_path(blend_path: str) -> Path:

@@ -12,7 +12,7 @@ from typing import Sequence
 import bpy
 from mathutils import Matrix
 
-from blender.job import SMOKE_PASSES, CameraJob, ImageSize
+from blender.job import CLEAN_SAMPLE_PASSES, SMOKE_PASSES, CameraJob, ImageSize
 from contracts.atomic import atomic_path
 from blender.materials import SMOKE_WEIGHT
 from blender.scene import BuiltScene
@@ -32,6 +32,7 @@ class PassSetup:
     denoise: str = "none"  # OpenImageDenoise guides, or none
     volume_step_rate: float = 1.0
     smoke_material: str = ""  # the smoke domain's material in this pass
+    smoke_in_camera: bool = True  # False: the smoke shadows and lights the scene but camera rays pass it
 
 
 #: Cycles' denoising inputs for each `denoise` setting of the spec.
@@ -39,7 +40,9 @@ DENOISE_INPUTS = {"color": "RGB", "albedo": "RGB_ALBEDO", "albedo_normal": "RGB_
 
 
 def pass_setup(modality: str, name: str, camera: CameraJob) -> PassSetup:
-    """Only the smoky image (what a real camera records) is denoised; ground truth stays exact."""
+    """Only the smoky image (what a real camera records) is denoised; ground truth stays exact.
+    `shadowed` is the clean pass with the smoke in the scene for every ray but the camera's: the
+    world under the smoke's shadow (and its glow and scattered light), with no smoke in view."""
     samples, step_rate = camera.samples, camera.volume_step_rate
     smoke = f"smoke.{modality}"
     if name == "depth":
@@ -50,9 +53,9 @@ def pass_setup(modality: str, name: str, camera: CameraJob) -> PassSetup:
     fmt = "PNG" if modality == "rgb" else "EXR"
     bounces = 4 if modality == "rgb" else 0
     denoise = camera.denoise if name == "smoky" else "none"
-    samples = camera.clean_samples if name == "clean" else samples
+    samples = camera.clean_samples if name in CLEAN_SAMPLE_PASSES else samples
     return PassSetup(name in SMOKE_PASSES, False, samples, bounces, False, fmt, denoise=denoise,
-                     volume_step_rate=step_rate, smoke_material=smoke)
+                     volume_step_rate=step_rate, smoke_material=smoke, smoke_in_camera=name != "shadowed")
 
 
 def configure_engine(seed: int, threads: int) -> None:
@@ -122,6 +125,9 @@ def apply_pass(setup: PassSetup, built: BuiltScene, camera: ImageSize) -> None:
         dom.data.materials.append(bpy.data.materials[setup.smoke_material])
     for obj_name in built.surfaces:
         bpy.data.objects[obj_name].is_holdout = setup.holdout_surfaces
+    for obj_name in (built.domain, built.domain_next):
+        if obj_name:
+            bpy.data.objects[obj_name].visible_camera = setup.smoke_in_camera
     scene.view_layers[0].use_pass_z = setup.depth_pass
     settings = render.image_settings
     if setup.file_format == "PNG":

@@ -16,6 +16,8 @@ FORMAT = "smokeseer-synth-dataset"
 FORMAT_VERSION = 1
 DATASET_FILE = "dataset.json"
 """The file that makes a folder a generated dataset: scene-level metadata."""
+SPEC_FILE = "scene.yaml"
+"""The fully resolved scene spec that produced the dataset."""
 
 
 @dataclass(frozen=True)
@@ -31,6 +33,7 @@ class PassFile:
 PASS_FILES: dict[tuple[str, str], tuple[PassFile, ...]] = {
     ("rgb", "smoky"): (PassFile("rgb/smoky", "png", np.uint8, 3),),
     ("rgb", "clean"): (PassFile("rgb/clean", "png", np.uint8, 3),),
+    ("rgb", "shadowed"): (PassFile("rgb/shadowed", "png", np.uint8, 3),),
     ("rgb", "depth"): (PassFile("rgb/depth", "exr", np.float32, 1, "Z"),),
     ("rgb", "smoke_alpha"): (PassFile("rgb/smoke_alpha", "exr", np.float32, 1, "A"),
                              PassFile("rgb/smoke_mask", "png", np.uint8, 1)),
@@ -43,9 +46,18 @@ PASS_FILES: dict[tuple[str, str], tuple[PassFile, ...]] = {
                                  PassFile("thermal/smoke_mask", "png", np.uint8, 1)),
 }
 
+MODALITY_PASSES: dict[str, tuple[str, ...]] = {
+    modality: tuple(name for m, name in PASS_FILES if m == modality) for modality in ("rgb", "thermal")}
+"""The passes each camera has. `shadowed` is RGB only: the thermal render has no lights, so the
+smoke casts no shadow there."""
+
+SMOKE_ONLY_PASSES = ("shadowed", "smoke_alpha")
+"""The passes a scene without smoke does not have: no smoke opacity, and its shadowed frames would
+be its clean ones."""
+
 GROUND_TRUTH_FOLDERS: frozenset[str] = frozenset(
-    pf.folder for (_, name), files in PASS_FILES.items() if name in ("clean", "depth", "smoke_alpha") for pf in files
-    if pf.folder.rsplit("/", 1)[1] != "smoke_mask")
+    pf.folder for (_, name), files in PASS_FILES.items() if name in ("clean", "shadowed", "depth", "smoke_alpha")
+    for pf in files if pf.folder.rsplit("/", 1)[1] != "smoke_mask")
 """The folders a real capture has no counterpart of: for scoring only. The smoke masks stay out:
 they are the declared oracle Stage 1."""
 

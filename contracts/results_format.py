@@ -11,6 +11,9 @@ from typing import Any
 RESULTS_FORMAT = "smokeseer-synth-results"
 RESULTS_FORMAT_VERSION = 1
 METRIC_KEYS = ("psnr", "ssim", "lpips", "lpips_status", "psnr_input", "depth_absrel", "depth_rmse", "mask_iou")
+SHADOWED_METRIC_KEYS = ("psnr_shadowed", "ssim_shadowed", "psnr_input_shadowed")
+"""Scores against the dataset's shadowed ground truth (``rgb.shadowed``): null without it, and absent
+from runs written before it existed."""
 TOP_KEYS = ("format", "format_version", "scene", "dataset", "method", "profile", "seed", "status", "provenance")
 PROVENANCE_KEYS = ("commit", "version", "source_digest", "threads", "machine")
 RENDER_DIRS = ("composite", "surface", "smoke")
@@ -93,6 +96,8 @@ def read_metrics(run_dir: Path) -> dict[str, Any]:
             raise ResultsFormatError(f"{mpath}: missing field 'metrics.{key}'")
         if key != "lpips_status":
             _finite_or_null(mpath, f"metrics.{key}", metrics[key])
+    for key in SHADOWED_METRIC_KEYS:
+        _finite_or_null(mpath, f"metrics.{key}", metrics.get(key))
     for i, entry in enumerate(doc.get("per_image", [])):
         for key, value in entry.items():
             if key != "file_stem":

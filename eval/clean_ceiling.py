@@ -6,9 +6,10 @@ loses in its handling of the smoke, not in the budget; where the bound is near t
 "beat the input" is out of reach at that budget whatever the method does.
 
 The derived dataset is the original with its smoky frames replaced by the clean ones, RGB and
-thermal (links, no copies), the smoke passes dropped and ``smoke.present`` false, so the trainer
-fits no smoke Gaussians; its dataset.json says all this under ``derived_from``. Both Full and
-RGB-only train on it: thermal must cost nothing where there is no smoke to see through.
+thermal (links, no copies), the smoke passes (smoke opacity, shadowed frames) dropped and
+``smoke.present`` false, so the trainer fits no smoke Gaussians; its dataset.json says all this
+under ``derived_from``. Both Full and RGB-only train on it: thermal must cost nothing where there
+is no smoke to see through.
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from contracts.atomic import write_json
-from contracts.dataset_format import PASS_FILES, validate_dataset
+from contracts.dataset_format import PASS_FILES, SMOKE_ONLY_PASSES, validate_dataset
 from contracts.recorded_paths import recorded_path
 from contracts.results_format import read_metrics
 
@@ -26,7 +27,7 @@ SWAPPED = {modality: dict(zip((pf.folder for pf in PASS_FILES[(modality, "smoky"
                               (pf.folder for pf in PASS_FILES[(modality, "clean")])))
            for modality in ("rgb", "thermal")}
 """Per modality, each smoky pass folder and the clean one linked in its place."""
-DROPPED = {pf.folder for modality in ("rgb", "thermal") for pf in PASS_FILES[(modality, "smoke_alpha")]}
+DROPPED = {pf.folder for (_, name), files in PASS_FILES.items() if name in SMOKE_ONLY_PASSES for pf in files}
 
 
 def derive_clean_dataset(src: Path, dst: Path) -> Path:
@@ -54,13 +55,13 @@ def derive_clean_dataset(src: Path, dst: Path) -> Path:
             folder = f"{modality}/{entry.name}"
             if folder not in DROPPED:
                 os.symlink(src / swapped.get(folder, folder), staging / folder)
-        meta["passes"][modality] = [p for p in meta["passes"][modality] if p != "smoke_alpha"]
+        meta["passes"][modality] = [p for p in meta["passes"][modality] if p not in SMOKE_ONLY_PASSES]
     meta.setdefault("smoke", {})["present"] = False
     meta["derived_from"] = {
         "dataset": recorded_path(src), "spec_sha256": meta.get("spec_sha256"),
         "change": "; ".join(f"{smoky} links to {clean}" for smoky, clean in swapped.items())
-                  + "; the smoke_alpha passes are dropped and smoke.present is false: the smoke-free ceiling "
-                    "of eval/clean_ceiling.py"}
+                  + "; the smoke_alpha and shadowed passes are dropped and smoke.present is false: the smoke-free "
+                    "ceiling of eval/clean_ceiling.py"}
     write_json(staging / "dataset.json", meta)
     validate_dataset(staging)
     os.replace(staging, dst)

@@ -13,6 +13,15 @@ largest channel): where the smoke changes a pixel by under 0.02 the input is nea
 method can only lose there; where it changes it by over 0.2 the input is far off and de-smoking
 pays. Per band, the PSNRs say from which smoke strength on a method beats doing nothing.
 
+The third split is by reach: "unrecoverable" pixels are those whose surface no training view sees
+with smoke alpha under 0.1 (contracts/unrecoverable.py; a dataset with RGB depth and smoke
+opacity), "recoverable" the rest. No method can recover the first from RGB alone, so a method's
+error there says what its thermal input or its priors bring.
+
+Where the dataset has the shadowed ground truth (``rgb.shadowed``: the frames under the smoke's
+shadow, no smoke in view), every region is scored against it too: on clear pixels the smoky input
+against clean is off by the shadow, against shadowed only by render noise.
+
 The renders are the run's 8-bit PNGs, so whole-image PSNRs here can differ from metrics.json's
 (scored on float renders) by the rounding. A run trained at a reduced width is compared with the
 dataset's frames box-downscaled by the same whole factor as the trainer's loader does, and a pixel
@@ -31,21 +40,25 @@ from typing import Any
 import numpy as np
 
 from contracts.atomic import atomic_path, write_text
-from contracts.dataset_format import PASS_FILES, file_path
+from contracts.dataset_format import PASS_FILES, PassFile, file_path, transforms_name
 from contracts.errors import DatasetError
 from contracts.imageio import image01, read_png
 from contracts.metrics import PSNR_CAP_DB
+from contracts.unrecoverable import dataset_unrecoverable
 from eval.runs import RunResult, variant_label
 from scenes.images import box_downscale
 
 log = logging.getLogger(__name__)
 
 REGIONS = ("smoky", "clear")
+REACH = ("unrecoverable", "recoverable")
+WHOLE = "all"
 CHANGE_EDGES = (0.0, 0.02, 0.05, 0.1, 0.2)
 """Lower edges of the |smoky - clean| bands; the last band is open."""
 BANDS = tuple(f"change {lo:g}-{hi:g}" for lo, hi in zip(CHANGE_EDGES, CHANGE_EDGES[1:])) + (f"change {CHANGE_EDGES[-1]:g}+",)
 CLEAN, SMOKY = PASS_FILES[("rgb", "clean")][0], PASS_FILES[("rgb", "smoky")][0]
-MASK = PASS_FILES[("rgb", "smoke_alpha")][1]
+SHADOWED = PASS_FILES[("rgb", "shadowed")][0]
+DEPTH, ALPHA, MASK = PASS_FILES[("rgb", "depth")][0], *PASS_FILES[("rgb", "smoke_alpha")]
 
 
 @dataclass(frozen=True)
@@ -61,6 +74,8 @@ class RegionScore:
     psnr: float  # the method's surface render against the clean frames, pooled squared error
     psnr_input: float  # the smoky input against the clean frames, same pixels
     error_share: float  # share of the method's squared error over all test pixels in this region
+    psnr_shadowed: float = math.nan  # the method against the shadowed frames (NaN without them)
+    psnr_input_shadowed: float = math.nan  # the smoky input against the shadowed frames
 
 
 def pooled_psnr(sq_error_sum: float, count: int) -> float:
@@ -71,39 +86,70 @@ def pooled_psnr(sq_error_sum: float, count: int) -> float:
     return 10.0 * math.log10(1.0 / max(sq_error_sum / count, 10 ** (-PSNR_CAP_DB / 10)))
 
 
-def score_run(result: RunResult, dataset: Path) -> list[RegionScore]:
+def score_run(result: RunResult, dataset: Path,
+              unrecoverable: dict[str, np.ndarray] | None = None) -> list[RegionScore]:
     """The region split of one finished run: its saved surface renders (renders/surface/STEM.png)
-    against the source dataset's clean frames, with the smoky input and smoke mask of the same
-    frames. ``dataset`` is the scene's original dataset (for the dehazing baseline too: the floor
-    is the smoky input, not the dehazed one). DatasetError names a missing or unreadable file."""
+    against the source dataset's clean frames (and shadowed frames, where it has them), with the
+    smoky input and smoke mask of the same frames; with ``unrecoverable`` (masks by test frame at
+    the dataset's resolution, ``dataset_unrecoverable``) the reach split too. ``dataset`` is the
+    scene's original dataset (for the dehazing baseline too: the floor is the smoky input, not the
+    dehazed one). DatasetError names a missing or unreadable file."""
     renders = sorted((Path(result.run_dir) / "renders" / "surface").glob("*.png"))
     if not renders:
         raise DatasetError(f"{Path(result.run_dir) / 'renders' / 'surface'}: no surface renders")
-    sums = {r: [0.0, 0.0, 0] for r in REGIONS + BANDS}  # method sq error, input sq error, pixels
+    shadowed = (Path(dataset) / SHADOWED.folder).is_dir()
+    regions = (WHOLE,) + REGIONS + BANDS + (REACH if unrecoverable else ())
+    # Per region: squared error of the method and of the input against clean, then against shadowed, and pixels.
+    sums = {r: [0.0, 0.0, 0.0, 0.0, 0] for r in regions}
     for render in renders:
         stem = render.stem
         pred = image01(read_png(render))
         clean = image01(read_png(file_path(dataset, CLEAN, stem)))
         factor = clean.shape[1] // pred.shape[1]
-        smoky = box_downscale(image01(read_png(file_path(dataset, SMOKY, stem))), factor)
-        mask = box_downscale(image01(read_png(file_path(dataset, MASK, stem))), factor) >= 0.5
+
+        def scaled(pf: PassFile) -> np.ndarray:
+            return box_downscale(image01(read_png(file_path(dataset, pf, stem))), factor)
+
+        smoky = scaled(SMOKY)
+        mask = scaled(MASK) >= 0.5
         clean = box_downscale(clean, factor)
         if not (pred.shape == clean.shape == smoky.shape and mask.shape == clean.shape[:2]):
             raise DatasetError(f"{render}: {pred.shape[1]}x{pred.shape[0]} render is not the dataset's frame {stem} "
                                f"({clean.shape[1] * factor}x{clean.shape[0] * factor}) downscaled by a whole factor")
-        err = ((pred - clean) ** 2).sum(-1)
-        err_in = ((smoky - clean) ** 2).sum(-1)
+        truth_sh = scaled(SHADOWED) if shadowed else clean
+        errors = [((a - b) ** 2).sum(-1) for a, b in ((pred, clean), (smoky, clean), (pred, truth_sh),
+                                                       (smoky, truth_sh))]
         band = np.searchsorted(CHANGE_EDGES, np.abs(smoky - clean).max(-1), side="right") - 1
-        for region, sel in (("smoky", mask), ("clear", ~mask), *((b, band == i) for i, b in enumerate(BANDS))):
-            sums[region][0] += float(err[sel].sum())
-            sums[region][1] += float(err_in[sel].sum())
-            sums[region][2] += int(sel.sum()) * 3
-    total_pixels = sum(sums[r][2] for r in REGIONS)
+        selections = [(WHOLE, np.ones_like(mask)), ("smoky", mask), ("clear", ~mask),
+                      *((b, band == i) for i, b in enumerate(BANDS))]
+        if unrecoverable:
+            out_of_reach = box_downscale(unrecoverable[stem][..., None].astype(np.float64), factor)[..., 0] >= 0.5
+            selections += [("unrecoverable", out_of_reach), ("recoverable", ~out_of_reach)]
+        for region, sel in selections:
+            for j, err in enumerate(errors):
+                sums[region][j] += float(err[sel].sum())
+            sums[region][4] += int(sel.sum()) * 3
+    total_pixels = sum(sums[r][4] for r in REGIONS)
     total_error = sum(sums[r][0] for r in REGIONS)
+
+    def against_shadowed(err: float, count: int) -> float:
+        return pooled_psnr(err, count) if shadowed else math.nan
+
     return [RegionScore(result.scene, result.variant, result.seed, region, len(renders),
                         count / total_pixels, pooled_psnr(err, count), pooled_psnr(err_in, count),
-                        err / total_error if total_error > 0 else 0.0)
-            for region, (err, err_in, count) in sums.items()]
+                        err / total_error if total_error > 0 else 0.0,
+                        against_shadowed(err_sh, count), against_shadowed(err_in_sh, count))
+            for region, (err, err_in, err_sh, err_in_sh, count) in sums.items()]
+
+
+def reach_masks(dataset: Path) -> dict[str, np.ndarray]:
+    """The unrecoverable mask of each test frame of ``dataset``; empty (no reach split) when it has
+    no RGB transforms, depth or smoke opacity (hand-made test data, a real capture)."""
+    root = Path(dataset)
+    if not ((root / transforms_name("rgb")).is_file() and (root / DEPTH.folder).is_dir()
+            and (root / ALPHA.folder).is_dir()):
+        return {}
+    return dataset_unrecoverable(root)
 
 
 def nan_mean(values: list[float]) -> float:
@@ -150,9 +196,55 @@ def _summary(scores: list[RegionScore], skipped: list[str]) -> str:
         cells = [f"{format_value(_mean(mine[b], 'psnr'), 1)} / {format_value(_mean(mine[b], 'psnr_input'), 1)} "
                  f"({format_value(100 * _mean(mine[b], 'pixel_share'), 0)} %)" for b in BANDS]
         lines.append(f"| {scene} | {label} | {len(mine[BANDS[0]])} | " + " | ".join(cells) + " |")
+    lines += _reach_table(scores, keys) + _shadowed_table(scores, keys)
     if skipped:
         lines += ["", "Not split (said in the log too):", ""] + [f"- {s}" for s in skipped]
     return "\n".join(lines) + "\n"
+
+
+def _rows(scores: list[RegionScore], scene: str, variant: str, region: str) -> list[RegionScore]:
+    return [s for s in scores if (s.scene, s.variant, s.region) == (scene, variant, region)]
+
+
+def _pair(rows: list[RegionScore], a: str, b: str) -> str:
+    return f"{format_value(_mean(rows, a))} / {format_value(_mean(rows, b))}"
+
+
+def _reach_table(scores: list[RegionScore], keys: list[tuple[str, str]]) -> list[str]:
+    """The unrecoverable split, for the scenes whose datasets allow it."""
+    keys = [k for k in keys if _rows(scores, *k, REACH[0])]
+    if not keys:
+        return []
+    lines = ["", "## Out of reach of the RGB frames", "",
+             "Unrecoverable pixels: no training view sees their surface with smoke alpha under 0.1 "
+             "(docs/dataset-format.md, \"Statistics\"), so no method recovers them from RGB alone.", "",
+             "| scene | method | seeds | unrecoverable pixels | unrecoverable: method / input (dB) "
+             "| recoverable: method / input (dB) |", "|---|---|---|---|---|---|"]
+    for scene, variant in keys:
+        out, rest = _rows(scores, scene, variant, REACH[0]), _rows(scores, scene, variant, REACH[1])
+        lines.append(f"| {scene} | {variant_label(variant)} | {len(out)} "
+                     f"| {format_value(100 * _mean(out, 'pixel_share'), 0)} % | {_pair(out, 'psnr', 'psnr_input')} "
+                     f"| {_pair(rest, 'psnr', 'psnr_input')} |")
+    return lines
+
+
+def _shadowed_table(scores: list[RegionScore], keys: list[tuple[str, str]]) -> list[str]:
+    """Scores against clean and against shadowed, for the scenes whose datasets have shadowed."""
+    keys = [k for k in keys if not math.isnan(_mean(_rows(scores, *k, WHOLE), "psnr_shadowed"))]
+    if not keys:
+        return []
+    lines = ["", "## Against the shadowed ground truth", "",
+             "`shadowed` is the scene under the smoke's shadow with no smoke in view: what a perfect "
+             "de-smoker of the camera rays shows. On clear pixels the smoky input differs from it by "
+             "render noise alone, from clean by the shadow too.", "",
+             "| scene | method | seeds | method: vs clean / vs shadowed (dB) | input: vs clean / vs shadowed (dB) "
+             "| clear pixels, input: vs clean / vs shadowed (dB) |", "|---|---|---|---|---|---|"]
+    for scene, variant in keys:
+        whole, clear = _rows(scores, scene, variant, WHOLE), _rows(scores, scene, variant, "clear")
+        lines.append(f"| {scene} | {variant_label(variant)} | {len(whole)} | {_pair(whole, 'psnr', 'psnr_shadowed')} "
+                     f"| {_pair(whole, 'psnr_input', 'psnr_input_shadowed')} "
+                     f"| {_pair(clear, 'psnr_input', 'psnr_input_shadowed')} |")
+    return lines
 
 
 def _mean(scores: list[RegionScore], attr: str) -> float:
@@ -163,9 +255,11 @@ def _mean(scores: list[RegionScore], attr: str) -> float:
 def write_region_split(results: list[RunResult], datasets: dict[str, Path], out_dir: Path) -> dict[str, Path]:
     """per_scene_regions.csv (one row per run and region) and per_scene_regions.md (the summary).
     A run whose scene has no smoke mask (a real capture) or whose files are missing is left out,
-    with one log line and a line in the summary."""
+    with one log line and a line in the summary; a scene without depth and smoke opacity has no
+    reach split, one without shadowed frames NaN for the scores against them."""
     scores: list[RegionScore] = []
     skipped: list[str] = []
+    reach: dict[Path, dict[str, np.ndarray]] = {}  # one reprojection per dataset, however many runs
     for r in sorted((r for r in results if r.status == "ok"), key=lambda r: (r.scene, r.variant, r.seed)):
         dataset = datasets.get(r.scene)
         if dataset is None:
@@ -175,7 +269,9 @@ def write_region_split(results: list[RunResult], datasets: dict[str, Path], out_
                            "(no smoke ground truth, e.g. a real capture)")
         else:
             try:
-                scores += score_run(r, Path(dataset))
+                if Path(dataset) not in reach:
+                    reach[Path(dataset)] = reach_masks(Path(dataset))
+                scores += score_run(r, Path(dataset), reach[Path(dataset)])
             except DatasetError as exc:
                 skipped.append(f"{r.scene} {r.variant} seed {r.seed}: {exc}")
     return write_split_files(out_dir, "per_scene_regions", RegionScore, scores, _summary(scores, skipped), skipped)

@@ -40,7 +40,16 @@ TABLE1_EXTRA = (
     Column("psnr_input", "Input PSNR", 2), Column("depth_absrel", "Depth AbsRel ↓", 3),
     Column("depth_rmse", "Depth RMSE (m) ↓", 3), Column("mask_iou", "Mask IoU ↑", 3),
 )
+SHADOWED_EXTRA = (Column("psnr_shadowed", "PSNR vs shadowed ↑", 2),
+                  Column("psnr_input_shadowed", "Input PSNR vs shadowed", 2))
+"""Table 1's scores against the shadowed ground truth (rgb.shadowed), shown when a run has them."""
 TABLE2_COLUMNS = TABLE1_COLUMNS
+
+
+def table1_extra(results: list[RunResult]) -> tuple[Column, ...]:
+    """Table 1's extra columns: the scores against shadowed only when some finished run has them."""
+    shadowed = any(r.status == "ok" and r.metrics.get("psnr_shadowed") is not None for r in results)
+    return TABLE1_EXTRA + (SHADOWED_EXTRA if shadowed else ())
 
 
 @dataclass(frozen=True)
@@ -301,7 +310,7 @@ def write_tables(results: list[RunResult], out_dir: Path) -> dict[str, Path]:
     n_finished = len({r.scene for r in results if r.status == "ok"})
     paths: dict[str, Path] = {}
     specs = (
-        ("table1", "Table 1: methods", [k for k in METHODS], TABLE1_COLUMNS, TABLE1_EXTRA, "Method"),
+        ("table1", "Table 1: methods", [k for k in METHODS], TABLE1_COLUMNS, table1_extra(results), "Method"),
         ("table2", "Table 2: ablations", ["full", *ABLATIONS], TABLE2_COLUMNS, (), "Variant"),
     )
     for name, title, order, cols, extra, first in specs:
@@ -326,7 +335,7 @@ def write_tables(results: list[RunResult], out_dir: Path) -> dict[str, Path]:
 
 
 def _write_per_scene(results: list[RunResult], path: Path) -> Path:
-    metrics = [c.metric for c in TABLE1_COLUMNS + TABLE1_EXTRA]
+    metrics = [c.metric for c in TABLE1_COLUMNS + table1_extra(results)]
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["scene", "variant", "metric", "mean", "std", "n_seeds", "runs_failed"])

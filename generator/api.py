@@ -4,6 +4,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Sequence
 
+from generator.assets import load_manifest
+from generator.ground_truth_refresh import refresh_ground_truth
+from generator.job import resolve_asset_materials
 from generator.pipeline import generate as _generate
 from generator.presets import PRESET_DIR, load_preset
 from generator.sampler import draw_spec
@@ -45,3 +48,13 @@ def generate_random(seed: int, out: Path, *, pins: Sequence[str] = (), force: bo
     spec, source = random_spec(seed, pins, Overrides(**overrides))  # type: ignore[arg-type]
     return _generate(spec, Path(out), source=source, force=force, show_progress=show_progress, threads=threads,
                      bake_store=bake_store)
+
+
+def refresh(spec: SceneSpec, source: str, dataset: Path, *, show_progress: bool = True, threads: int | None = None,
+            bake_store: Path | None = None) -> Path:
+    """Make the finished dataset at `dataset` the resolved `spec`'s by rendering only the ground truth
+    it lacks (a pass such as rgb.shadowed, or clean passes at fewer samples); GeneratorError when it
+    differs in anything else (generator.ground_truth_refresh)."""
+    spec = resolve_asset_materials(spec, load_manifest(), source)
+    return refresh_ground_truth(Path(dataset), spec, threads=threads, show_progress=show_progress,
+                                bake_store=bake_store)

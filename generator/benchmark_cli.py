@@ -3,8 +3,9 @@
 Each scene goes to OUT/<scene>/ through `generator.api.generate`. A scene whose dataset is
 already there and was made from the same resolved spec is skipped (so an interrupted run
 resumes; an unfinished scene also resumes inside the generator's own staging folder); one
-that differs only in the clean passes' samples has just those re-rendered
-(`generator.clean_refresh`); one made from another spec is regenerated. With `--clean-from DIR`,
+that differs only in ground truth (the clean passes' samples, or a ground-truth pass it lacks,
+such as `rgb.shadowed`) has just that rendered (`generator.ground_truth_refresh`); one made from
+another spec is regenerated. With `--clean-from DIR`,
 DIR/<scene> provides the clean passes of a scene generated at another density scale
 (`generator.clean_reuse`). Every scene prints one line (time, size, smoke statistics), and the run
 writes OUT/benchmark.json and OUT/benchmark.md.
@@ -31,7 +32,7 @@ import numpy as np
 
 from generator.api import generate, resolve_spec
 from generator.assets import load_manifest
-from generator.clean_refresh import clean_refresh_needed, refresh_clean
+from generator.ground_truth_refresh import refresh_ground_truth, refresh_plan
 from generator.clean_reuse import generate_reusing_clean
 from contracts.errors import DatasetError
 from generator.errors import GeneratorError
@@ -85,10 +86,10 @@ def run_scene(scene: str, profile: Profile, out_root: Path, force: bool, threads
     spec = _resolved(scene, profile, density_scale)
     out = out_root / scene
     reused = not force and made_from(out, spec)
-    refreshed = not reused and not force and clean_refresh_needed(out, spec)
+    refreshed = not reused and not force and refresh_plan(out, spec) is not None
     started = time.perf_counter()
     if refreshed:
-        refresh_clean(out, spec, threads=threads, show_progress=show_progress)
+        refresh_ground_truth(out, spec, threads=threads, show_progress=show_progress, bake_store=bake_store)
     elif not reused and clean_from is not None:
         generate_reusing_clean(spec, out, clean_from / scene, threads=threads, show_progress=show_progress,
                                bake_store=bake_store, force=True)
@@ -96,7 +97,7 @@ def run_scene(scene: str, profile: Profile, out_root: Path, force: bool, threads
         generate(scene, out, force=True, show_progress=show_progress, threads=threads, bake_store=bake_store,
                  density_scale=density_scale, **profile.kwargs())
     wall = time.perf_counter() - started
-    status = "reused" if reused else "refreshed" if refreshed else "generated"  # refreshed: clean passes only
+    status = "reused" if reused else "refreshed" if refreshed else "generated"  # refreshed: ground truth only
     meta = json.loads((out / "dataset.json").read_text())
     size, n_files = folder_size(out)
     frames = {m: len(json.loads((out / f"transforms_{m}.json").read_text())["frames"])

@@ -1,6 +1,6 @@
 """Generate a dataset at one smoke density scale with the clean passes of the same scene at another.
 
-The clean passes are rendered without the smoke domain (`generator.clean_refresh`), so the density
+The clean passes are rendered without the smoke domain (`generator.ground_truth_refresh`), so the density
 scale k never reaches them: every k of a scene has the same clean frames, byte for byte. They are
 also the costliest pass (many samples, never denoised). A density sweep therefore renders them once
 and each other k renders only what the smoke changes. The source must be a finished dataset whose
@@ -18,7 +18,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from generator.clean_refresh import CLEAN, clean_modalities, copy_clean_passes, finish_clean_swap, recorded_spec
+from generator.ground_truth_refresh import CLEAN, clean_modalities, copy_passes, finish_swap, recorded_spec
 from generator.errors import GeneratorError
 from generator.pipeline import generate, render_code_digest
 from generator.spec import SceneSpec
@@ -71,16 +71,17 @@ def generate_reusing_clean(target: SceneSpec, out: Path, source: Path, threads: 
     log.info("%s: clean passes (%s) from %s; rendering the rest", out.name, ", ".join(modalities), source)
     if not (rendered / "dataset.json").is_file():
         generate(rest, rendered, threads=threads, force=True, show_progress=show_progress, bake_store=bake_store)
-    copy_clean_passes(source, rendered, modalities, "its clean passes cannot be reused")
+    clean = [f"{m}.{CLEAN}" for m in modalities]
+    copy_passes(source, rendered, clean, "its clean passes cannot be reused")
     source_meta = record[1]
-    finish_clean_swap(rendered, json.loads((rendered / "dataset.json").read_text()), target,
-                      source_meta["timings_s"]["render"], "clean_reused", {
-        "passes": [f"{m}.{CLEAN}" for m in modalities], "from": os.path.relpath(source, out),
+    finish_swap(rendered, json.loads((rendered / "dataset.json").read_text()), target,
+                source_meta["timings_s"]["render"], clean, {"clean_reused": {
+        "passes": clean, "from": os.path.relpath(source, out),
         "source_spec_sha256": source_meta["spec_sha256"],
         "source_density_scale": source_meta["smoke"].get("density_scale", 1.0),
         "code_sha256": _clean_code(source_meta), "seconds": round(time.perf_counter() - started, 1),
         "note": "the clean passes never see the smoke, so they are the source's files; every other file "
-                "was rendered for this dataset (timings_s.render gives the source's clean timings)"})
+                "was rendered for this dataset (timings_s.render gives the source's clean timings)"}})
     if out.exists():
         shutil.rmtree(out)
     os.replace(rendered, out)

@@ -44,6 +44,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, help="output dataset folder")
     p.add_argument("--list-presets", action="store_true", help="list the built-in scenes and exit")
     p.add_argument("--validate", type=Path, metavar="DIR", help="check a dataset against docs/dataset-format.md")
+    p.add_argument("--update-stats", type=Path, nargs="+", metavar="DIR",
+                   help="recompute the statistics in each dataset's dataset.json from its files (no rendering)")
+    p.add_argument("--refresh", action="store_true",
+                   help="--out holds this scene's dataset but for ground truth (a pass such as rgb.shadowed, or clean "
+                        "passes at fewer samples): render only that and swap it in")
     p.add_argument("--frames", type=int, help="number of RGB frames")
     p.add_argument("--resolution", type=parse_size, help="RGB resolution, WIDTHxHEIGHT")
     p.add_argument("--thermal-resolution", type=parse_size, help="thermal sensor resolution, WIDTHxHEIGHT")
@@ -73,11 +78,19 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
         frames = ", ".join(f"{m}: {', '.join(p)}" for m, p in meta["passes"].items() if p)
         print(f"{args.validate}: valid {meta['format']} v{meta['format_version']} (scene {meta['scene']}; {frames})")
         return 0
+    if args.update_stats:
+        from generator.dataset_stats import update_stats
+
+        for root in args.update_stats:
+            views = update_stats(root).get("test_views", {})
+            print(f"{root}: statistics updated (test views: RGB optical depth {views.get('rgb_optical_depth')}, "
+                  f"unrecoverable share {views.get('unrecoverable_share')})")
+        return 0
     if sum(x is not None for x in (args.spec, args.preset, args.random)) != 1:
         parser.error("give exactly one of SPEC.yaml, --preset NAME or --random SEED")
     if args.set and args.random is None:
         parser.error("--set pins the axes of a drawn scene: use it with --random SEED")
-    from generator.api import random_spec, resolve_spec
+    from generator.api import random_spec, refresh, resolve_spec
     from generator.pipeline import generate
     from generator.spec import Overrides
 
@@ -93,8 +106,12 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
         return 0
     if args.out is None:
         parser.error("--out DIR is required")
-    out = generate(spec, args.out, source=source, force=args.force, show_progress=not args.quiet,
-                   threads=args.threads, bake_store=args.bake_cache)
+    if args.refresh:
+        out = refresh(spec, source, args.out, show_progress=not args.quiet, threads=args.threads,
+                      bake_store=args.bake_cache)
+    else:
+        out = generate(spec, args.out, source=source, force=args.force, show_progress=not args.quiet,
+                       threads=args.threads, bake_store=args.bake_cache)
     print(out)
     return 0
 

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from contracts.atomic import atomic_path
+from contracts.dataset_format import SMOKE_ONLY_PASSES
 from blender.job import (SMOKE_PASSES, AssetJob, CameraJob, FireJob, FrameJob, ImageSize, MaterialJob, ObjectJob,
                         RgbSmokeJob, SimJob, SourceJob, TextureJob, ThermalSmokeJob, WorkerJob, WorldJob)
 from generator.assets import Manifest, MeshArrays, load_mesh
@@ -42,10 +43,11 @@ class Plan:
 
 
 def without_absent_passes(spec: SceneSpec) -> SceneSpec:
-    """A smoke-free scene has no smoke opacity to render: drop that pass from the request."""
+    """A smoke-free scene has no smoke opacity and no smoke shadow to render: drop those passes."""
     if spec.has_smoke:
         return spec
-    return replace(spec, passes={m: tuple(p for p in ps if p != "smoke_alpha") for m, ps in spec.passes.items()})
+    return replace(spec, passes={m: tuple(p for p in ps if p not in SMOKE_ONLY_PASSES)
+                                 for m, ps in spec.passes.items()})
 
 
 def make_plan(spec: SceneSpec) -> Plan:

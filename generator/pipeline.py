@@ -22,6 +22,7 @@ from typing import Any
 from tqdm import tqdm
 
 from generator import postprocess
+from generator.dataset_stats import scene_stats
 from generator.assets import Manifest, load_manifest
 from generator.bakes import bake_folder, bake_in, bake_key, is_baked
 from contracts.atomic import write_json
@@ -139,7 +140,7 @@ def rendered_coefficients(spec: SceneSpec, plan: Plan, calibration: Calibration 
 
 
 def _metadata(spec: SceneSpec, plan: Plan, sensor: ThermalSensor | None, summary: dict[str, Any],
-              stats: dict[str, Any], timings: dict[str, Any], code: str, bake: dict[str, Any] | None,
+              timings: dict[str, Any], code: str, bake: dict[str, Any] | None,
               calibration: Calibration | None, achieved: float | None) -> dict[str, Any]:
     optics = plan.optics
     coeffs = rendered_coefficients(spec, plan, calibration)
@@ -164,7 +165,7 @@ def _metadata(spec: SceneSpec, plan: Plan, sensor: ThermalSensor | None, summary
         "render": {m: {"samples": cam.samples, "clean_samples": cam.clean_samples,
                        "denoise": effective_denoise(spec, cam), "volume_step_rate": cam.volume_step_rate}
                    for m, cam in (("rgb", spec.rig.rgb), ("thermal", spec.rig.thermal)) if spec.passes.get(m)},
-        "stats": stats,
+        "stats": {},
         "versions": {**versions(), "blender": summary.get("bpy", "")},
         "timings_s": timings,
     }
@@ -228,8 +229,6 @@ def generate(spec: SceneSpec, out: Path, manifest: Manifest | None = None, sourc
                     _transforms(modality, plan.intrinsics[modality], cam.fps, cam.time_offset_s,
                                 plan.frames[modality]))
     (dataset / "scene.yaml").write_text(spec.to_yaml())
-    stems = {m: [f.stem for f in plan.frames[m]] for m in spec.passes}
-    stats = postprocess.scene_stats(dataset, stems, spec.passes)
     timings = {"bake": summary["timings"].get("bake"), "build": summary["timings"].get("build"),
                "worker": summary.get("wall_s"), "postprocess": post_s,
                "render": {k: v["seconds_per_frame"] for k, v in summary["passes"].items()},
@@ -240,8 +239,9 @@ def generate(spec: SceneSpec, out: Path, manifest: Manifest | None = None, sourc
         timings["calibration"] = calibrator.seconds
         if "smoke_alpha" in spec.passes.get("rgb", ()):
             achieved = mean_optical_depth(dataset_alphas(dataset))
-    write_json(dataset / "dataset.json",
-               _metadata(spec, plan, sensor, summary, stats, timings, code, bake, calibration, achieved))
+    meta = _metadata(spec, plan, sensor, summary, timings, code, bake, calibration, achieved)
+    meta["stats"] = scene_stats(dataset, meta)
+    write_json(dataset / "dataset.json", meta)
     validate_dataset(dataset)
     if out.exists():
         shutil.rmtree(out)

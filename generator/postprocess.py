@@ -60,7 +60,7 @@ def _wanted(ctx: PostContext, modality: str, name: str) -> bool:
 
 
 def finish_rgb_frame(ctx: PostContext, stem: str) -> None:
-    for name in ("smoky", "clean"):
+    for name in ("smoky", "clean", "shadowed"):
         if _wanted(ctx, "rgb", name):
             # Re-encoded pixels only: Cycles writes render times into PNG metadata, which would
             # make identical renders differ byte for byte.
@@ -96,21 +96,3 @@ def finish_thermal_frame(ctx: PostContext, stem: str, frame_index: int) -> None:
 def psnr_u8(a: np.ndarray, b: np.ndarray) -> float:
     mse = float(np.mean((a.astype(np.float64) / 255 - b.astype(np.float64) / 255) ** 2))
     return float("inf") if mse == 0 else 10.0 * np.log10(1.0 / mse)
-
-
-def scene_stats(out: Path, stems: dict[str, list[str]], passes: dict[str, tuple[str, ...]]) -> dict[str, float | None]:
-    """Evidence that the smoke is as dense as claimed and that thermal sees through it."""
-    stats: dict[str, float | None] = {}
-    for modality in ("rgb", "thermal"):
-        if "smoke_alpha" in passes.get(modality, ()):
-            alphas = [read_exr_channel(file_path(out, PASS_FILES[(modality, "smoke_alpha")][0], s), "A")
-                      for s in stems[modality]]
-            masks = [read_png(file_path(out, PASS_FILES[(modality, "smoke_alpha")][1], s)) for s in stems[modality]]
-            stats[f"{modality}_mean_smoke_alpha"] = float(np.mean([a.mean() for a in alphas]))
-            stats[f"{modality}_smoke_fraction"] = float(np.mean([(m > 0).mean() for m in masks]))
-    if {"smoky", "clean"} <= set(passes.get("rgb", ())):
-        values = [psnr_u8(read_png(out / "rgb" / "smoky" / f"{s}.png"), read_png(out / "rgb" / "clean" / f"{s}.png"))
-                  for s in stems["rgb"]]
-        finite = [v for v in values if np.isfinite(v)]
-        stats["psnr_smoky_vs_clean"] = float(np.mean(finite)) if finite else None
-    return stats

@@ -11,6 +11,8 @@ from typing import Any, TypeVar
 
 import yaml
 
+from blender.job import CLEAN_SAMPLE_PASSES
+from contracts.dataset_format import MODALITY_PASSES
 from generator.errors import SpecError
 from generator.fields import REQUIRED, Fields, read_fields, spec_field
 
@@ -22,7 +24,9 @@ TRAJECTORY_KINDS = ("orbit", "flyover")
 PARTICLE_KINDS = ("organic_smoke", "soot")
 MODALITIES = ("rgb", "thermal")
 DENOISERS = ("none", "color", "albedo", "albedo_normal")
-PASSES = ("smoky", "clean", "depth", "smoke_alpha")
+PASSES = ("smoky", "clean", "shadowed", "depth", "smoke_alpha")
+"""Every pass name, in the order a selection lists them; each camera has its own
+(`contracts.dataset_format.MODALITY_PASSES`)."""
 
 CLEAN_SAMPLES_RGB = 256
 CLEAN_SAMPLES_THERMAL = 32
@@ -297,10 +301,11 @@ def parse_passes(value: Any, source: str, field_name: str = "passes") -> dict[st
         modality, _, pass_name = item.partition(".")
         if modality not in MODALITIES:
             raise SpecError(source, field_name, f"unknown modality in {item!r}; use {', '.join(MODALITIES)}")
-        names = [pass_name] if pass_name else list(PASSES)
+        names = [pass_name] if pass_name else list(MODALITY_PASSES[modality])
         for name in names:
-            if name not in PASSES:
-                raise SpecError(source, field_name, f"unknown pass in {item!r}; use {', '.join(PASSES)}")
+            if name not in MODALITY_PASSES[modality]:
+                raise SpecError(source, field_name, f"unknown pass in {item!r}; {modality} has "
+                                f"{', '.join(MODALITY_PASSES[modality])}")
             if name not in chosen.setdefault(modality, []):
                 chosen[modality].append(name)
     return {m: tuple(p for p in PASSES if p in chosen[m]) for m in MODALITIES if m in chosen}
@@ -343,7 +348,8 @@ def check_render_budget(spec: SceneSpec, source: str, fields: dict[str, str]) ->
             raise SpecError(source, fields[modality],
                             f"{size} needs about {need / 2**30:,.0f} GiB to render one frame ({BYTES_PER_RENDER_PIXEL} "
                             f"bytes per pixel); the limit is {MAX_RENDER_BYTES // 2**30} GiB")
-        per_frame = sum(clean_samples[modality] if p == "clean" else samples for p in spec.passes.get(modality, ()))
+        per_frame = sum(clean_samples[modality] if p in CLEAN_SAMPLE_PASSES else samples
+                        for p in spec.passes.get(modality, ()))
         work[modality] = float(pixels) * per_frame * frames
     total = sum(work.values())
     if total > MAX_PIXEL_SAMPLES:
@@ -352,9 +358,9 @@ def check_render_budget(spec: SceneSpec, source: str, fields: dict[str, str]) ->
         days = total / PIXEL_SAMPLES_PER_S / 86400
         raise SpecError(source, fields[largest],
                         f"{total:.2g} pixel-samples in all ({frames} {largest} frames of {width}x{height} at {samples} "
-                        f"samples, {clean_samples[largest]} for the clean pass, {len(spec.passes[largest])} passes), "
-                        f"about {days:,.0f} days at "
-                        f"{PIXEL_SAMPLES_PER_S:.0e} pixel-samples/s on 2 CPU cores; the limit is {MAX_PIXEL_SAMPLES:.0e}")
+                        f"samples, {clean_samples[largest]} for clean and shadowed, {len(spec.passes[largest])} "
+                        f"passes), about {days:,.0f} days at {PIXEL_SAMPLES_PER_S:.0e} pixel-samples/s on 2 CPU cores; "
+                        f"the limit is {MAX_PIXEL_SAMPLES:.0e}")
 
 
 def load_spec_file(path: Path) -> SceneSpec:

@@ -18,8 +18,8 @@ from typing import Callable
 import numpy as np
 import yaml
 
-from contracts.dataset_format import (GROUND_TRUTH_FOLDERS, dataset_files, file_path, load_transforms, pass_file,
-                                      read_pass_image, transforms_name, validate_dataset)
+from contracts.dataset_format import (GROUND_TRUTH_FOLDERS, SPEC_FILE, dataset_files, file_path, load_transforms,
+                                      pass_file, read_pass_image, transforms_name, validate_dataset)
 from contracts.errors import DatasetError
 from scenes.cameras import GL_TO_CV_AXES
 from scenes.images import box_downscale, check_finite, downscale_depth, gray, rgb01, thermal_images, working_factor
@@ -28,8 +28,6 @@ from scenes.scene import ModalityData, SceneData, set_times
 from scenes.splits import hold_out_validation
 from scenes.thermal_scale import LINEAR_SCALE, ThermalScaleSpec
 from scenes.transforms import frames_from_transforms
-
-SPEC_FILE = "scene.yaml"
 
 
 def load_generated(path: Path, max_width: int, thermal_scale: ThermalScaleSpec = LINEAR_SCALE,
@@ -59,8 +57,8 @@ def _modality(root: Path, modality: str, passes: list[str], max_width: int, read
               all_ground_truth: bool, thermal_scale: ThermalScaleSpec = LINEAR_SCALE,
               validation_every: int = 0) -> ModalityData:
     """One camera's frames and images; every file it reads is added to ``read``. Without
-    ``all_ground_truth`` the RGB clean frames and depth are read for the evaluation frames only,
-    and the thermal ones not at all (nothing scores them)."""
+    ``all_ground_truth`` the RGB clean and shadowed frames and depth are read for the evaluation
+    frames only, and the thermal ones not at all (nothing scores them)."""
     data = load_transforms(root, modality)
     factor = working_factor(data["w"], max_width)
     frames = frames_from_transforms(root / transforms_name(modality), data, data["frames"], factor,
@@ -88,11 +86,13 @@ def _modality(root: Path, modality: str, passes: list[str], max_width: int, read
         return out
 
     evaluation = [i for i, f in enumerate(frames) if all_ground_truth or f.split != "train"]
-    clean = scale = masks = depth = None
+    clean = shadowed = scale = masks = depth = None
     if modality == "rgb":
         smoky = np.stack([box_downscale(rgb01(a, p), factor) for p, a in files("smoky", "png")])
         if "clean" in passes and evaluation:
             clean = scoring_only("clean", "png", lambda p, a: box_downscale(rgb01(a, p), factor))
+        if "shadowed" in passes and evaluation:
+            shadowed = scoring_only("shadowed", "png", lambda p, a: box_downscale(rgb01(a, p), factor))
     else:
         smoky, scale = thermal_images(np.stack([gray(a) for a in images("smoky", "png")]), factor, thermal_scale)
         if "clean" in passes and all_ground_truth:
@@ -104,8 +104,8 @@ def _modality(root: Path, modality: str, passes: list[str], max_width: int, read
         masks = np.stack([box_downscale(gray(a) / 255.0, factor) for a in images("smoke_alpha", "png")])
     check_finite(smoky, root / modality / "smoky")
     return ModalityData(name=modality, frames=frames, images=smoky.astype(np.float32),
-                        clean=clean, masks=None if masks is None else masks.astype(np.float32), depth=depth,
-                        scale=scale)
+                        clean=clean, shadowed=shadowed, masks=None if masks is None else masks.astype(np.float32),
+                        depth=depth, scale=scale)
 
 
 def spec_rig(root: Path) -> RigExtrinsic:

@@ -32,6 +32,8 @@ class ModalityData:
     frames: list[Frame]
     images: np.ndarray
     clean: np.ndarray | None = None
+    shadowed: np.ndarray | None = None
+    """RGB scoring only: the frames under the smoke's shadow with no smoke in view (``rgb.shadowed``)."""
     masks: np.ndarray | None = None
     depth: np.ndarray | None = None
     scale: ThermalScale | None = None

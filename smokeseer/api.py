@@ -301,7 +301,9 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
     wall["eval"] = time.perf_counter() - t
     wall["total"] = time.perf_counter() - t_start
     m = scores["metrics"]
-    ctx.log_line(f"eval: PSNR surface vs clean {m['psnr']}, smoky input vs clean {m['psnr_input']} "
+    shadowed = (f"; vs shadowed {m['psnr_shadowed']} and {m['psnr_input_shadowed']}"
+                if m["psnr_shadowed"] is not None else "")
+    ctx.log_line(f"eval: PSNR surface vs clean {m['psnr']}, smoky input vs clean {m['psnr_input']}{shadowed} "
                  f"in {wall['eval']:.1f} s")
     doc = _metrics_doc(prep, "ok")
     doc.update(scores)

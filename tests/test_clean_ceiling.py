@@ -22,6 +22,9 @@ def test_derived_dataset_trains_on_the_clean_frames(demo_dataset: Path, tmp_path
     np.testing.assert_array_equal(derived.rgb.images, original.rgb.clean)
     np.testing.assert_array_equal(derived.rgb.clean, original.rgb.clean)
     assert derived.rgb.masks is None and not derived.smoke_present
+    # A world without smoke has no smoke shadow: the shadowed frames are dropped with the smoke opacity.
+    assert original.rgb.shadowed is not None and derived.rgb.shadowed is None
+    assert not (tmp_path / "ceiling" / "rgb" / "shadowed").exists()
     # Thermal is read through the scene's own thermal scale, so compare the files it reads.
     for smoky, clean in (("smoky", "clean"), ("smoky_radiance", "clean_radiance")):
         assert (tmp_path / "ceiling" / "thermal" / smoky).resolve() == (demo_dataset / "thermal" / clean).resolve()

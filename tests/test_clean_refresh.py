@@ -1,5 +1,5 @@
-"""Re-rendering a finished dataset's clean passes (generator.clean_refresh): only the clean files
-change, they match a dataset generated at the new samples from scratch, and nothing else moves."""
+"""Re-rendering a finished dataset's clean passes (generator.ground_truth_refresh): only the clean
+files change, they match a dataset generated at the new samples from scratch, and nothing else moves."""
 from __future__ import annotations
 
 import io
@@ -14,7 +14,7 @@ from PIL import Image
 from contracts.imageio import read_exr_channel, read_png
 from generator.api import resolve_spec
 from generator.assets import load_manifest
-from generator.clean_refresh import clean_refresh_needed, refresh_clean, with_clean_samples
+from generator.ground_truth_refresh import Refresh, refresh_ground_truth, refresh_plan, with_clean_samples
 from generator.errors import GeneratorError
 from generator.job import make_job, make_plan, resolve_asset_materials
 from generator.pipeline import generate
@@ -46,26 +46,27 @@ def test_refresh_rerenders_only_the_clean_passes(tmp_path: Path) -> None:
     spec = _spec()
     low = generate(with_clean_samples(spec, {"rgb": 2, "thermal": 2}), tmp_path / "low", show_progress=False)
     target = with_clean_samples(spec, {"rgb": 64, "thermal": 16})
-    assert clean_refresh_needed(low, target)
-    assert not clean_refresh_needed(low, replace(target, seed=target.seed + 1))  # another scene: regenerate
-    with pytest.raises(GeneratorError, match="more than clean_samples"):
-        refresh_clean(low, replace(target, seed=target.seed + 1), show_progress=False)
+    assert refresh_plan(low, target) == Refresh(resampled={"rgb": ("clean", "shadowed"), "thermal": ("clean",)},
+                                                added={})
+    assert refresh_plan(low, replace(target, seed=target.seed + 1)) is None  # another scene: regenerate
+    with pytest.raises(GeneratorError, match="more than ground truth"):
+        refresh_ground_truth(low, replace(target, seed=target.seed + 1), show_progress=False)
     before = _files(low)
     stale = tmp_path / "stale"  # a record an older spec schema wrote: regenerated, never refreshed
     stale.mkdir()
     (stale / "dataset.json").write_text((low / "dataset.json").read_text())
     (stale / "scene.yaml").write_text((low / "scene.yaml").read_text() + "retired_field: 1\n")
-    assert not clean_refresh_needed(stale, target)
+    assert refresh_plan(stale, target) is None
 
-    refresh_clean(low, target, show_progress=False)
+    refresh_ground_truth(low, target, show_progress=False)
     after = _files(low)
     assert not any(p.name.startswith(".") for p in tmp_path.iterdir()), "staging folder left behind"
-    clean = {k for k in before if k.startswith(("rgb/clean/", "thermal/clean"))}
+    clean = {k for k in before if k.startswith(("rgb/clean/", "rgb/shadowed/", "thermal/clean"))}
     assert clean and set(after) == set(before)
     changed = {k for k in before if before[k] != after[k]}
     assert changed - clean == {"dataset.json", "scene.yaml"}, changed
     meta = json.loads((low / "dataset.json").read_text())
-    assert meta["spec_sha256"] == target.sha256() and not clean_refresh_needed(low, target)
+    assert meta["spec_sha256"] == target.sha256() and refresh_plan(low, target) is None
     assert meta["render"]["rgb"]["clean_samples"] == 64
     assert meta["clean_refresh"]["clean_samples_before"] == {"rgb": 2, "thermal": 2}
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from contracts.errors import DatasetError
-from contracts.imageio import write_png
+from contracts.imageio import read_png, write_png
 from eval.regions import BANDS, score_run, write_region_split
 from eval.runs import RunResult
 
@@ -147,3 +147,53 @@ def test_bands_by_how_much_the_smoke_changes_a_pixel(tmp_path: Path) -> None:
     assert "## By how much the smoke changes a pixel" in text
     assert "| change 0-0.02 | change 0.02-0.05 | change 0.05-0.1 | change 0.1-0.2 | change 0.2+ |" in text
     assert "| s | Ours (Full) | 1 | 38.6 / 41.9 (33 %) | 38.6 / 37.3 (17 %) | 38.6 / 30.6 (17 %) | 100.0 / 24.6 (17 %) |" in text
+
+
+def test_reach_split_and_scores_against_shadowed(tmp_path: Path) -> None:
+    """The unrecoverable pixels (given masks: their computation is tested in test_dataset_stats)
+    and the rest pool separately; with shadowed frames every region is scored against them too.
+    Clean at 100 everywhere, shadowed at 90 in the left half (the shadow), the smoky input at 90
+    there too (the smoke's shadow and no smoke in view); the method renders 100 everywhere but
+    110 on the two unrecoverable columns."""
+    mask = np.zeros((H, W), bool)
+    _scene(tmp_path / "ds", {"0000": mask}, smoky_offset=0)
+    shadowed = _rgb(100)
+    shadowed[:, :3] = 90
+    write_png(tmp_path / "ds" / "rgb" / "smoky" / "0000.png", shadowed)
+    write_png(tmp_path / "ds" / "rgb" / "shadowed" / "0000.png", shadowed)
+    out_of_reach = np.zeros((H, W), bool)
+    out_of_reach[:, 4:] = True
+    render = _rgb(100)
+    render[out_of_reach] = 110
+    run = _run(tmp_path / "run", {"0000": render})
+    scores = {s.region: s for s in score_run(run, tmp_path / "ds", {"0000": out_of_reach})}
+    assert scores["unrecoverable"].pixel_share == pytest.approx(2 / 6)
+    assert scores["unrecoverable"].psnr == pytest.approx(_db(10))
+    assert scores["recoverable"].psnr == pytest.approx(100.0)
+    # The input against clean is off by the shadow on half the pixels, against shadowed not at all.
+    assert scores["all"].psnr_input == pytest.approx(10 * math.log10(2 / (10 / 255) ** 2))
+    assert scores["all"].psnr_input_shadowed == pytest.approx(100.0)
+    assert scores["clear"].psnr_shadowed == pytest.approx(10 * math.log10(6 / (3 * 10 ** 2 + 2 * 10 ** 2) * 255 ** 2))
+    plain = {s.region: s for s in score_run(run, tmp_path / "ds")}
+    assert "unrecoverable" not in plain and set(plain) == set(scores) - {"unrecoverable", "recoverable"}
+    text = write_region_split([run], {"s": tmp_path / "ds"}, tmp_path / "out")["per_scene_regions.md"].read_text()
+    assert "## Against the shadowed ground truth" in text and "## Out of reach" not in text  # no depth: no reach split
+    assert "| s | Ours (Full) | 1 | 32.90 / 28.92 | 31.14 / 100.00 | 31.14 / 100.00 |" in text
+
+
+def test_reach_split_of_a_dataset_with_depth_and_smoke(tmp_path: Path) -> None:
+    """A dataset with cameras, depth and smoke opacity gets the reach split from its own files."""
+    from contracts.unrecoverable import dataset_unrecoverable
+    from tests.test_smokeseer_data import write_splat_dataset
+
+    ds = write_splat_dataset(tmp_path / "ds", n_rgb=8, n_thermal=3, smoke="opaque")
+    masks = dataset_unrecoverable(ds)
+    assert sorted(masks) == ["0002", "0006"] and all(0.0 < m.mean() < 1.0 for m in masks.values())
+    run = _run(tmp_path / "run", {s: read_png(ds / "rgb" / "clean" / f"{s}.png") for s in masks})
+    paths = write_region_split([run], {"s": ds}, tmp_path / "out")
+    assert "## Out of reach of the RGB frames" in paths["per_scene_regions.md"].read_text()
+    with open(paths["per_scene_regions.csv"], newline="") as f:
+        rows = {r["region"]: r for r in csv.DictReader(f)}
+    share = np.mean([m.mean() for m in masks.values()])
+    assert float(rows["unrecoverable"]["pixel_share"]) == pytest.approx(share)
+    assert float(rows["unrecoverable"]["psnr"]) == pytest.approx(100.0)  # the render is the clean frame

@@ -204,8 +204,10 @@ def test_frames_that_do_not_register_leave_every_per_frame_array() -> None:
     frames = [Frame(file_stem=f"{i:04d}", viewmat=np.eye(4), K=np.eye(3), width=2, height=2, timestamp_s=float(i),
                     time=0.0, split="test" if i == 1 else "train") for i in range(4)]
     stack = np.arange(4, dtype=np.float32)[:, None, None, None] * np.ones((4, 2, 2, 3), np.float32)
-    mod = ModalityData(name="rgb", frames=frames, images=stack, clean=stack + 1, masks=stack[..., 0], depth=None)
+    mod = ModalityData(name="rgb", frames=frames, images=stack, clean=stack + 1, shadowed=stack + 2,
+                       masks=stack[..., 0], depth=None)
     kept = subset(mod, np.array([0, 2, 3]))
     assert [f.file_stem for f in kept.frames] == ["0000", "0002", "0003"] and kept.indices("test") == []
     assert kept.images[:, 0, 0, 0].tolist() == [0, 2, 3] and kept.clean[:, 0, 0, 0].tolist() == [1, 3, 4]
+    assert kept.shadowed[:, 0, 0, 0].tolist() == [2, 4, 5]
     assert kept.masks[:, 0, 0].tolist() == [0, 2, 3] and kept.depth is None and len(mod.frames) == 4

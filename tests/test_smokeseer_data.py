@@ -105,15 +105,17 @@ def _png(path: Path, arr: np.ndarray) -> None:
 def write_splat_dataset(path: Path, smoke: str = "moving", n_rgb: int = 12, n_thermal: int = 9,
                         rgb_size: tuple[int, int] = (48, 36), thermal_size: tuple[int, int] = (32, 24),
                         seed: int = 0, static_flag: bool = False,
-                        sky: tuple[float, float, float] | None = None) -> Path:
+                        sky: tuple[float, float, float] | None = None, shadowed: bool = True) -> Path:
     """Write a dataset in the documented format. ``smoke``: "moving", "none" or "opaque";
     ``static_flag`` only sets ``smoke.static`` in dataset.json; ``sky`` is a constant RGB
-    radiance behind the scene (black when None; thermal stays black)."""
+    radiance behind the scene (black when None; thermal stays black). With ``shadowed`` the RGB
+    frames have the shadowed pass too: the clean frame darkened by half the smoke's opacity, a
+    stand-in for a shadow."""
     rng = np.random.default_rng(seed)
     surf = _surface(rng)
     duration = 1.0
     opacity = {"moving": 0.35, "none": 0.0, "opaque": 0.99}[smoke]
-    meta_passes = {"rgb": ["smoky", "clean", "depth", "smoke_alpha"],
+    meta_passes = {"rgb": ["smoky", "clean"] + (["shadowed"] if shadowed else []) + ["depth", "smoke_alpha"],
                    "thermal": ["smoky", "clean", "depth", "smoke_alpha"]}
     sensor = {"bits": 14, "gain": 0.01, "offset": 20.0, "netd_k": 0.04}
     for modality, n, (w, h), fps in (("rgb", n_rgb, rgb_size, n_rgb), ("thermal", n_thermal, thermal_size, n_thermal)):
@@ -141,6 +143,9 @@ def write_splat_dataset(path: Path, smoke: str = "moving", n_rgb: int = 12, n_th
             if modality == "rgb":
                 _png(root / "smoky" / f"{stem}.png", np.round(np.clip(smoky, 0, 1) * 255).astype(np.uint8))
                 _png(root / "clean" / f"{stem}.png", np.round(np.clip(clean, 0, 1) * 255).astype(np.uint8))
+                if shadowed:
+                    dark = clean * (1.0 - 0.5 * alpha[..., None])
+                    _png(root / "shadowed" / f"{stem}.png", np.round(np.clip(dark, 0, 1) * 255).astype(np.uint8))
             else:
                 rad_s = 40.0 + 30.0 * smoky[..., 0]
                 rad_c = 40.0 + 30.0 * clean[..., 0]
@@ -218,8 +223,8 @@ def test_malformed_inputs_name_the_file(splat_dataset: Path, tmp_path: Path) -> 
 def test_every_image_is_decoded_once_and_checked(splat_dataset: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Loading a generated dataset validates it as ``generate-scene --validate`` does without
     decoding any image twice: the ones training uses are checked as they are read, the other
-    inputs (radiance) are read for their check alone, and ground truth (clean, depth, smoke
-    alpha) is read for the RGB evaluation frames' scores only; with ``all_ground_truth``, as
+    inputs (radiance) are read for their check alone, and ground truth (clean, shadowed, depth,
+    smoke alpha) is read for the RGB evaluation frames' scores only; with ``all_ground_truth``, as
     conversion tools ask, every file is."""
     import contracts.dataset_format as fmt
 
@@ -238,13 +243,14 @@ def test_every_image_is_decoded_once_and_checked(splat_dataset: Path, monkeypatc
     scored = {f.file_stem for f in scene.rgb.frames if f.split != "train"}
     assert scored and len(scored) < len(scene.rgb.frames)
     assert set(reads) == {p for p, pf, _ in files if pf.folder not in fmt.GROUND_TRUTH_FOLDERS
-                          or (pf.folder in ("rgb/clean", "rgb/depth") and p.stem in scored)}
+                          or (pf.folder in ("rgb/clean", "rgb/shadowed", "rgb/depth") and p.stem in scored)}
     assert set(reads.values()) == {1}
-    assert np.isnan(scene.rgb.clean[scene.rgb.indices("train")]).all()
-    assert np.isfinite(scene.rgb.clean[scene.rgb.indices("test")]).all()
+    for truth in (scene.rgb.clean, scene.rgb.shadowed):
+        assert np.isnan(truth[scene.rgb.indices("train")]).all()
+        assert np.isfinite(truth[scene.rgb.indices("test")]).all()
     reads.clear()
     load_scene(splat_dataset, max_width=24, all_ground_truth=True)
-    assert set(reads) == {p for p, _, _ in files} and len(files) == 8 * 5 + 6 * 7
+    assert set(reads) == {p for p, _, _ in files} and len(files) == 8 * 6 + 6 * 7
     assert set(reads.values()) == {1}
 
 

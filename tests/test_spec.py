@@ -86,7 +86,14 @@ def test_density_scale_is_a_spec_field_and_an_override() -> None:
 
 def test_parse_passes_orders_and_dedupes() -> None:
     assert parse_passes("thermal.depth,rgb,thermal.depth", "x") == {
-        "rgb": ("smoky", "clean", "depth", "smoke_alpha"), "thermal": ("depth",)}
+        "rgb": ("smoky", "clean", "shadowed", "depth", "smoke_alpha"), "thermal": ("depth",)}
+    assert parse_passes("thermal", "x") == {"thermal": ("smoky", "clean", "depth", "smoke_alpha")}
+
+
+def test_shadowed_is_an_rgb_pass_only() -> None:
+    """The thermal render has no lights, so the smoke casts no shadow there: one line, naming the item."""
+    with pytest.raises(SpecError, match="unknown pass in 'thermal.shadowed'; thermal has smoky, clean, depth"):
+        parse_passes("rgb.shadowed,thermal.shadowed", "x")
 
 
 def test_parser_is_driven_by_field_metadata() -> None:
@@ -125,11 +132,11 @@ def test_render_budget_names_the_camera_field() -> None:
         parse_spec({"name": "x", "rig": {"thermal": {"width": 16384, "height": 16384}}}, "bad.yaml")
     big = parse_spec({"name": "x", "frames": 2, "rig": {"rgb": {"width": 16384, "height": 16384}}}, "ok.yaml")
     assert big.rig.rgb.width == 16384
-    with pytest.raises(SpecError, match=r"many.yaml: rig.rgb: 1.1e\+12 pixel-samples in all \(16 rgb frames of "
-                                         r"16384x16384 at 64 samples, 64 for the clean pass, 4 passes\)"):
+    with pytest.raises(SpecError, match=r"many.yaml: rig.rgb: 1.4e\+12 pixel-samples in all \(16 rgb frames of "
+                                         r"16384x16384 at 64 samples, 64 for clean and shadowed, 5 passes\)"):
         parse_spec({"name": "x", "frames": 16, "rig": {"rgb": {"width": 16384, "height": 16384, "samples": 64,
                                                              "clean_samples": 64}}}, "many.yaml")
-    # The clean pass counts at its own samples.
-    with pytest.raises(SpecError, match=r"clean.yaml: rig.rgb: 1.9e\+12 pixel-samples in all"):
+    # The clean and shadowed passes count at their own samples.
+    with pytest.raises(SpecError, match=r"clean.yaml: rig.rgb: 3e\+12 pixel-samples in all"):
         parse_spec({"name": "x", "frames": 16, "rig": {"rgb": {"width": 16384, "height": 16384, "samples": 64,
                                                              "clean_samples": 256}}}, "clean.yaml")

@@ -397,9 +397,9 @@ def test_surface_refinement_grows_no_surface_where_stage1_sees_only_smoke(tmp_pa
 
 def test_training_opens_no_ground_truth_of_its_training_frames(splat: Path, tmp_path: Path) -> None:
     """Training reads only what a real capture has, plus the declared oracle Stage 1 (masks,
-    poses, smoke flags). A copy of the dataset whose training frames' clean frames, depth and
-    smoke alpha (every ground-truth folder, ``GROUND_TRUTH_FOLDERS``; for thermal, every frame)
-    are overwritten with bytes no reader accepts trains to the same bytes as the original, at
+    poses, smoke flags). A copy of the dataset whose training frames' clean and shadowed frames,
+    depth and smoke alpha (every ground-truth folder, ``GROUND_TRUTH_FOLDERS``; for thermal, every
+    frame) are overwritten with bytes no reader accepts trains to the same bytes as the original, at
     the standard profile's rules: the mask floor estimated from the images, held-out
     validation frames, the haze-line smoke colour and Stage 3's surface chosen by it."""
     import shutil
@@ -412,13 +412,13 @@ def test_training_opens_no_ground_truth_of_its_training_frames(splat: Path, tmp_
     scored = {f.file_stem for f in load_scene(splat, validation_every=4).rgb.frames if f.split != "train"}
     spoiled = tmp_path / "spoiled"
     shutil.copytree(splat, spoiled)
-    broken = 0
+    broken: set[str] = set()
     for folder in GROUND_TRUTH_FOLDERS:
         for file in (spoiled / folder).glob("*.*"):
             if folder.startswith("thermal/") or file.stem not in scored:
                 file.write_bytes(b"not an image")
-                broken += 1
-    assert broken > 0
+                broken.add(folder)
+    assert {"rgb/clean", "rgb/shadowed", "rgb/depth", "rgb/smoke_alpha"} <= broken
     for name, data in (("original", splat), ("spoiled", spoiled)):
         assert main([str(data), "--out", str(tmp_path / name)] + standard_rules) == 0
     a, b = tmp_path / "original", tmp_path / "spoiled"

@@ -15,6 +15,7 @@ from PIL import Image
 
 from contracts.atomic import atomic_path
 from contracts.metrics import depth_errors, load_lpips, mask_iou, psnr, ssim_3dgs
+from contracts.results_format import SHADOWED_METRIC_KEYS
 from scenes.scene import SceneData
 from smokeseer.model.scene import SceneModel, View, make_view, sh_coeffs, smoke_sh
 from smokeseer.raster import GaussianPly, write_ply
@@ -124,13 +125,15 @@ def write_renders(model: SceneModel, scene: SceneData, out: Path, device: torch.
 
 def score(renders: TestRenders, scene: SceneData, lpips_net: str = "alex", lpips_weights: str | None = None,
           lpips_heads: str | None = None) -> dict[str, Any]:
-    """metrics + per_image for metrics.json; metrics are None where the data has no GT."""
+    """metrics + per_image for metrics.json; metrics are None where the data has no GT. With the
+    shadowed ground truth (the frames under the smoke's shadow, no smoke in view), the render and
+    the smoky input are scored against it too (``*_shadowed``)."""
     idx = scene.rgb.indices("test")
     rgb = scene.rgb
     per_image: list[dict[str, Any]] = []
     metrics: dict[str, Any] = {"psnr": None, "ssim": None, "lpips": None, "lpips_status": "",
                                "psnr_input": None, "depth_absrel": None, "depth_rmse": None,
-                               "mask_iou": None}
+                               "mask_iou": None, **dict.fromkeys(SHADOWED_METRIC_KEYS)}
     if not idx:
         metrics["lpips_status"] = "skipped: no test views"
         return {"metrics": metrics, "per_image": per_image}
@@ -145,6 +148,10 @@ def score(renders: TestRenders, scene: SceneData, lpips_net: str = "alex", lpips
         gt = rgb.clean[i].astype(np.float64)
         entry = {"file_stem": renders.stems[k], "psnr": psnr(pred, gt), "ssim": ssim_3dgs(pred, gt),
                  "psnr_input": psnr(rgb.images[i], gt)}
+        if rgb.shadowed is not None:
+            shadowed = rgb.shadowed[i].astype(np.float64)
+            entry.update(psnr_shadowed=psnr(pred, shadowed), ssim_shadowed=ssim_3dgs(pred, shadowed),
+                         psnr_input_shadowed=psnr(rgb.images[i], shadowed))
         if scorer is not None:
             try:
                 entry["lpips"] = float(scorer(pred, gt))
@@ -166,6 +173,9 @@ def score(renders: TestRenders, scene: SceneData, lpips_net: str = "alex", lpips
     metrics["psnr"] = float(np.mean([e["psnr"] for e in per_image]))
     metrics["ssim"] = float(np.mean([e["ssim"] for e in per_image]))
     metrics["psnr_input"] = float(np.mean([e["psnr_input"] for e in per_image]))
+    if rgb.shadowed is not None:
+        for key in SHADOWED_METRIC_KEYS:
+            metrics[key] = float(np.mean([e[key] for e in per_image]))
     metrics["lpips"] = float(np.mean(lp_vals)) if lp_vals else None
     metrics["depth_absrel"] = float(np.mean(absrel)) if absrel else None
     metrics["depth_rmse"] = float(np.mean(rmse)) if rmse else None

@@ -77,4 +77,5 @@ def subset(mod: ModalityData, keep: np.ndarray) -> ModalityData:
         return None if a is None else a[keep]
 
     return replace(mod, frames=[mod.frames[i] for i in keep], images=mod.images[keep], clean=cut(mod.clean),
-                   masks=cut(mod.masks), depth=cut(mod.depth), inverse_depth=cut(mod.inverse_depth))
+                   shadowed=cut(mod.shadowed), masks=cut(mod.masks), depth=cut(mod.depth),
+                   inverse_depth=cut(mod.inverse_depth))
