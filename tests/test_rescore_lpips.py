@@ -82,8 +82,14 @@ def test_a_missing_dataset_is_one_line(weights: None, tmp_path: Path) -> None:
 
 
 def _copy(run_dir: Path, tmp_path: Path, scene: str = "house", variant: str = "full") -> Path:
+    """A copy of a committed run as it was trained, scored without weights (the committed records
+    carry the LPIPS this script wrote into them since)."""
     copy = tmp_path / "tables" / "runs" / scene / variant / run_dir.name
     shutil.copytree(run_dir, copy)
+    for name in ("metrics.json", "harness.json"):
+        doc = _without_lpips(json.loads((copy / name).read_text()))
+        doc["metrics"].update(lpips=None, lpips_status="skipped: no weights")
+        (copy / name).write_text(json.dumps(doc, indent=2) + "\n")
     return copy
 
 
