@@ -38,7 +38,8 @@ import torch  # noqa: E402
 
 from contracts.atomic import write_dataclass_csv  # noqa: E402
 from contracts.provenance import code_version  # noqa: E402
-from smokeseer.config import DeformConfig, make_config, parse_set_items  # noqa: E402
+from contracts.set_items import parse_set_items  # noqa: E402
+from smokeseer.config import DeformConfig, make_config  # noqa: E402
 from smokeseer.model import planes as planes_module  # noqa: E402
 from smokeseer.model.deform import DeformNetwork  # noqa: E402
 from smokeseer.model.optim import Adam  # noqa: E402
