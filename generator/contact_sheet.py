@@ -71,7 +71,7 @@ def pick_rows(dataset: Path) -> list[Row]:
     return rows
 
 
-def _load(dataset: Path, modality: str, pass_name: str, part: int, stem: str | None) -> np.ndarray | None:
+def load_pass(dataset: Path, modality: str, pass_name: str, part: int, stem: str | None) -> np.ndarray | None:
     if stem is None:
         return None
     pf = PASS_FILES[(modality, pass_name)][part]
@@ -81,7 +81,7 @@ def _load(dataset: Path, modality: str, pass_name: str, part: int, stem: str | N
     return read_exr_channel(path, pf.exr_channel) if pf.exr_channel else read_png(path)
 
 
-def _stretch(images: list[np.ndarray], valid: list[np.ndarray] | None = None) -> tuple[float, float]:
+def stretch(images: list[np.ndarray], valid: list[np.ndarray] | None = None) -> tuple[float, float]:
     """Percentile limits over every (valid) pixel of the rows, never an empty range."""
     masks = valid if valid is not None else [np.ones(im.shape, dtype=bool) for im in images]
     values = np.concatenate([im[m].astype(np.float64) for im, m in zip(images, masks)] or [np.zeros(0)])
@@ -97,7 +97,7 @@ def _resize(image: np.ndarray, width: int, height: int) -> np.ndarray:
     return np.asarray(pil)
 
 
-def _thermal_panel(counts: np.ndarray, lo: float, hi: float, size: tuple[int, int]) -> np.ndarray:
+def thermal_panel(counts: np.ndarray, lo: float, hi: float, size: tuple[int, int]) -> np.ndarray:
     scaled = np.clip((counts.astype(np.float64) - lo) / (hi - lo), 0.0, 1.0)
     return colormaps["inferno"](_resize(scaled, *size))[..., :3]
 
@@ -132,18 +132,18 @@ def make_contact_sheet(dataset: Path, out_png: Path, panel_inches: float = 2.4) 
         raise DatasetError(f"{dataset}: not a dataset (no dataset.json)")
     meta = json.loads(meta_path.read_text())
     rows = pick_rows(dataset)
-    smoky = [_load(dataset, "rgb", "smoky", 0, r.rgb_stem) for r in rows]
-    clean = [_load(dataset, "rgb", "clean", 0, r.rgb_stem) for r in rows]
-    thermal = [_load(dataset, "thermal", "smoky", 1, r.thermal_stem) for r in rows]
-    masks = [_load(dataset, "rgb", "smoke_alpha", 1, r.rgb_stem) for r in rows]
-    depths = [_load(dataset, "rgb", "depth", 0, r.rgb_stem) for r in rows]
+    smoky = [load_pass(dataset, "rgb", "smoky", 0, r.rgb_stem) for r in rows]
+    clean = [load_pass(dataset, "rgb", "clean", 0, r.rgb_stem) for r in rows]
+    thermal = [load_pass(dataset, "thermal", "smoky", 1, r.thermal_stem) for r in rows]
+    masks = [load_pass(dataset, "rgb", "smoke_alpha", 1, r.rgb_stem) for r in rows]
+    depths = [load_pass(dataset, "rgb", "depth", 0, r.rgb_stem) for r in rows]
     reference = next((im for im in smoky + clean + depths + masks if im is not None), None)
     if reference is None:
         raise DatasetError(f"{dataset}: none of the RGB passes a contact sheet shows is present")
     height, width = reference.shape[:2]
-    t_lo, t_hi = _stretch([t for t in thermal if t is not None])
+    t_lo, t_hi = stretch([t for t in thermal if t is not None])
     present = [d for d in depths if d is not None]
-    d_lo, d_hi = _stretch(present, [d > 0 for d in present])
+    d_lo, d_hi = stretch(present, [d > 0 for d in present])
     blank = np.full((height, width, 3), 0.5)
 
     fig = Figure(figsize=(panel_inches * len(COLUMNS), panel_inches * height / width * len(rows) + 0.9))
@@ -153,7 +153,7 @@ def make_contact_sheet(dataset: Path, out_png: Path, panel_inches: float = 2.4) 
         panels = [
             smoky[r] / 255.0 if smoky[r] is not None else blank,
             clean[r] / 255.0 if clean[r] is not None else blank,
-            _thermal_panel(thermal[r], t_lo, t_hi, (width, height)) if thermal[r] is not None else blank,
+            thermal_panel(thermal[r], t_lo, t_hi, (width, height)) if thermal[r] is not None else blank,
             np.repeat((masks[r] / 255.0)[..., None], 3, axis=2) if masks[r] is not None else blank,
             _depth_panel(depths[r], d_lo, d_hi) if depths[r] is not None else blank,
         ]

@@ -11,7 +11,7 @@ from PIL import Image
 
 from generator.contact_sheet import (
     COLUMNS,
-    _stretch,
+    stretch,
     find_datasets,
     main,
     make_contact_sheet,
@@ -75,8 +75,8 @@ def test_bad_inputs_are_clear_errors(tmp_path: Path) -> None:
 def test_stretch_ignores_invalid_pixels_and_never_collapses() -> None:
     depth = np.zeros((10, 10))
     depth[:5] = np.linspace(2.0, 4.0, 50).reshape(5, 10)
-    lo, hi = _stretch([depth], [depth > 0])
+    lo, hi = stretch([depth], [depth > 0])
     assert 2.0 <= lo < 2.1 and 3.9 < hi <= 4.0
-    lo, hi = _stretch([np.full((4, 4), 7.0)])
+    lo, hi = stretch([np.full((4, 4), 7.0)])
     assert (lo, hi) == (7.0, 8.0)
-    assert _stretch([]) == (0.0, 1.0)
+    assert stretch([]) == (0.0, 1.0)
