@@ -1,0 +1,111 @@
+"""Full against RGB-only on a drawn set, one row per scene, with the set's own smoke thickness beside
+each score: what the rules issue's must-holds read on `random-test`, and what a rule is chosen on
+(validation views) on `random-dev`.
+
+    python benchmarks/random_set_scores.py --tables data/tables_random_test --datasets data/random_test \
+        --out benchmarks/results/random_test/per_scene.csv [--split test] [--seed 0] [--digest PREFIX]
+
+The runs are the finished Full and RGB-only runs of one trainer version in the tables folder
+(`eval.finished_runs`; `--digest` names it, else the one with the most runs), trained by
+`regenerate-tables --scenes random_... --dataset random_...=DATASETS/random_... --methods full,rgb-only`.
+`--split val` reads each run's validation PSNRs (the views a rule is chosen on) instead of the test
+views. `rgb_optical_depth` is the set's axis: the mean RGB optical depth of the smoke over the views
+(dataset.json `smoke.optical_depth.achieved`). Prints the counts the must-holds read: Full within
+0.3 dB of RGB-only or better, Full's lead on the scenes at optical depth 1 or more, Full over the
+smoky input.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from contracts.atomic import write_rows_csv  # noqa: E402
+from eval.finished_runs import finished_runs  # noqa: E402
+
+DENSE = 1.0
+"""The optical depth from which a scene counts as dense smoke (the must-hold's split)."""
+
+
+def _psnrs(run: Path, rec: dict[str, Any], split: str) -> tuple[float, float]:
+    """(the method's PSNR, the smoky input's) on ``split`` views."""
+    if split == "test":
+        return float(rec["metrics"]["psnr"]), float(rec["metrics"]["psnr_input"])
+    validation = json.loads((run / "metrics.json").read_text()).get("validation") or {}
+    if validation.get("psnr") is None:
+        raise ValueError(f"{run / 'metrics.json'}: validation: no validation views (a profile with validation_every)")
+    return float(validation["psnr"]), float(validation["psnr_input"])
+
+
+def score_rows(tables: Path, datasets: Path, split: str, seed: int, digest: str | None) -> tuple[str, list[dict[str, Any]]]:
+    """(trainer digest, one row per scene where both methods finished at ``seed``)."""
+    chosen, runs = finished_runs(tables, ["full", "rgb-only"], digest)
+    by_scene: dict[str, dict[str, tuple[Path, dict[str, Any]]]] = {}
+    for run, rec in runs:
+        if rec["seed"] == seed:
+            by_scene.setdefault(rec["scene"], {})[rec["variant"]] = (run, rec)
+    rows = []
+    for scene in sorted(by_scene):
+        if set(by_scene[scene]) != {"full", "rgb-only"}:
+            continue
+        meta = json.loads((datasets / scene / "dataset.json").read_text())
+        depth = (meta.get("smoke", {}).get("optical_depth") or {}).get("achieved")
+        full, full_input = _psnrs(*by_scene[scene]["full"], split)
+        rgb, _ = _psnrs(*by_scene[scene]["rgb-only"], split)
+        rows.append({"scene": scene, "rgb_optical_depth": depth, "input_psnr": round(full_input, 4),
+                     "full_psnr": round(full, 4), "rgb_only_psnr": round(rgb, 4),
+                     "full_minus_rgb_only": round(full - rgb, 4), "full_minus_input": round(full - full_input, 4)})
+    return chosen, rows
+
+
+def counts(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """What the must-holds read: scenes within 0.3 dB of RGB-only or better, Full's mean lead on dense
+    scenes (optical depth >= 1), scenes where Full beats the input."""
+    lead = np.array([r["full_minus_rgb_only"] for r in rows])
+    dense = np.array([r["rgb_optical_depth"] is not None and r["rgb_optical_depth"] >= DENSE for r in rows])
+    return {"scenes": len(rows), "within_0.3": int((lead >= -0.3).sum()),
+            "dense_scenes": int(dense.sum()), "dense_mean_lead": float(lead[dense].mean()) if dense.any() else None,
+            "beats_input": int(sum(r["full_minus_input"] > 0 for r in rows)),
+            "mean_lead": float(lead.mean()) if rows else None}
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python benchmarks/random_set_scores.py", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--tables", type=Path, required=True, help="the regenerate-tables folder that trained the set")
+    p.add_argument("--datasets", type=Path, required=True, help="the set's folder (generate-benchmark --random)")
+    p.add_argument("--out", type=Path, required=True, help="the per-scene CSV")
+    p.add_argument("--split", choices=("test", "val"), default="test")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--digest", help="the trainer version whose runs to read (a digest prefix)")
+    args = p.parse_args(argv)
+    try:
+        digest, rows = score_rows(args.tables, args.datasets, args.split, args.seed, args.digest)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"random_set_scores: error: {exc}", file=sys.stderr)
+        return 2
+    if not rows:
+        print(f"random_set_scores: error: {args.tables}: no scene has both a Full and an RGB-only run at seed "
+              f"{args.seed}", file=sys.stderr)
+        return 2
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    write_rows_csv(args.out, rows)
+    c = counts(rows)
+    dense = "n/a" if c["dense_mean_lead"] is None else f"{c['dense_mean_lead']:+.2f} dB"
+    print(f"trainer {digest[:8]}, {args.split} views, seed {args.seed}: {c['scenes']} scenes; Full within 0.3 dB of "
+          f"RGB-only or better on {c['within_0.3']}; Full - RGB-only {c['mean_lead']:+.2f} dB on the mean, {dense} on "
+          f"the {c['dense_scenes']} scenes at optical depth >= {DENSE:g}; Full over the smoky input on "
+          f"{c['beats_input']}; wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,66 @@
+"""Full against RGB-only on a drawn set (benchmarks/random_set_scores.py): pairing, the counts the
+must-holds read, the split, and its refusals."""
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+
+from benchmarks.random_set_scores import main
+
+
+def _run(tables: Path, scene: str, variant: str, psnr: float, val: float | None, psnr_input: float = 20.0,
+         seed: int = 0) -> None:
+    run = tables / "runs" / scene / variant / f"seed{seed}-x"
+    run.mkdir(parents=True)
+    (run / "train_log.csv").write_text("iteration\n")
+    validation = {"psnr": val, "psnr_input": psnr_input - 1.0} if val is not None else None
+    (run / "metrics.json").write_text(json.dumps({"validation": validation}))
+    (run / "harness.json").write_text(json.dumps(
+        {"scene": scene, "variant": variant, "seed": seed, "status": "ok", "code_digest": "c" * 64,
+         "metrics": {"psnr": psnr, "psnr_input": psnr_input}}))
+
+
+def _dataset(datasets: Path, scene: str, depth: float) -> None:
+    (datasets / scene).mkdir(parents=True)
+    (datasets / scene / "dataset.json").write_text(json.dumps({"smoke": {"optical_depth": {"achieved": depth}}}))
+
+
+def test_scenes_are_paired_and_the_must_hold_counts_are_printed(tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    tables, datasets = tmp_path / "tables", tmp_path / "sets"
+    for scene, depth, full, rgb in (("random_1", 0.2, 21.0, 21.2), ("random_2", 1.5, 19.0, 16.0),
+                                    ("random_3", 2.5, 18.0, 18.5), ("random_4", 0.5, 25.0, 24.0)):
+        _dataset(datasets, scene, depth)
+        _run(tables, scene, "full", full, full - 2.0)
+        _run(tables, scene, "rgb-only", rgb, rgb - 2.0)
+    _run(tables, "random_5", "full", 30.0, 29.0)  # RGB-only not trained: no row
+    _run(tables, "random_1", "full", 99.0, 99.0, seed=1)  # another seed: not read
+    out = tmp_path / "per_scene.csv"
+    assert main(["--tables", str(tables), "--datasets", str(datasets), "--out", str(out)]) == 0
+    with open(out) as f:
+        rows = list(csv.DictReader(f))
+    assert list(rows[0])[:5] == ["scene", "rgb_optical_depth", "input_psnr", "full_psnr", "rgb_only_psnr"]
+    assert [(r["scene"], float(r["full_minus_rgb_only"])) for r in rows] == [
+        ("random_1", -0.2), ("random_2", 3.0), ("random_3", -0.5), ("random_4", 1.0)]
+    line = capsys.readouterr().out
+    assert "4 scenes; Full within 0.3 dB of RGB-only or better on 3" in line
+    assert "+1.25 dB on the 2 scenes at optical depth >= 1" in line and "Full over the smoky input on 2" in line
+    assert main(["--tables", str(tables), "--datasets", str(datasets), "--out", str(out), "--split", "val"]) == 0
+    assert "Full over the smoky input on 1" in capsys.readouterr().out  # validation: input 19; Full 19, 17, 16, 23
+
+
+def test_runs_without_validation_views_or_pairs_are_one_line(tmp_path: Path,
+                                                            capsys: pytest.CaptureFixture[str]) -> None:
+    tables, datasets = tmp_path / "tables", tmp_path / "sets"
+    _dataset(datasets, "random_1", 1.0)
+    _run(tables, "random_1", "full", 21.0, None)
+    _run(tables, "random_1", "rgb-only", 20.0, None)
+    out = tmp_path / "per_scene.csv"
+    assert main(["--tables", str(tables), "--datasets", str(datasets), "--out", str(out), "--split", "val"]) == 2
+    assert "validation: no validation views" in capsys.readouterr().err
+    assert main(["--tables", str(tables), "--datasets", str(datasets), "--out", str(out), "--seed", "3"]) == 2
+    assert "no scene has both a Full and an RGB-only run at seed 3" in capsys.readouterr().err
+    assert not out.exists()
