@@ -12,6 +12,9 @@ RESULTS_FORMAT = "smokeseer-synth-results"
 RESULTS_FORMAT_VERSION = 1
 METRIC_KEYS = ("psnr", "ssim", "lpips", "lpips_status", "psnr_input", "depth_absrel", "depth_rmse", "mask_iou")
 SHADOWED_METRIC_KEYS = ("psnr_shadowed", "ssim_shadowed", "psnr_input_shadowed")
+SURFACE_DIAGNOSTIC_KEYS = ("colour_bias_smoky", "smoky_pixels", "colour_bias_smoky_max", "surface_alpha_under_0_9",
+                           "psnr_black_background")
+"""metrics.json ``surface_diagnostics`` (smokeseer/evaluation/scoring.py): how the de-smoked surface errs."""
 """Scores against the dataset's shadowed ground truth (``rgb.shadowed``): null without it, and absent
 from runs written before it existed."""
 TOP_KEYS = ("format", "format_version", "scene", "dataset", "method", "profile", "seed", "status", "provenance")
@@ -105,8 +108,30 @@ def read_metrics(run_dir: Path) -> dict[str, Any]:
     for key in ("wall_time_s", "versions", "config_sha256"):
         if key not in doc:
             raise ResultsFormatError(f"{mpath}: missing field {key!r}")
+    surface_diagnostics(doc, mpath)
     stage3_plan(doc, mpath)
     return doc
+
+
+def surface_diagnostics(doc: dict[str, Any], mpath: Path) -> dict[str, Any] | None:
+    """``surface_diagnostics`` of a metrics.json, checked; None for runs written before it was
+    recorded and for runs without clean ground truth."""
+    found = doc.get("surface_diagnostics")
+    if found is None:
+        return None
+    if not isinstance(found, dict):
+        raise ResultsFormatError(f"{mpath}: field 'surface_diagnostics' must be an object")
+    for key in SURFACE_DIAGNOSTIC_KEYS:
+        if key not in found:
+            raise ResultsFormatError(f"{mpath}: missing field 'surface_diagnostics.{key}'")
+    bias = found["colour_bias_smoky"]
+    if bias is not None and (not isinstance(bias, list) or len(bias) != 3):
+        raise ResultsFormatError(f"{mpath}: field 'surface_diagnostics.colour_bias_smoky' must be 3 numbers or null")
+    for i, value in enumerate(bias or []):
+        _finite_or_null(mpath, f"surface_diagnostics.colour_bias_smoky[{i}]", value)
+    for key in ("colour_bias_smoky_max", "surface_alpha_under_0_9", "psnr_black_background"):
+        _finite_or_null(mpath, f"surface_diagnostics.{key}", found[key])
+    return found
 
 
 def warnings(doc: dict[str, Any], mpath: Path) -> list[dict[str, Any]]:

@@ -27,7 +27,8 @@ from scenes.thermal_scale import ThermalScaleSpec
 from smokeseer.config import TrainConfig, make_config
 from smokeseer.config.streams import numpy_stream, stream_seed
 from smokeseer.evaluation.figures import write_test_figures
-from smokeseer.evaluation.scoring import heldout_psnr, score, score_validation, write_plys, write_renders
+from smokeseer.evaluation.scoring import (heldout_psnr, score, score_validation, surface_diagnostics, write_plys,
+                                           write_renders)
 from smokeseer.model.scene import Placed, SceneModel, init_gaussians, render
 from smokeseer.stage1.haze_lines import HazeLineSettings, SmokeColourEstimate, estimate_smoke_colour
 from smokeseer.stage1.input_checks import input_warnings
@@ -308,6 +309,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
     doc = _metrics_doc(prep, "ok")
     doc.update(scores)
     doc["validation"] = validation
+    doc["surface_diagnostics"] = surface_diagnostics(renders, scene)
     doc["wall_time_s"] = {k: round(v, 3) for k, v in wall.items()}
     if estimate is not None:
         doc["wall_time_s"]["estimated_min"] = round(estimate, 3)

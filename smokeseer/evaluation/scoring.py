@@ -23,12 +23,19 @@ from smokeseer.raster import GaussianPly, write_ply
 
 @dataclass
 class TestRenders:
-    """Surface-only renders (the de-smoked prediction) and smoke alpha for each test view."""
+    """Surface-only renders (the de-smoked prediction) and smoke alpha for each test view, with the
+    surface's own alpha and the surface rendered on black (``surface_diagnostics``)."""
 
     stems: list[str]
     surface: list[np.ndarray]
     surface_depth: list[np.ndarray]
     smoke_alpha: list[np.ndarray | None]
+    surface_alpha: list[np.ndarray]
+    surface_on_black: list[np.ndarray]
+
+
+OPAQUE_SURFACE = 0.9
+"""A test pixel whose surface alpha is under this shows the background through the surface."""
 
 
 def split_views(scene: SceneData, device: torch.device, split: str = "test") -> tuple[list[int], list[View]]:
@@ -96,7 +103,7 @@ def thermal_test_view(scene: SceneData, i: int, device: torch.device) -> View | 
 def write_renders(model: SceneModel, scene: SceneData, out: Path, device: torch.device) -> TestRenders:
     """renders/{composite,surface,smoke,thermal}/NNNN.png for every test view."""
     idx, views = split_views(scene, device)
-    res = TestRenders([], [], [], [])
+    res = TestRenders([], [], [], [], [], [])
     scale = scene.thermal.scale if scene.thermal is not None else None
     with torch.no_grad():
         for i, v in zip(idx, views):
@@ -120,7 +127,34 @@ def write_renders(model: SceneModel, scene: SceneData, out: Path, device: torch.
             res.surface_depth.append(surf.depths[0, ..., 0].cpu().numpy())
             res.smoke_alpha.append(comp.subset_alphas[0, ..., 0].cpu().numpy()
                                    if comp.subset_alphas is not None else None)
+            res.surface_alpha.append(surf.alphas[0, ..., 0].cpu().numpy())
+            black = model.render_rgb(v, smoke=False, background=False) if model.background_rgb is not None else surf
+            res.surface_on_black.append(black.colors[0].clamp(0, 1).cpu().numpy())
     return res
+
+
+def surface_diagnostics(renders: TestRenders, scene: SceneData) -> dict[str, Any] | None:
+    """How the de-smoked surface goes wrong, beyond its PSNR (metrics.json ``surface_diagnostics``):
+    its mean signed error per channel on the test pixels the smoke mask marks (a colour cast left by
+    the removed smoke), the share of test pixels where the surface is not opaque (alpha under
+    ``OPAQUE_SURFACE``: the environment shows through), and the PSNR with the environment swapped
+    for black (how much of the score the background carries). None without clean ground truth."""
+    rgb = scene.rgb
+    idx = rgb.indices("test")
+    if rgb.clean is None or not idx:
+        return None
+    errors, smoky = [], 0
+    if rgb.masks is not None:
+        for k, i in enumerate(idx):
+            inside = rgb.masks[i] > 0.5
+            errors.append((renders.surface[k][inside] - rgb.clean[i][inside].astype(np.float64)).sum(axis=0))
+            smoky += int(inside.sum())
+    bias = (np.sum(errors, axis=0) / smoky).tolist() if smoky else None
+    black = float(np.mean([psnr(img, rgb.clean[i]) for img, i in zip(renders.surface_on_black, idx)]))
+    return {"colour_bias_smoky": bias, "smoky_pixels": smoky,
+            "colour_bias_smoky_max": max(abs(b) for b in bias) if bias else None,
+            "surface_alpha_under_0_9": float(np.mean([(a < OPAQUE_SURFACE).mean() for a in renders.surface_alpha])),
+            "psnr_black_background": black}
 
 
 def score(renders: TestRenders, scene: SceneData, lpips_net: str = "alex", lpips_weights: str | None = None,

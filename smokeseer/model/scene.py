@@ -306,10 +306,11 @@ class SceneModel:
 
     def render_rgb(self, view: View, surface: bool = True, smoke: bool = True, degree: int | None = None,
                    deform_active: bool = True, surface_depth: bool = False, depth: bool = True,
-                   motion: SmokeMotion | None = None) -> RasterOutput:
+                   motion: SmokeMotion | None = None, background: bool = True) -> RasterOutput:
         """RGB = surface ∪ smoke with RGB opacities; with both, smoke alpha comes from the same pass.
         The environment is drawn behind any render that includes the surface (a smoke-only
-        view is shown on black). ``surface_depth``: the surface's own depth and alpha as
+        view is shown on black), unless ``background`` is false (the evaluation's check of how much
+        of a score the environment carries). ``surface_depth``: the surface's own depth and alpha as
         ``rest_depths``/``rest_alphas``, from the same pass; ``depth``: the depth image (both: see
         ``render``); ``motion``: see ``smoke_at``."""
         if surface_depth and not surface:
@@ -326,7 +327,7 @@ class SceneModel:
         subset = len(parts) - 1 if use_smoke else None
         if not parts:
             raise ValueError("render_rgb: nothing to render (no surface and no smoke)")
-        return render(view, parts, degree, self.background_rgb if surface else None, subset=subset,
+        return render(view, parts, degree, self.background_rgb if surface and background else None, subset=subset,
                       rest_alone=surface_depth, depth=depth)
 
     def render_thermal(self, view: View, surface: bool = True, smoke: bool = True,
