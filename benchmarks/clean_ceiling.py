@@ -1,5 +1,6 @@
 """Usage: python benchmarks/clean_ceiling.py --out runs/clean_ceiling DATASET [DATASET ...]
           [--modes full,rgb-only] [--profile standard] [--seed 0] [--threads 1] [--csv FILE]
+          [--finished-only [--digest PREFIX]]
 
 The smoke-free ceiling of a scene: each method (Full and RGB-only), at the same profile and
 budget as the tables, fed the clean renders instead of the smoky ones, RGB and thermal. No
@@ -11,11 +12,17 @@ RGB-only's.
 Each scene gets a derived dataset (eval/clean_ceiling.py: links into the original, the clean
 frames in place of the smoky ones, no smoke passes) and a `train-and-evaluate --mode MODE` run
 beside it; both resume, and a finished run of other trainer code, profile or seed is retrained.
-One CSV row per scene and method: ceiling test/validation PSNR against the smoky input's; the
-same method's Table 1 run on the smoky scene (same seed and trainer digest, where the tables
-have it) and the share of the input-to-ceiling gap it closes; and the test views split by the
-original dataset's smoke mask (eval/regions.py), so the smoky pixels' ceiling can be set beside
-what the table methods reach there (per_scene_regions.md).
+`--finished-only` trains and derives nothing: it tables the ceiling runs already finished in
+OUT by today's trainer or, with `--digest PREFIX`, by the earlier trainer whose code digest starts
+so (as `regenerate-tables --finished-only --digest`); a scene and method without one is named in
+the log and left out of the CSV.
+
+One CSV row per scene and method: ceiling test/validation PSNR, SSIM and LPIPS (with the record's
+``lpips_status``: how and with which weights it was scored) against the smoky input's PSNR; the
+same method's Table 1 run on the smoky scene (same seed and trainer digest, where the tables have
+it), its PSNR and LPIPS, and the share of the input-to-ceiling PSNR gap it closes; and the test
+views split by the original dataset's smoke mask (eval/regions.py), so the smoky pixels' ceiling
+can be set beside what the table methods reach there (per_scene_regions.md).
 """
 from __future__ import annotations
 
@@ -27,10 +34,16 @@ from pathlib import Path
 from contracts.atomic import write_rows_csv
 from contracts.errors import DatasetError
 from contracts.source import code_digest
-from eval.clean_ceiling import ceiling_run, derive_clean_dataset, headroom_recovered, smoky_input_psnr, table_test_psnr
+from eval.clean_ceiling import (ceiling_digests, ceiling_run, derive_clean_dataset, finished_ceiling,
+                                 headroom_recovered, smoky_input_psnr, table_test_metrics)
+from eval.finished_runs import pick_digest
 from eval.harness import TRAINER_ENTRY
 from eval.regions import score_run
 from eval.runs import RunResult
+
+
+def _rounded(value: float | None, digits: int) -> float | None:
+    return None if value is None else round(value, digits)
 
 
 def train(dataset: Path, run_dir: Path, mode: str, profile: str, seed: int, threads: int) -> dict:
@@ -57,45 +70,76 @@ def main() -> None:
     ap.add_argument("--tables", type=Path, default=Path("data/tables_standard/runs"),
                     help="table runs to read the smoky input's PSNR from")
     ap.add_argument("--csv", type=Path, help="default OUT/clean_ceiling.csv")
+    ap.add_argument("--finished-only", action="store_true",
+                    help="table the ceiling runs already finished in --out; derive and train nothing")
+    ap.add_argument("--digest", metavar="PREFIX",
+                    help="with --finished-only: table the runs of the trainer whose code digest starts so "
+                         "(an earlier trainer's), in place of today's")
     args = ap.parse_args()
     modes = [m for m in args.modes.split(",") if m]
     bad = [m for m in modes if m not in ("full", "rgb-only")]
     if not modes or bad:
         sys.exit(f"clean_ceiling: --modes: {','.join(bad) or 'nothing'} is not full or rgb-only")
-    rows = []
-    for src in args.datasets:
+    if args.digest and not args.finished_only:
+        sys.exit("clean_ceiling: --digest: only with --finished-only (a run trains under today's trainer's digest)")
+    trainer = code_digest(TRAINER_ENTRY)
+    if args.digest:
         try:
-            derived = derive_clean_dataset(src, args.out / src.name / "dataset")
-        except (DatasetError, ValueError) as exc:
+            trainer = pick_digest(ceiling_digests(args.out), args.digest, str(args.out))
+        except ValueError as exc:
             sys.exit(f"clean_ceiling: {exc}")
+    rows, missing = [], []
+    for src in args.datasets:
+        if not args.finished_only:
+            try:
+                derived = derive_clean_dataset(src, args.out / src.name / "dataset")
+            except (DatasetError, ValueError) as exc:
+                sys.exit(f"clean_ceiling: {exc}")
         for mode in modes:
             run_dir = args.out / src.name / mode
-            m = train(derived, run_dir, mode, args.profile, args.seed, args.threads)
+            if args.finished_only:
+                m = finished_ceiling(run_dir, trainer, args.profile, args.seed)
+                if m is None:
+                    missing.append(f"{src.name} {mode}")
+                    print(f"{run_dir}: no finished run of trainer {trainer[:8]} at {args.profile}, seed {args.seed} "
+                          "(--finished-only): left out", flush=True)
+                    continue
+            else:
+                m = train(derived, run_dir, mode, args.profile, args.seed, args.threads)
             val = m.get("validation") or {}
             digest = m["provenance"]["source_digest"][:8]
             input_test, input_val = smoky_input_psnr(src.name, args.profile, args.tables, digest)
-            method = table_test_psnr(src.name, mode, args.seed, args.profile, digest, args.tables)
-            share = headroom_recovered(method, input_test, m["metrics"]["psnr"])
+            method = table_test_metrics(src.name, mode, args.seed, args.profile, digest, args.tables) or {}
+            share = headroom_recovered(method.get("psnr"), input_test, m["metrics"]["psnr"])
             regions = {r.region: r for r in score_run(
                 RunResult(src.name, f"clean-ceiling-{mode}", args.seed, "ok", str(run_dir), ""), src)}
             rows.append({
                 "scene": src.name, "mode": mode, "profile": args.profile, "seed": args.seed,
                 "ceiling_test_psnr": round(m["metrics"]["psnr"], 3),
                 "ceiling_test_ssim": round(m["metrics"]["ssim"], 4),
-                "ceiling_val_psnr": None if val.get("psnr") is None else round(val["psnr"], 3),
-                "input_test_psnr": None if input_test is None else round(input_test, 3),
-                "input_val_psnr": None if input_val is None else round(input_val, 3),
-                "method_test_psnr": None if method is None else round(method, 3),
-                "headroom_recovered": None if share is None else round(share, 3),
+                "ceiling_test_lpips": _rounded(m["metrics"].get("lpips"), 4),
+                "ceiling_val_psnr": _rounded(val.get("psnr"), 3),
+                "input_test_psnr": _rounded(input_test, 3),
+                "input_val_psnr": _rounded(input_val, 3),
+                "method_test_psnr": _rounded(method.get("psnr"), 3),
+                "method_test_lpips": _rounded(method.get("lpips"), 4),
+                "headroom_recovered": _rounded(share, 3),
                 "smoky_pixel_share": round(regions["smoky"].pixel_share, 3),
                 "ceiling_smoky_psnr": round(regions["smoky"].psnr, 2),
                 "input_smoky_psnr": round(regions["smoky"].psnr_input, 2),
                 "ceiling_clear_psnr": round(regions["clear"].psnr, 2),
                 "input_clear_psnr": round(regions["clear"].psnr_input, 2),
                 "wall_s": round(m["wall_time_s"]["total"], 1), "threads": m["provenance"]["threads"],
-                "commit": m["provenance"]["commit"], "source_digest": digest})
+                "commit": m["provenance"]["commit"], "source_digest": digest,
+                "lpips_status": m["metrics"].get("lpips_status")})
             print({k: rows[-1][k] for k in ("scene", "mode", "ceiling_test_psnr", "headroom_recovered", "wall_s")},
                   flush=True)
+    if missing:
+        print(f"clean_ceiling: {len(missing)} left out, not finished by trainer {trainer[:8]}: {', '.join(missing)}",
+              flush=True)
+    if not rows:
+        sys.exit(f"clean_ceiling: {args.out}: no finished ceiling run of trainer {trainer[:8]} to table; "
+                 "nothing written")
     write_rows_csv(args.csv or args.out / "clean_ceiling.csv", rows)
 
 

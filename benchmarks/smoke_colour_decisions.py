@@ -11,7 +11,7 @@ this reads ``metrics.json`` → ``stages.smoke_colour``: the haze-line estimate,
 observation lines it had, the fraction of lines that meet, and the trust the run gave it (runs
 of trainer f13fe3c1 and older held it, trust 1, or refused it, 0, naming the colour the lines
 came nearest to) and, where the run recorded it, the surface start's trust; beside the run's
-final validation and test PSNR. Writes
+final validation and test PSNR and its test LPIPS (empty where the run has none). Writes
 ``benchmarks/results/standard/smoke_colour_decisions.csv``. Why: the estimate's colour can be
 stable across seeds while its trust moves, and which runs gain from holding it is a question of
 the colour as much as of the trust. The ramp options add the trusts
@@ -118,7 +118,8 @@ def main() -> None:
         doc = json.loads((folder / "metrics.json").read_text())
         rows.append({"scene": rec["scene"], "variant": rec["variant"], "seed": rec["seed"],
                      "code_digest": rec["code_digest"][:8], **decision(doc["stages"]),
-                     "val_psnr": round(doc["validation"]["psnr"], 3), "test_psnr": round(doc["metrics"]["psnr"], 3)})
+                     "val_psnr": round(doc["validation"]["psnr"], 3), "test_psnr": round(doc["metrics"]["psnr"], 3),
+                     "test_lpips": None if doc["metrics"].get("lpips") is None else round(doc["metrics"]["lpips"], 4)})
         if rule is not None:
             colour, met, _ = estimate(haze_lines(doc["stages"]))
             rows[-1].update(rule=f"meeting {rule.min_meeting_fraction}-{rule.full_meeting_fraction}, brightness "

@@ -91,11 +91,13 @@ def smoky_input_psnr(scene: str, profile: str, table_runs: Path, digest: str = "
     return doc["metrics"]["psnr_input"], (doc.get("validation") or {}).get("psnr_input")
 
 
-def table_test_psnr(scene: str, variant: str, seed: int, profile: str, digest: str, table_runs: Path) -> float | None:
-    """Test PSNR of the finished table run of ``variant`` at this scene, seed, profile and trainer
-    digest (its first 8 hex digits); None where the tables have none yet."""
+def table_test_metrics(scene: str, variant: str, seed: int, profile: str, digest: str,
+                       table_runs: Path) -> dict | None:
+    """Test scores (metrics.json ``metrics``: PSNR, SSIM, LPIPS, ...) of the finished table run of
+    ``variant`` at this scene, seed, profile and trainer digest (its first 8 hex digits); None
+    where the tables have none yet."""
     doc = _finished_run(table_runs, f"{scene}/{variant}/seed{seed}-*/metrics.json", profile, digest)
-    return None if doc is None else doc["metrics"]["psnr"]
+    return None if doc is None else doc["metrics"]
 
 
 def headroom_recovered(method: float | None, smoky_input: float | None, ceiling: float) -> float | None:
@@ -104,6 +106,38 @@ def headroom_recovered(method: float | None, smoky_input: float | None, ceiling:
     if method is None or smoky_input is None or ceiling - smoky_input <= 0:
         return None
     return (method - smoky_input) / (ceiling - smoky_input)
+
+
+def _unlike(doc: dict, digest: str, profile: str, seed: int) -> list[str]:
+    """How a ceiling run's metrics.json differs from a run of trainer ``digest`` at this profile and seed."""
+    trainer = doc["provenance"]["source_digest"] or ""
+    unlike = [f"trainer {trainer[:8] or 'unknown'}, not {digest[:8]}"] if trainer != digest else []
+    return unlike + [f"{key} {doc[key]}, not {wanted}"
+                     for key, wanted in (("profile", profile), ("seed", seed)) if doc[key] != wanted]
+
+
+def _beside(run_dir: Path, digest: str, profile: str, seed: int) -> Path:
+    """Where a run of another request than ``run_dir``'s trains until it takes that folder's place."""
+    return run_dir.with_name(f"{run_dir.name}-{digest[:8]}-{profile}-seed{seed}")
+
+
+def ceiling_digests(folder: Path) -> list[str]:
+    """The trainer code digest of every finished ceiling run in ``folder`` (SCENE/MODE/, and the
+    retrains beside them), one per run, for ``eval.finished_runs.pick_digest``."""
+    docs = [read_metrics(path.parent) for path in sorted(Path(folder).glob("*/*/metrics.json"))]
+    return [d["provenance"]["source_digest"] for d in docs if d["status"] == "ok" and d["provenance"]["source_digest"]]
+
+
+def finished_ceiling(run_dir: Path, digest: str, profile: str, seed: int) -> dict | None:
+    """metrics.json of the finished ceiling run of trainer ``digest`` at this profile and seed, in
+    ``run_dir`` or (a retrain finished but not yet moved in) beside it; None where there is none.
+    Reads only: for tabling the runs of a named trainer without training (``--finished-only``)."""
+    for folder in (run_dir, _beside(run_dir, digest, profile, seed)):
+        if (folder / "metrics.json").is_file():
+            doc = read_metrics(folder)
+            if doc["status"] == "ok" and not _unlike(doc, digest, profile, seed):
+                return doc
+    return None
 
 
 def ceiling_run(run_dir: Path, digest: str, profile: str, seed: int, train: Callable[[Path], None]) -> dict:
@@ -115,24 +149,18 @@ def ceiling_run(run_dir: Path, digest: str, profile: str, seed: int, train: Call
     stays in place (and committed) until the new one has finished, and an interrupted retrain
     resumes. The finished folder then takes ``run_dir``'s place by two renames; an interruption
     between them leaves the new run complete beside, and the next call completes the swap."""
-    def differences(doc: dict) -> list[str]:
-        trainer = doc["provenance"]["source_digest"] or ""
-        unlike = [f"trainer {trainer[:8] or 'unknown'}, not {digest[:8]}"] if trainer != digest else []
-        return unlike + [f"{key} {doc[key]}, not {wanted}"
-                         for key, wanted in (("profile", profile), ("seed", seed)) if doc[key] != wanted]
-
     if (run_dir / "metrics.json").is_file():
         doc = read_metrics(run_dir)
-        unlike = differences(doc)
+        unlike = _unlike(doc, digest, profile, seed)
         if not unlike:
             print(f"{run_dir}: finished by trainer {digest[:8]} at {profile}, seed {seed}: reused", flush=True)
             return doc
         print(f"{run_dir}: a run of {'; '.join(unlike)}: retraining; "
               "the old run stays until the new one has finished", flush=True)
-    fresh = run_dir.with_name(f"{run_dir.name}-{digest[:8]}-{profile}-seed{seed}")
+    fresh = _beside(run_dir, digest, profile, seed)
     if not (fresh / "metrics.json").is_file():
         train(fresh)
-    unlike = differences(read_metrics(fresh))
+    unlike = _unlike(read_metrics(fresh), digest, profile, seed)
     if unlike:
         raise RuntimeError(f"{fresh / 'metrics.json'}: the ceiling run just trained is a run of {'; '.join(unlike)}")
     retired = run_dir.with_name(f".{run_dir.name}.retired")

@@ -25,14 +25,24 @@ def finished_runs(tables: Path, variants: Iterable[str],
         if (rec.get("status") == "ok" and rec.get("variant") in wanted and rec.get("code_digest")
                 and (path.parent / "train_log.csv").is_file()):
             records.append((path.parent, rec))
-    versions = collections.Counter(rec["code_digest"] for _, rec in records)
-    if not versions:
+    if not records:
         raise ValueError(f"{tables}/runs: no finished run of {', '.join(sorted(wanted))} records a code_digest")
+    chosen = pick_digest([rec["code_digest"] for _, rec in records], digest, f"{tables}/runs")
+    return chosen, [(run_dir, rec) for run_dir, rec in records if rec["code_digest"] == chosen]
+
+
+def pick_digest(digests: Iterable[str], digest: str | None, where: str) -> str:
+    """The trainer version to read, from the code digests of the finished runs in ``where`` (one
+    per run): the one that starts with ``digest``, else the one with the most runs. Raises
+    ValueError naming ``where`` and the versions found when none starts so, or there is none."""
+    versions = collections.Counter(digests)
+    if not versions:
+        raise ValueError(f"{where}: no finished run records a code digest")
     chosen = next((v for v in versions if v.startswith(digest)), None) if digest else versions.most_common(1)[0][0]
     if chosen is None:
-        raise ValueError(f"--digest {digest}: no run in {tables}/runs has a code_digest starting so "
+        raise ValueError(f"--digest {digest}: no run in {where} has a code_digest starting so "
                          f"(found {', '.join(v[:8] for v in versions)})")
-    return chosen, [(run_dir, rec) for run_dir, rec in records if rec["code_digest"] == chosen]
+    return chosen
 
 
 def runs_of_variants(tables: Path, variants: str, known: Iterable[str],

@@ -92,13 +92,15 @@ def write_report(cfg: HarnessConfig, results: list[RunResult], datasets: list[Da
     lines += ["## Datasets", "", "| scene | kind | status | cached | seconds | path |", "|---|---|---|---|---|---|"]
     lines += [f"| {d.scene} | {d.kind} | {d.status} | {d.cached} | {d.wall_time_s:.1f} | `{_shown(d.path)}` |"
               for d in datasets]
-    lines += ["", "## Runs", "", "| scene | variant | seed | status | cached | device | seconds | PSNR | config hash | run dir |",
-              "|---|---|---|---|---|---|---|---|---|---|"]
+    lines += ["", "## Runs", "",
+              "| scene | variant | seed | status | cached | device | seconds | PSNR | LPIPS | config hash | run dir |",
+              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
-        p = r.metrics.get("psnr")
+        p, lp = r.metrics.get("psnr"), r.metrics.get("lpips")
         device = "—" if r.status == "pending" else r.device  # a pending run has not trained anywhere yet
         lines.append(f"| {r.scene} | {r.variant} | {r.seed} | {r.status} | {r.cached} | {device} | {r.wall_time_s:.1f} | "
-                     f"{'' if p is None else f'{p:.2f}'} | {r.config_hash[:12]} | `{_shown(r.run_dir)}` |")
+                     f"{'' if p is None else f'{p:.2f}'} | {'' if lp is None else f'{lp:.3f}'} | {r.config_hash[:12]} "
+                     f"| `{_shown(r.run_dir)}` |")
     taken = [r for r in results if r.stage2_from]
     if taken:
         lines += ["", f"{len(taken)} run(s) took the finished Stage 2 of a run with the same Stage-2 settings "

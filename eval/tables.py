@@ -105,6 +105,13 @@ RESCORED_LPIPS = "rescored from the run's 8-bit surface renders"
 training (docs/results-format.md); the trainer scores its float renders."""
 
 
+def rescored_lpips_note(how: Iterable[str], rescored: int, ok: int) -> str:
+    """The note beneath a table some of whose ``ok`` finished runs (``rescored`` of them) had their
+    LPIPS scored after training; ``how``: their ``lpips_status`` lines (the weights, the renders)."""
+    return (f"LPIPS: {'; '.join(sorted(set(how)))}" + (f", in {rescored} of the {ok} runs" if rescored < ok else "")
+            + "; scored after training, where the trainer scores its float renders (docs/results-format.md).")
+
+
 def lpips_coverage(results: Iterable[RunResult]) -> tuple[int, int]:
     """(finished runs with an LPIPS score, finished runs). Runs trained before the weights were
     installed, or on views too small for the network, have none; a mean over the scored ones alone
@@ -227,10 +234,8 @@ def _footnotes(rows: list[Row], n_scenes: int, n_finished: int, devices: dict[st
                      "the float rounding differs. report.md gives each run's.")
     rescored = sum(r.lpips_rescored for r in rows)
     if rescored:
-        how = "; ".join(sorted({r.lpips_rescored_status for r in rows if r.lpips_rescored}))
-        ok = sum(r.runs_ok for r in rows)
-        notes.append(f"LPIPS: {how}" + (f", in {rescored} of the {ok} runs" if rescored < ok else "")
-                     + "; scored after training, where the trainer scores its float renders (docs/results-format.md).")
+        notes.append(rescored_lpips_note({r.lpips_rescored_status for r in rows if r.lpips_rescored}, rescored,
+                                         sum(r.runs_ok for r in rows)))
     for r in rows:
         v = VARIANTS.get(r.variant)
         if v is not None and v.note:

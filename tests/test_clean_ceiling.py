@@ -1,17 +1,26 @@
-"""The clean-ceiling dataset of eval/clean_ceiling.py, read back by the trainer's own loader."""
+"""The clean-ceiling dataset of eval/clean_ceiling.py, read back by the trainer's own loader; the
+ceiling runs reused, retrained or (--finished-only) read without training."""
 from __future__ import annotations
 
+import csv
 import json
 import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from benchmarks import clean_ceiling
 from contracts.results_format import PROVENANCE_KEYS, ResultsFormatError
-from eval.clean_ceiling import ceiling_run, derive_clean_dataset, headroom_recovered, smoky_input_psnr, table_test_psnr
+from eval.clean_ceiling import (ceiling_digests, ceiling_run, derive_clean_dataset, finished_ceiling,
+                                headroom_recovered, smoky_input_psnr, table_test_metrics)
+from eval.finished_runs import pick_digest
+from eval.tables import RESCORED_LPIPS
 from scenes.load import load_scene
 from tests.results_builder import write_metrics
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_derived_dataset_trains_on_the_clean_frames(demo_dataset: Path, tmp_path: Path) -> None:
@@ -65,14 +74,15 @@ def test_smoky_input_psnr_reads_a_finished_run_of_the_profile(tmp_path: Path) ->
         smoky_input_psnr("house", "standard", tmp_path)
 
 
-def test_table_psnr_is_the_runs_own_digest_and_the_headroom_its_share_of_the_gap(tmp_path: Path) -> None:
-    for digest, psnr in (("aaaa1111", 21.0), ("bbbb2222", 23.0)):
+def test_table_scores_are_the_runs_own_digest_and_the_headroom_its_share_of_the_gap(tmp_path: Path) -> None:
+    for digest, psnr, lpips in (("aaaa1111", 21.0, 0.3), ("bbbb2222", 23.0, 0.2)):
         write_metrics(tmp_path / "house" / "full" / f"seed0-{digest}", scene="house", method="full",
-                      profile="standard", seed=0, metrics={"psnr": psnr},
+                      profile="standard", seed=0, metrics={"psnr": psnr, "lpips": lpips},
                       provenance={**dict.fromkeys(PROVENANCE_KEYS), "source_digest": digest * 8})
-    assert table_test_psnr("house", "full", 0, "standard", "bbbb2222", tmp_path) == 23.0
-    assert table_test_psnr("house", "full", 1, "standard", "bbbb2222", tmp_path) is None
-    assert table_test_psnr("house", "rgb-only", 0, "standard", "bbbb2222", tmp_path) is None
+    scores = table_test_metrics("house", "full", 0, "standard", "bbbb2222", tmp_path)
+    assert scores is not None and (scores["psnr"], scores["lpips"]) == (23.0, 0.2)
+    assert table_test_metrics("house", "full", 1, "standard", "bbbb2222", tmp_path) is None
+    assert table_test_metrics("house", "rgb-only", 0, "standard", "bbbb2222", tmp_path) is None
     assert headroom_recovered(23.0, 20.0, 32.0) == pytest.approx(0.25)
     assert headroom_recovered(19.0, 20.0, 32.0) == pytest.approx(-1 / 12)  # under the input: negative
     assert headroom_recovered(23.0, 32.0, 31.0) is None and headroom_recovered(None, 20.0, 32.0) is None
@@ -143,3 +153,55 @@ def test_a_swap_cut_between_its_renames_is_completed_without_training(tmp_path: 
     train = _finished_by("bbbb2222")
     assert ceiling_run(run_dir, "bbbb2222" * 8, "standard", 0, train)["provenance"]["source_digest"] == "bbbb2222" * 8
     assert train.calls == [] and sorted(p.name for p in (tmp_path / "house").iterdir()) == ["full"]
+
+
+def test_finished_ceiling_reads_a_named_trainers_run_and_moves_nothing(tmp_path: Path) -> None:
+    run_dir = tmp_path / "house" / "full"
+    _finished_by("aaaa1111")(run_dir)
+    assert finished_ceiling(run_dir, "aaaa1111" * 8, "standard", 0)["provenance"]["source_digest"] == "aaaa1111" * 8
+    assert finished_ceiling(run_dir, "bbbb2222" * 8, "standard", 0) is None  # not trained: nothing else happens
+    assert finished_ceiling(run_dir, "aaaa1111" * 8, "standard", 1) is None
+    assert finished_ceiling(run_dir, "aaaa1111" * 8, "quick", 0) is None
+    # A retrain that finished beside the old run but was not swapped in yet is read where it is.
+    _finished_by("bbbb2222")(tmp_path / "house" / "full-bbbb2222-standard-seed0")
+    assert finished_ceiling(run_dir, "bbbb2222" * 8, "standard", 0)["provenance"]["source_digest"] == "bbbb2222" * 8
+    assert sorted(p.name for p in (tmp_path / "house").iterdir()) == ["full", "full-bbbb2222-standard-seed0"]
+    # The prefix is resolved as regenerate-tables --digest resolves it, over every finished ceiling run.
+    digests = ceiling_digests(tmp_path)
+    assert sorted(digests) == ["aaaa1111" * 8, "bbbb2222" * 8]
+    assert pick_digest(digests, "bbbb", str(tmp_path)) == "bbbb2222" * 8
+    with pytest.raises(ValueError, match=r"--digest cafe: no run in .* starting so \(found aaaa1111, bbbb2222\)"):
+        pick_digest(digests, "cafe", str(tmp_path))
+
+
+def _main(monkeypatch: pytest.MonkeyPatch, *args: str) -> None:
+    monkeypatch.setattr(sys, "argv", ["clean_ceiling.py", *args])
+    clean_ceiling.main()
+
+
+def test_finished_only_tables_the_committed_ceilings_without_training(tmp_path: Path,
+                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """house's committed ceilings (trainer d65d2bcb) give the committed rows, LPIPS included, and
+    no derived dataset is made."""
+    ceilings, house = ROOT / "data" / "clean_ceiling_standard", ROOT / "data" / "standard" / "house"
+    out = tmp_path / "ceiling.csv"
+    common = ["--out", str(ceilings), str(house), "--tables", str(ROOT / "data" / "tables_standard" / "runs")]
+    _main(monkeypatch, *common, "--finished-only", "--digest", "d65d2bcb", "--csv", str(out))
+    rows = list(csv.DictReader(out.open()))
+    committed = [r for r in csv.DictReader((ROOT / "benchmarks" / "results" / "standard" / "clean_ceiling.csv").open())
+                 if r["scene"] == "house"]
+    assert [r["mode"] for r in rows] == ["full", "rgb-only"] and rows == committed
+    for row in rows:
+        doc = json.loads((ceilings / "house" / row["mode"] / "metrics.json").read_text())
+        assert float(row["ceiling_test_lpips"]) == round(doc["metrics"]["lpips"], 4) > 0
+        assert row["lpips_status"].startswith(RESCORED_LPIPS)
+    assert not (ceilings / "house" / "dataset").exists()
+    with pytest.raises(SystemExit, match=r"--digest 00000000: no run in .*clean_ceiling_standard has a code_digest"):
+        _main(monkeypatch, *common, "--finished-only", "--digest", "00000000", "--csv", str(tmp_path / "x.csv"))
+    with pytest.raises(SystemExit, match="--digest: only with --finished-only"):
+        _main(monkeypatch, *common, "--digest", "d65d2bcb", "--csv", str(tmp_path / "x.csv"))
+    # A folder with no ceiling of today's trainer: nothing trained, derived or written.
+    with pytest.raises(SystemExit, match="no finished ceiling run of trainer .* to table; nothing written"):
+        _main(monkeypatch, "--out", str(tmp_path / "none"), str(house), "--finished-only",
+              "--csv", str(tmp_path / "x.csv"))
+    assert not (tmp_path / "x.csv").exists() and not (tmp_path / "none").exists()

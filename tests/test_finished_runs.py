@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from eval.finished_runs import runs_of_variants
+from eval.finished_runs import pick_digest, runs_of_variants
 
 TABLES = Path(__file__).resolve().parents[1] / "data" / "tables_standard_avx2"
 
@@ -20,3 +20,10 @@ def test_runs_of_variants_reads_one_trainers_runs_and_refuses_bad_input_in_one_l
         runs_of_variants(TABLES, "full,fulll", ("full", "rgb-only"), "d65d2bcb")
     with pytest.raises(SystemExit, match="--digest 00000000: no run in .* has a code_digest starting so .found d65d2bcb"):
         runs_of_variants(TABLES, "full", ("full",), "00000000")
+
+
+def test_pick_digest_takes_the_prefix_else_the_most_runs() -> None:
+    digests = ["aaaa" * 16, "bbbb" * 16, "bbbb" * 16]
+    assert pick_digest(digests, None, "F") == "bbbb" * 16 and pick_digest(digests, "aaa", "F") == "aaaa" * 16
+    with pytest.raises(ValueError, match=r"^F: no finished run records a code digest$"):
+        pick_digest([], "aaa", "F")

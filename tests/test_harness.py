@@ -712,3 +712,17 @@ def test_finished_only_with_digest_tables_an_earlier_trainers_runs(tmp_path: Pat
     assert f"--digest 00000000: no run in {out}/runs has a code_digest starting so (found {earlier[:8]})" \
         in capsys.readouterr().err
     assert _calls(out) == n
+
+
+def test_report_lists_each_runs_psnr_and_lpips(tmp_path: Path) -> None:
+    from eval.report import write_report
+    from eval.runs import RunResult
+
+    cfg = _cfg(tmp_path, scenes=["alpha"], methods=["full", "rgb-only"], ablations=[], seeds=[0])
+    scored = RunResult("alpha", "full", 0, "ok", str(tmp_path / "a"), "abcdef1234567890",
+                       metrics={"psnr": 21.234, "lpips": 0.1236})
+    unscored = RunResult("alpha", "rgb-only", 0, "ok", str(tmp_path / "b"), "0123456789abcdef",
+                         metrics={"psnr": 20.0})
+    text = write_report(cfg, [scored, unscored], [], "x", "local", 1.0, {}, tmp_path / "report.md").read_text()
+    assert "| seconds | PSNR | LPIPS | config hash | run dir |" in text
+    assert "| 21.23 | 0.124 | abcdef123456 |" in text and "| 20.00 |  | 0123456789ab |" in text

@@ -1,7 +1,12 @@
 """The haze-line smoke colour: line fitting and meeting point against colours made with a known
 smoke colour, the multi-view bookkeeping against an exact pixel shift, the refusals, and the
-trust, which must move with what the images say without a step."""
+trust, which must move with what the images say without a step; the table of every run's decision."""
 from __future__ import annotations
+
+import csv
+import json
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -188,3 +193,21 @@ def test_the_decisions_table_reads_a_trust() -> None:
     got = decision({"smoke_colour": {"haze_lines": {"colour": [0.4, 0.4, 0.4], "trust": 0.25, "lines": 250,
                                                      "meeting_fraction": 0.35, "limits": "250 lines"}}})
     assert got["trust"] == 0.25 and not got["held"] and got["colour_mean"] == 0.4
+
+
+def test_decisions_table_carries_each_runs_test_scores(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """benchmarks/smoke_colour_decisions.py on two committed runs: PSNR and LPIPS as their records hold them."""
+    from benchmarks import smoke_colour_decisions
+
+    tables = Path(__file__).resolve().parents[1] / "data" / "tables_standard_avx2"
+    out = tmp_path / "decisions.csv"
+    monkeypatch.setattr(sys, "argv", ["smoke_colour_decisions.py", "--tables", str(tables), "--digest", "d65d2bcb",
+                                      "--variants", "full", "--out", str(out)])
+    smoke_colour_decisions.main()
+    rows = list(csv.DictReader(out.open()))
+    assert [r["seed"] for r in rows] == ["1", "2"]
+    for row in rows:
+        (run,) = tables.glob(f"runs/{row['scene']}/full/seed{row['seed']}-*/metrics.json")
+        metrics = json.loads(run.read_text())["metrics"]
+        assert float(row["test_lpips"]) == round(metrics["lpips"], 4) > 0
+        assert float(row["test_psnr"]) == round(metrics["psnr"], 3)

@@ -7,15 +7,18 @@ from pathlib import Path
 
 import pytest
 
-from eval.per_view import pooled_over_views, summarise, view_scores, write_per_view
+from eval.per_view import mean_of_all, pooled_over_views, summarise, view_scores, write_per_view
 from eval.runs import RunResult
+from eval.tables import RESCORED_LPIPS
 from tests.results_builder import write_metrics
 
 
-def _run(root: Path, variant: str, seed: int, views: dict[str, tuple[float, float]], scene: str = "s") -> RunResult:
-    """A finished run whose metrics.json lists (psnr, psnr_input) per test view."""
+def _run(root: Path, variant: str, seed: int, views: dict[str, tuple[float, float]], scene: str = "s",
+         lpips: dict[str, float] | None = None) -> RunResult:
+    """A finished run whose metrics.json lists (psnr, psnr_input) per test view, and ``lpips`` for the views given."""
     folder = root / scene / variant / f"seed{seed}"
-    per_image = [{"file_stem": stem, "psnr": p, "ssim": 0.5, "psnr_input": q} for stem, (p, q) in views.items()]
+    per_image = [{"file_stem": stem, "psnr": p, "ssim": 0.5, "psnr_input": q,
+                  **({"lpips": lpips[stem]} if lpips and stem in lpips else {})} for stem, (p, q) in views.items()]
     write_metrics(folder, scene=scene, method=variant, profile="quick", seed=seed,
                   metrics={"psnr": sum(p for p, _ in views.values()) / len(views)}, per_image=per_image)
     return RunResult(scene, variant, seed, "ok", str(folder), "hash")
@@ -71,3 +74,23 @@ def test_unreadable_metrics_is_named_not_raised(tmp_path: Path) -> None:
     (Path(broken.run_dir) / "metrics.json").write_text("{")
     md = write_per_view([full, broken], tmp_path / "out")["per_view.md"].read_text()
     assert "Left out" in md and "rgb-only seed 0" in md and "metrics.json: not valid JSON" in md
+
+
+def test_each_views_lpips_beside_its_psnr_and_no_mean_over_part_of_the_views(tmp_path: Path) -> None:
+    how = f"{RESCORED_LPIPS} by benchmarks/rescore_lpips.py, alex"
+    full = _run(tmp_path, "full", 0, {"0004": (18.0, 10.0), "0036": (25.0, 35.0)}, lpips={"0004": 0.3, "0036": 0.1})
+    full1 = _run(tmp_path, "full", 1, {"0004": (18.0, 10.0), "0036": (25.0, 35.0)}, lpips={"0004": 0.5, "0036": 0.3})
+    rgb = _run(tmp_path, "rgb-only", 0, {"0004": (12.0, 10.0), "0036": (33.0, 35.0)}, lpips={"0004": 0.6})
+    full.metrics["lpips_status"] = full1.metrics["lpips_status"] = how
+    scores = view_scores([full, full1, rgb])
+    assert [(s.view, s.lpips) for s in scores if s.variant == "rgb-only"] == [("0004", 0.6), ("0036", None)]
+    assert summarise(scores, "s", "full").lpips == pytest.approx((0.2 + 0.4) / 2)  # views, then seeds
+    assert math.isnan(summarise(scores, "s", "rgb-only").lpips)  # one view unscored: no mean of the other alone
+    assert math.isnan(mean_of_all([])) and mean_of_all([0.2, 0.4]) == pytest.approx(0.3)
+    paths = write_per_view([full, full1, rgb], tmp_path / "out")
+    rows = list(csv.DictReader(open(paths["per_view.csv"])))
+    assert [r["lpips"] for r in rows] == ["0.3", "0.1", "0.5", "0.3", "0.6", ""]
+    md = paths["per_view.md"].read_text()
+    assert "| s | Ours (Full) | 2 | 21.50 |" in md and md.count("| 0.300 |") == 2  # the scene's row and the mean
+    assert "| s | Ours (RGB only) | 1 |" in md and "| 1/2 | - |\n" in md
+    assert f"- LPIPS: {how}, in 2 of the 3 runs; scored after training" in md
