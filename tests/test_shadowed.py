@@ -221,7 +221,8 @@ def test_runs_are_scored_against_shadowed_when_the_dataset_has_it(tmp_path: Path
         truth = scene.rgb.shadowed if shadowed else scene.rgb.clean
         assert truth is not None and len(idx) == 2
         renders = TestRenders([scene.rgb.frames[i].file_stem for i in idx], [truth[i] for i in idx],
-                              [np.ones(truth[i].shape[:2]) for i in idx], [None for _ in idx])
+                              [np.ones(truth[i].shape[:2]) for i in idx], [None for _ in idx],
+                              [np.ones(truth[i].shape[:2]) for i in idx], [truth[i] for i in idx])
         metrics = score(renders, scene)["metrics"]
         if not shadowed:
             assert scene.rgb.shadowed is None and all(metrics[k] is None for k in SHADOWED_METRIC_KEYS)
