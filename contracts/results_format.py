@@ -113,17 +113,22 @@ def read_metrics(run_dir: Path) -> dict[str, Any]:
     return doc
 
 
+def _object_with(found: Any, field: str, keys: tuple[str, ...], mpath: Path) -> None:
+    """Refuse, naming the field, a record that is not an object or lacks one of ``keys``."""
+    if not isinstance(found, dict):
+        raise ResultsFormatError(f"{mpath}: field '{field}' must be an object")
+    for key in keys:
+        if key not in found:
+            raise ResultsFormatError(f"{mpath}: missing field '{field}.{key}'")
+
+
 def surface_diagnostics(doc: dict[str, Any], mpath: Path) -> dict[str, Any] | None:
     """``surface_diagnostics`` of a metrics.json, checked; None for runs written before it was
     recorded and for runs without clean ground truth."""
     found = doc.get("surface_diagnostics")
     if found is None:
         return None
-    if not isinstance(found, dict):
-        raise ResultsFormatError(f"{mpath}: field 'surface_diagnostics' must be an object")
-    for key in SURFACE_DIAGNOSTIC_KEYS:
-        if key not in found:
-            raise ResultsFormatError(f"{mpath}: missing field 'surface_diagnostics.{key}'")
+    _object_with(found, "surface_diagnostics", SURFACE_DIAGNOSTIC_KEYS, mpath)
     bias = found["colour_bias_smoky"]
     if bias is not None and (not isinstance(bias, list) or len(bias) != 3):
         raise ResultsFormatError(f"{mpath}: field 'surface_diagnostics.colour_bias_smoky' must be 3 numbers or null")
@@ -154,11 +159,7 @@ def stage3_plan(doc: dict[str, Any], mpath: Path) -> dict[str, Any] | None:
     plan = (doc.get("stages") or {}).get("stage3_plan")
     if plan is None:
         return None
-    if not isinstance(plan, dict):
-        raise ResultsFormatError(f"{mpath}: field 'stages.stage3_plan' must be an object")
-    for key in STAGE3_PLAN_KEYS:
-        if key not in plan:
-            raise ResultsFormatError(f"{mpath}: missing field 'stages.stage3_plan.{key}'")
+    _object_with(plan, "stages.stage3_plan", STAGE3_PLAN_KEYS, mpath)
     for key in ("loss_weights", "dropped"):
         if not isinstance(plan[key], dict):
             raise ResultsFormatError(f"{mpath}: field 'stages.stage3_plan.{key}' must be an object")
