@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import csv
 import json
+import shutil
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -64,3 +66,23 @@ def test_runs_without_validation_views_or_pairs_are_one_line(tmp_path: Path,
     assert main(["--tables", str(tables), "--datasets", str(datasets), "--out", str(out), "--seed", "3"]) == 2
     assert "no scene has both a Full and an RGB-only run at seed 3" in capsys.readouterr().err
     assert not out.exists()
+
+
+@pytest.mark.blender
+def test_the_set_script_plans_both_methods_on_every_finished_scene(demo_dataset: Path, tmp_path: Path) -> None:
+    """benchmarks/random_set_tables.sh trains Full and RGB-only at seed 0 on the set's finished scenes only
+    (a staging folder and other folders are left out)."""
+    root = Path(__file__).resolve().parents[1]
+    sets = tmp_path / "random_dev"
+    for name in ("random_7", "random_3"):
+        shutil.copytree(demo_dataset, sets / name)
+    (sets / ".random_9.partial").mkdir()
+    (sets / "notes").mkdir()
+    done = subprocess.run(["bash", "benchmarks/random_set_tables.sh", str(sets), str(tmp_path / "tables"), "--dry-run"],
+                          cwd=root, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert "2 scenes of" in done.stderr
+    assert "plan: 2 scene(s) x 2 variant(s) x 1 seed(s) = 4 runs" in done.stdout + done.stderr
+    empty = subprocess.run(["bash", "benchmarks/random_set_tables.sh", str(tmp_path / "none"), str(tmp_path / "t")],
+                           cwd=root, capture_output=True, text=True)
+    assert empty.returncode == 2 and "no finished drawn scene" in empty.stderr

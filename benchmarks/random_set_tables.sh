@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# Full and RGB-only on every finished scene of a drawn set (generate-benchmark --random), at one
+# seed, into one tables folder: what a rule is chosen on (random-dev, validation views) and what is
+# reported once (random-test, test views). One regenerate-tables call, so a stopped run resumes
+# (finished runs from the cache, an interrupted one from its checkpoint), and scenes generated
+# meanwhile join at the next call. Then the per-scene comparison:
+#
+#   bash benchmarks/random_set_tables.sh SET OUT [regenerate-tables options, e.g. --set KEY=VALUE or --dry-run]
+#   python benchmarks/random_set_scores.py --tables OUT --datasets SET --out CSV [--split val]
+#
+# Defaults: the standard profile, seed 0, two workers of one thread.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+if [[ $# -lt 2 ]]; then
+    echo "usage: bash benchmarks/random_set_tables.sh SET OUT [regenerate-tables options]" >&2
+    exit 2
+fi
+set_root=$1
+out=$2
+shift 2
+mapfile -t scenes < <(find "$set_root" -mindepth 2 -maxdepth 2 -name dataset.json -path '*/random_*/dataset.json' \
+                       -printf '%h\n' | xargs -r -n1 basename | sort)
+if [[ ${#scenes[@]} -eq 0 ]]; then
+    echo "random_set_tables.sh: no finished drawn scene (random_*/dataset.json) under $set_root" >&2
+    exit 2
+fi
+datasets=()
+for s in "${scenes[@]}"; do datasets+=(--dataset "$s=$set_root/$s"); done
+list=$(IFS=,; echo "${scenes[*]}")
+echo "== $(date -u +%FT%TZ) ${#scenes[@]} scenes of $set_root into $out" >&2
+.venv/bin/regenerate-tables --profile standard --workers 2 --methods full,rgb-only --seeds 0, --no-ablations \
+    --scenes "$list" "${datasets[@]}" --out "$out" "$@" || [[ $? -eq 1 ]]  # 1: tables written, some runs failed
