@@ -13,6 +13,11 @@ views. `rgb_optical_depth` is the set's axis: the mean RGB optical depth of the 
 (dataset.json `smoke.optical_depth.achieved`). Prints the counts the must-holds read: Full within
 0.3 dB of RGB-only or better, Full's lead on the scenes at optical depth 1 or more, Full over the
 smoky input.
+
+`--candidates start-thermal,...` reads the rule candidates run beside Full (`regenerate-tables
+--candidates`) too: each gets a column, and the same counts with it in Full's place, plus its
+paired difference from Full (mean, std over scenes, scenes ahead). That is what a rule is chosen on,
+with `--split val` on random-dev; `--summary CSV` writes those counts, one row per rule.
 """
 from __future__ import annotations
 
@@ -45,16 +50,21 @@ def _psnrs(run: Path, rec: dict[str, Any], split: str) -> tuple[float, float]:
     return float(validation["psnr"]), float(validation["psnr_input"])
 
 
-def score_rows(tables: Path, datasets: Path, split: str, seed: int, digest: str | None) -> tuple[str, list[dict[str, Any]]]:
-    """(trainer digest, one row per scene where both methods finished at ``seed``)."""
-    chosen, runs = finished_runs(tables, ["full", "rgb-only"], digest)
+def column(variant: str) -> str:
+    return variant.replace("-", "_") + "_psnr"
+
+
+def score_rows(tables: Path, datasets: Path, split: str, seed: int, digest: str | None,
+               candidates: tuple[str, ...] = ()) -> tuple[str, list[dict[str, Any]]]:
+    """(trainer digest, one row per scene where both methods, and every candidate, finished at ``seed``)."""
+    chosen, runs = finished_runs(tables, ["full", "rgb-only", *candidates], digest)
     by_scene: dict[str, dict[str, tuple[Path, dict[str, Any]]]] = {}
     for run, rec in runs:
         if rec["seed"] == seed:
             by_scene.setdefault(rec["scene"], {})[rec["variant"]] = (run, rec)
     rows = []
     for scene in sorted(by_scene):
-        if set(by_scene[scene]) != {"full", "rgb-only"}:
+        if not {"full", "rgb-only", *candidates} <= set(by_scene[scene]):
             continue
         meta = json.loads((datasets / scene / "dataset.json").read_text())
         depth = (meta.get("smoke", {}).get("optical_depth") or {}).get("achieved")
@@ -62,19 +72,37 @@ def score_rows(tables: Path, datasets: Path, split: str, seed: int, digest: str 
         rgb, _ = _psnrs(*by_scene[scene]["rgb-only"], split)
         rows.append({"scene": scene, "rgb_optical_depth": depth, "input_psnr": round(full_input, 4),
                      "full_psnr": round(full, 4), "rgb_only_psnr": round(rgb, 4),
-                     "full_minus_rgb_only": round(full - rgb, 4), "full_minus_input": round(full - full_input, 4)})
+                     "full_minus_rgb_only": round(full - rgb, 4), "full_minus_input": round(full - full_input, 4),
+                     **{column(c): round(_psnrs(*by_scene[scene][c], split)[0], 4) for c in candidates}})
     return chosen, rows
 
 
-def counts(rows: list[dict[str, Any]]) -> dict[str, Any]:
-    """What the must-holds read: scenes within 0.3 dB of RGB-only or better, Full's mean lead on dense
-    scenes (optical depth >= 1), scenes where Full beats the input."""
-    lead = np.array([r["full_minus_rgb_only"] for r in rows])
+def counts(rows: list[dict[str, Any]], variant: str = "full") -> dict[str, Any]:
+    """What the must-holds read, for ``variant`` (Full, or a candidate in its place): scenes within
+    0.3 dB of RGB-only or better, its mean lead on dense scenes (optical depth >= 1), scenes where it
+    beats the input; and its paired difference from Full."""
+    score = np.array([r[column(variant)] for r in rows])
+    lead = score - np.array([r["rgb_only_psnr"] for r in rows])
+    over_full = score - np.array([r["full_psnr"] for r in rows])
     dense = np.array([r["rgb_optical_depth"] is not None and r["rgb_optical_depth"] >= DENSE for r in rows])
-    return {"scenes": len(rows), "within_0.3": int((lead >= -0.3).sum()),
+    return {"rule": variant, "scenes": len(rows), "mean_psnr": float(score.mean()),
+            "within_0.3": int((lead >= -0.3).sum()),
             "dense_scenes": int(dense.sum()), "dense_mean_lead": float(lead[dense].mean()) if dense.any() else None,
-            "beats_input": int(sum(r["full_minus_input"] > 0 for r in rows)),
-            "mean_lead": float(lead.mean()) if rows else None}
+            "beats_input": int(sum(score > np.array([r["input_psnr"] for r in rows]))),
+            "mean_lead": float(lead.mean()), "minus_full_mean": float(over_full.mean()),
+            "minus_full_std": float(over_full.std(ddof=1)) if len(rows) > 1 else 0.0,
+            "ahead_of_full": int((over_full > 0).sum())}
+
+
+def describe(c: dict[str, Any]) -> str:
+    dense = "n/a" if c["dense_mean_lead"] is None else f"{c['dense_mean_lead']:+.2f} dB"
+    line = (f"{c['rule']}: mean {c['mean_psnr']:.2f} dB; within 0.3 dB of RGB-only or better on {c['within_0.3']}; "
+            f"- RGB-only {c['mean_lead']:+.2f} dB on the mean, {dense} on the {c['dense_scenes']} scenes at optical "
+            f"depth >= {DENSE:g}; over the smoky input on {c['beats_input']}")
+    if c["rule"] != "full":
+        line += (f"; - Full {c['minus_full_mean']:+.2f} ± {c['minus_full_std']:.2f} dB, ahead on "
+                 f"{c['ahead_of_full']} of {c['scenes']}")
+    return line
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -86,24 +114,27 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--split", choices=("test", "val"), default="test")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--digest", help="the trainer version whose runs to read (a digest prefix)")
+    p.add_argument("--candidates", default="", help="comma list of rule candidates run beside Full")
+    p.add_argument("--summary", type=Path, help="also write the counts, one row per rule, to this CSV")
     args = p.parse_args(argv)
+    candidates = tuple(c for c in args.candidates.split(",") if c)
     try:
-        digest, rows = score_rows(args.tables, args.datasets, args.split, args.seed, args.digest)
+        digest, rows = score_rows(args.tables, args.datasets, args.split, args.seed, args.digest, candidates)
     except (ValueError, FileNotFoundError) as exc:
         print(f"random_set_scores: error: {exc}", file=sys.stderr)
         return 2
     if not rows:
-        print(f"random_set_scores: error: {args.tables}: no scene has both a Full and an RGB-only run at seed "
-              f"{args.seed}", file=sys.stderr)
+        print(f"random_set_scores: error: {args.tables}: no scene has finished Full and RGB-only runs"
+              f"{' and every candidate' if candidates else ''} at seed {args.seed}", file=sys.stderr)
         return 2
     args.out.parent.mkdir(parents=True, exist_ok=True)
     write_rows_csv(args.out, rows)
-    c = counts(rows)
-    dense = "n/a" if c["dense_mean_lead"] is None else f"{c['dense_mean_lead']:+.2f} dB"
-    print(f"trainer {digest[:8]}, {args.split} views, seed {args.seed}: {c['scenes']} scenes; Full within 0.3 dB of "
-          f"RGB-only or better on {c['within_0.3']}; Full - RGB-only {c['mean_lead']:+.2f} dB on the mean, {dense} on "
-          f"the {c['dense_scenes']} scenes at optical depth >= {DENSE:g}; Full over the smoky input on "
-          f"{c['beats_input']}; wrote {args.out}")
+    summary = [counts(rows, v) for v in ("full", *candidates)]
+    print(f"trainer {digest[:8]}, {args.split} views, seed {args.seed}: {len(rows)} scenes; wrote {args.out}")
+    for c in summary:
+        print("  " + describe(c))
+    if args.summary:
+        write_rows_csv(args.summary, summary)
     return 0
 
 

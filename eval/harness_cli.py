@@ -15,7 +15,7 @@ from pathlib import Path
 from eval.adopt import adopt_runs
 from eval.harness import DEFAULT_OUT, HarnessConfig, regenerate
 from eval.finished_runs import finished_runs
-from eval.runs import ABLATIONS, METHODS, VARIANTS
+from eval.runs import ABLATIONS, CANDIDATES, METHODS, VARIANTS
 from eval.settings import default_workers
 from generator.cli import parse_size
 from generator.profiles import get_profile
@@ -69,6 +69,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ablation-list", type=_list, default=None,
                    help=f"subset of {', '.join(ABLATIONS)} (default: every prior off, and the depth row that "
                         "differs from the profile's Full: w/o depth, or with depth where Full has none)")
+    p.add_argument("--candidates", type=_list, default=[],
+                   help=f"rule candidates to run beside Full, chosen on validation views: {', '.join(CANDIDATES)} "
+                        "(docs/method.md, Decisions)")
     p.add_argument("--seeds", default="3", help="count N (seeds 0..N-1) or comma list (default 3)")
     p.add_argument("--profile", choices=("quick", "standard", "paper"), default="quick",
                    help="training profile of every run (quick: minutes on a CPU; standard: the benchmark scale, about 20 min a "
@@ -147,7 +150,8 @@ def config_from_args(args: argparse.Namespace) -> HarnessConfig:
         digest = finished_runs(args.out, VARIANTS, digest)[0]
     cfg = HarnessConfig(
         out=args.out, scenes=scenes, methods=args.methods,
-        ablations=args.ablation_list if args.ablations else [], seeds=parse_seeds(args.seeds),
+        ablations=args.ablation_list if args.ablations else [], candidates=args.candidates,
+        seeds=parse_seeds(args.seeds),
         profile=args.profile, train_overrides=train, gen_overrides=gen, datasets=datasets,
         dehazer=args.dehazer, workers=args.workers, scheduler=args.scheduler,
         lpips_net=args.lpips_net, lpips_weights=args.lpips_weights, lpips_heads=args.lpips_heads,

@@ -53,6 +53,7 @@ def _settings(cfg: HarnessConfig, backend: str) -> list[tuple[str, Any]]:
         ("scenes", ", ".join(cfg.scenes)),
         ("methods", ", ".join(_variant(k, label=True) for k in cfg.methods) or "none"),
         ("ablations", ", ".join(_variant(k, label=False) for k in cfg.ablations) or "none"),
+        ("rule candidates", ", ".join(_variant(k, label=False) for k in cfg.candidates) or "none"),
         ("seeds", ", ".join(map(str, cfg.seeds))),
         ("training profile", cfg.profile),
         ("training overrides", cfg.train_overrides or "none"),

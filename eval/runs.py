@@ -20,7 +20,7 @@ class Variant:
     key: str
     label: str
     mode: str
-    table: str  # "methods" or "ablations"
+    table: str  # "methods", "ablations" or "candidates"
     paper: dict[str, float]
     dehazer: str | None = None
     note: str = ""
@@ -67,7 +67,25 @@ ABLATIONS: dict[str, Variant] = {
     )
 }
 
-VARIANTS: dict[str, Variant] = {**METHODS, **ABLATIONS}
+CANDIDATES: dict[str, Variant] = {
+    v.key: v
+    for v in (
+        Variant("start-thermal", "Full, Stage 3 from the thermal Stage 2", "full", "candidates", {},
+                note="the route's candidate with no RGB Stage 2: Stage 3 starts from the thermal Stage 2 alone, "
+                     "as the paper's does (docs/method.md, Decisions, row 13)",
+                overrides={"stage3.surface_init": "thermal"}),
+        Variant("start-clear-views", "Full, Stage 3 from both Stage 2s by clear views", "full", "candidates", {},
+                note="the route's per-Gaussian candidate: each RGB Stage-2 Gaussian keeps the share of its opacity "
+                     "that its training views see it clear of smoke, with no scene-wide trust "
+                     "(docs/method.md, Decisions, row 13)",
+                overrides={"stage3.surface_init": "by-clear-views"}),
+    )
+}
+"""Rules in question, run beside Full on a drawn set (`regenerate-tables --candidates`) and chosen
+on its validation views (`benchmarks/random_set_scores.py --split val --candidates`); a candidate
+that holds replaces the profile's rule, and leaves this list."""
+
+VARIANTS: dict[str, Variant] = {**METHODS, **ABLATIONS, **CANDIDATES}
 
 
 def variant_label(key: str) -> str:

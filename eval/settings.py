@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from eval.runs import ABLATIONS, METHODS
+from eval.runs import ABLATIONS, CANDIDATES, METHODS
 from smokeseer.config import LPIPS_NETS, PROFILES, make_config
 from smokeseer.train.plan import depth_term_on
 
@@ -38,6 +38,8 @@ class HarnessConfig:
     methods: list[str] = field(default_factory=lambda: list(METHODS))
     ablations: list[str] | None = None
     """None: ``default_ablations`` of the profile and overrides."""
+    candidates: list[str] = field(default_factory=list)
+    """Rule candidates (``eval.runs.CANDIDATES``) run beside Full."""
     seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
     profile: str = "quick"
     train_overrides: dict[str, Any] = field(default_factory=dict)
@@ -75,7 +77,10 @@ class HarnessConfig:
         for a in self.ablations:
             if a not in ABLATIONS:
                 raise ValueError(f"ablations: unknown {a!r}, choose from {', '.join(ABLATIONS)}")
-        if not self.methods and not self.ablations:
+        for c in self.candidates:
+            if c not in CANDIDATES:
+                raise ValueError(f"candidates: unknown {c!r}, choose from {', '.join(CANDIDATES)}")
+        if not self.methods and not self.ablations and not self.candidates:
             raise ValueError("methods: nothing to run (no methods and no ablations)")
         if not self.seeds or any(s < 0 for s in self.seeds) or len(set(self.seeds)) != len(self.seeds):
             raise ValueError(f"seeds: need distinct non-negative seeds, got {self.seeds}")
@@ -102,9 +107,9 @@ class HarnessConfig:
                 raise ValueError(f"datasets: {scene}={path} has no dataset.json")
 
     def variants(self) -> list[str]:
-        """Methods, plus Full once more as the reference row of the ablation table."""
-        keys = list(self.methods) + list(self.ablations)
-        if self.ablations and "full" not in keys:
+        """Methods, ablations and candidates, plus Full as their reference when it is not a method."""
+        keys = list(self.methods) + list(self.ablations) + list(self.candidates)
+        if (self.ablations or self.candidates) and "full" not in keys:
             keys.append("full")
         return keys
 

@@ -241,10 +241,11 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
     else:
         smoke_pts = (_sample(scene.rgb, cfg.stage3.smoke_points, b, numpy_stream(cfg.seed, "init.smoke"))
                      if plan.use_smoke else None)
-        by_colour = cfg.stage3.surface_init == "by-smoke-colour" and plan.use_thermal
+        joins = cfg.stage3.surface_init in ("by-smoke-colour", "by-clear-views") and plan.use_thermal
+        by_colour = joins and cfg.stage3.surface_init == "by-smoke-colour"
         rgb_views = views_of(scene.rgb, scene.rgb.indices("train"), dev)
         rgb_depth = (rendered_depth_prior(s2.gaussians, rgb_views, "rgb")
-                     if plan.smoke_colour == "haze-lines" or plan.mask_floor != "all" or by_colour else None)
+                     if plan.smoke_colour == "haze-lines" or plan.mask_floor != "all" or joins else None)
         if plan.smoke_colour == "haze-lines":
             smoke_colour = haze_line_smoke_colour(cfg, rgb_depth, scene.rgb)
             ctx.log_line(f"stage 3: smoke colour from haze lines: {smoke_colour.describe()}")
@@ -257,10 +258,13 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
             rgb_share, note = surface_start(smoke_colour, plan.use_smoke)
             plan.notes.append(note)
             ctx.log_line(f"stage 3: {note}")
+        elif joins:
+            rgb_share = 1.0
         if rgb_share > 0.0:
             t_rgb = time.perf_counter()
             rgb_init = _init_points(scene, scene.rgb, cfg.stage2.init_points, b, numpy_stream(cfg.seed, "init.points.rgb"))
-            joined = join_surfaces(ctx, scene.rgb, rgb_init, s2, rgb_depth, rgb_share)
+            joined = join_surfaces(ctx, scene.rgb, rgb_init, s2, rgb_depth, rgb_share,
+                                   by_clear_views=cfg.stage3.surface_init == "by-clear-views" and plan.use_smoke)
             wall["stage2_rgb"] = time.perf_counter() - t_rgb
             plan.notes.append(joined.describe())
             ctx.log_line(f"stage 3: {joined.describe()} (RGB Stage 2 in {wall['stage2_rgb']:.1f} s)")

@@ -377,6 +377,25 @@ def test_plan_is_printed_before_anything_runs(tmp_path: Path, caplog: pytest.Log
     assert "0 dataset(s) to generate" in line and "earlier run(s) in this folder" in line
 
 
+def test_rule_candidates_run_beside_full_and_share_its_stage2(tmp_path: Path) -> None:
+    """--candidates adds each rule candidate, with Full as its reference when Full is not a method;
+    a candidate that changes only Stage 3's start shares Full's Stage-2 key (so it takes Full's
+    finished Stage 2); an unknown one is refused."""
+    from eval.harness import plan_runs
+    from eval.shared_stage2 import stage2_sha
+
+    cfg = _cfg(tmp_path, methods=["rgb-only"], ablations=[], candidates=["start-thermal", "start-clear-views"])
+    assert cfg.variants() == ["rgb-only", "start-thermal", "start-clear-views", "full"]
+    ds = {s: harness.DatasetOutcome(s, "generated", str(tmp_path / s), "h") for s in cfg.scenes}
+    specs = {(r.scene, r.variant, r.seed): r for r in plan_runs(cfg, ds, ds)}
+    full, clear = specs[("alpha", "full", 0)], specs[("alpha", "start-clear-views", 0)]
+    assert clear.overrides["stage3.surface_init"] == "by-clear-views"
+    assert specs[("alpha", "start-thermal", 0)].overrides["stage3.surface_init"] == "thermal"
+    assert stage2_sha(clear) == stage2_sha(full) == stage2_sha(specs[("alpha", "start-thermal", 0)])
+    with pytest.raises(ValueError, match="candidates: unknown 'start-magic'"):
+        _cfg(tmp_path, candidates=["start-magic"]).validate()
+
+
 def test_results_json_names_the_commit_threads_and_machine(tmp_path: Path) -> None:
     cfg = _cfg(tmp_path, scenes=["alpha"], methods=["full"], ablations=[], seeds=[0], workers=1)
     regenerate(cfg, train_fn=identity_train, generate_fn=tiny_generate)

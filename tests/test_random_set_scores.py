@@ -48,10 +48,39 @@ def test_scenes_are_paired_and_the_must_hold_counts_are_printed(tmp_path: Path,
     assert [(r["scene"], float(r["full_minus_rgb_only"])) for r in rows] == [
         ("random_1", -0.2), ("random_2", 3.0), ("random_3", -0.5), ("random_4", 1.0)]
     line = capsys.readouterr().out
-    assert "4 scenes; Full within 0.3 dB of RGB-only or better on 3" in line
-    assert "+1.25 dB on the 2 scenes at optical depth >= 1" in line and "Full over the smoky input on 2" in line
+    assert "4 scenes" in line and "full: mean 20.75 dB; within 0.3 dB of RGB-only or better on 3" in line
+    assert "+1.25 dB on the 2 scenes at optical depth >= 1" in line and "over the smoky input on 2" in line
     assert main(["--tables", str(tables), "--datasets", str(datasets), "--out", str(out), "--split", "val"]) == 0
-    assert "Full over the smoky input on 1" in capsys.readouterr().out  # validation: input 19; Full 19, 17, 16, 23
+    assert "over the smoky input on 1" in capsys.readouterr().out  # validation: input 19; Full 19, 17, 16, 23
+
+
+def test_candidates_are_counted_in_fulls_place_and_against_full(tmp_path: Path,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    """A rule candidate gets its column and the same counts, plus its paired difference from Full; a
+    scene where a candidate has not finished has no row."""
+    tables, datasets = tmp_path / "tables", tmp_path / "sets"
+    for scene, depth, full, rgb, cand in (("random_1", 0.2, 21.0, 21.2, 21.5), ("random_2", 1.5, 19.0, 16.0, 20.0),
+                                          ("random_3", 2.5, 18.0, 18.5, 20.5)):
+        _dataset(datasets, scene, depth)
+        _run(tables, scene, "full", full, full - 2.0)
+        _run(tables, scene, "rgb-only", rgb, rgb - 2.0)
+        _run(tables, scene, "start-thermal", cand, cand - 2.0)
+    _dataset(datasets, "random_4", 0.5)
+    _run(tables, "random_4", "full", 25.0, 23.0)
+    _run(tables, "random_4", "rgb-only", 24.0, 22.0)
+    out, summary = tmp_path / "per_scene.csv", tmp_path / "summary.csv"
+    assert main(["--tables", str(tables), "--datasets", str(datasets), "--out", str(out),
+                 "--candidates", "start-thermal", "--summary", str(summary)]) == 0
+    with open(out) as f:
+        rows = list(csv.DictReader(f))
+    assert [(r["scene"], float(r["start_thermal_psnr"])) for r in rows] == [
+        ("random_1", 21.5), ("random_2", 20.0), ("random_3", 20.5)]
+    text = capsys.readouterr().out
+    assert "start-thermal: mean 20.67 dB; within 0.3 dB of RGB-only or better on 3" in text
+    assert "+3.00 dB on the 2 scenes at optical depth >= 1" in text   # (4.0 + 2.0) / 2
+    assert "- Full +1.33 ± 1.04 dB, ahead on 3 of 3" in text          # 0.5, 1.0, 2.5
+    with open(summary) as f:
+        assert [r["rule"] for r in csv.DictReader(f)] == ["full", "start-thermal"]
 
 
 def test_runs_without_validation_views_or_pairs_are_one_line(tmp_path: Path,
@@ -64,7 +93,7 @@ def test_runs_without_validation_views_or_pairs_are_one_line(tmp_path: Path,
     assert main(["--tables", str(tables), "--datasets", str(datasets), "--out", str(out), "--split", "val"]) == 2
     assert "validation: no validation views" in capsys.readouterr().err
     assert main(["--tables", str(tables), "--datasets", str(datasets), "--out", str(out), "--seed", "3"]) == 2
-    assert "no scene has both a Full and an RGB-only run at seed 3" in capsys.readouterr().err
+    assert "no scene has finished Full and RGB-only runs at seed 3" in capsys.readouterr().err
     assert not out.exists()
 
 

@@ -8,7 +8,8 @@ import torch
 from smokeseer.model.gaussians import GaussianSet
 from smokeseer.model.scene import add_rgb_sh
 from smokeseer.stage1.haze_lines import SmokeColourEstimate
-from smokeseer.train.surface_union import carve_in_front, fade, in_holes, surface_start, union_surface
+from smokeseer.train.surface_union import (SHARE_FLOOR, carve_in_front, clear_share, fade, in_holes, surface_start,
+                                           union_surface)
 
 W, H, F = 40, 30, 20.0
 
@@ -141,3 +142,40 @@ def test_fade_scales_every_opacity_and_nothing_else() -> None:
         torch.testing.assert_close(opacity, share * torch.sigmoid(logits), rtol=1e-5, atol=1e-7)
         torch.testing.assert_close(faded["means"], g["means"], rtol=0, atol=0)
     assert fade(g, 1.0) is g
+
+
+def test_fade_per_gaussian_scales_each_opacity_by_its_own_share() -> None:
+    """One share per Gaussian, as by-clear-views gives: each opacity scaled by its own, a share of 0
+    held at the floor with a finite logit, a share of 1 leaving that opacity exactly."""
+    logits = torch.tensor([-2.0, 0.0, 3.0, 30.0, 1.0])
+    g = GaussianSet({"means": torch.zeros(5, 3), "quats": torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(5, 1),
+                     "log_scales": torch.zeros(5, 3), "opacity": logits})
+    shares = np.array([0.5, 0.1, 1.0, 0.0, 0.9])
+    faded = fade(g, shares)
+    assert torch.isfinite(faded["opacity"]).all()
+    expected = torch.as_tensor(np.maximum(shares, SHARE_FLOOR), dtype=torch.float32) * torch.sigmoid(logits)
+    torch.testing.assert_close(torch.sigmoid(faded["opacity"]), expected, rtol=1e-5, atol=1e-7)
+    assert fade(g, np.ones(5)) is g
+
+
+def test_clear_share_is_the_mean_unmasked_share_of_the_views_that_see_a_point() -> None:
+    """Three views of a wall at depth 2: a point on the wall under a mask in two of them keeps 1/3;
+    a soft mask of 0.25 counts 0.75; a point hidden behind the wall, or one no view sees, keeps 1
+    (nothing says smoke lies over it); one in front of the wall is seen, and so is one where the
+    surface leaves a hole (nothing hides it)."""
+    cameras = _cameras([0.0, 0.0, 0.0])
+    maps, valid = _wall(3, 2.0)
+    valid[2, :, 4] = False                  # a hole in view 2's surface at column 4
+    masks = np.zeros((3, H, W))
+    masks[:2, :, : W // 2 + 1] = 1.0        # the left half and the centre column, in views 0 and 1
+    masks[:, :, W // 2 + 5:] = 0.25         # a soft mask on the far right in every view
+    means = np.array([[0.0, 0.0, 2.0],      # centre column, on the wall
+                      [0.4, 0.0, 2.0],      # column 24 (no mask)
+                      [0.9, 0.0, 2.0],      # column 29: soft mask
+                      [0.0, 0.0, 3.0],      # behind the wall: no view sees it
+                      [50.0, 0.0, 2.0],     # outside every view
+                      [0.0, 0.0, 1.0],      # in front of the wall: seen, masked in two views
+                      [-1.6, 0.0, 2.0],     # column 4, on the wall: masked in views 0 and 1, ...
+                      [-2.4, 0.0, 3.0]])    # ... behind it at column 4: seen only through view 2's hole
+    share = clear_share(means, masks, maps, valid, *cameras, 0.05)
+    np.testing.assert_allclose(share, [1 / 3, 1.0, 0.75, 1.0, 1.0, 1 / 3, 1 / 3, 1.0])

@@ -173,6 +173,22 @@ def test_two_surface_run_joins_both_stage2s_and_resumes(splat: Path, tmp_path: P
     assert json.loads((run / "metrics.json").read_text())["metrics"] == doc["metrics"]
 
 
+def test_by_clear_views_fades_each_rgb_gaussian_by_its_own_clear_views(splat: Path, tmp_path: Path) -> None:
+    """stage3.surface_init=by-clear-views needs no haze-line colour: the RGB Stage 2 joins the
+    thermal one with one opacity share per Gaussian (which share: tests/test_surface_union.py).
+    This tiny scene's smoke covers part of every view, so the shares spread below 1, and the
+    record and the note say they are per Gaussian."""
+    run = tmp_path / "run"
+    assert main([str(splat), "--out", str(run)] + TINY + ["--set", "stage3.surface_init=by-clear-views"]) == 0
+    union = _assert_complete(run)["stages"]["surface_union"]
+    assert union["rgb_opacity_share_by"] == "clear views"
+    low, mid, high = union["rgb_opacity_share_quartiles"]
+    assert 0.0 <= low < mid < high <= 1.0
+    assert 0.0 < union["rgb_opacity_share"] < 1.0 and 0 < union["rgb_kept"] <= union["rgb"]
+    assert any("one share per Gaussian, by its clear views" in n
+               for n in json.loads((run / "metrics.json").read_text())["stages"]["notes"])
+
+
 def test_by_smoke_colour_keeps_the_rgb_stage2_by_one_minus_the_surface_trust(
         splat: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """stage3.surface_init=by-smoke-colour: this tiny scene's haze lines give no estimate, so Stage 3

@@ -26,7 +26,7 @@ MODES: tuple[str, ...] = (
 )
 PROFILES: tuple[str, ...] = ("quick", "standard", "paper")
 SMOKE_COLOR_SOURCES: tuple[str, ...] = ("learned", "haze-lines")
-SURFACE_INITS: tuple[str, ...] = ("thermal", "by-smoke-colour")
+SURFACE_INITS: tuple[str, ...] = ("thermal", "by-smoke-colour", "by-clear-views")
 POSE_SOURCES: tuple[str, ...] = ("given", "sfm")
 MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "estimated-meeting")
 DEFORM_KINDS: tuple[str, ...] = ("mlp", "fourier", "planes")
@@ -278,7 +278,10 @@ class Stage3Config:
     scaled by 1 − t, carved where it lies in front of the thermal surface and joined by the
     thermal Gaussians in its holes (``smokeseer.train.surface_union``), so that where the RGB sees
     the surface through thin or scattering smoke Stage 3 starts as RGB-only does. Needs
-    smoke_color=haze-lines."""
+    smoke_color=haze-lines. "by-clear-views": the same joined surface with no scene-wide trust;
+    each RGB Gaussian keeps the share of its opacity that its training views see it clear of smoke
+    (Stage 1's masks), so one scene can start from the RGB where the smoke only crosses and from
+    the thermal Stage 2 where it always lies."""
     surface_full_brightness: float = 0.4
     """With surface_init=by-smoke-colour: the trust t of the start takes the colour's meeting and
     line factors, but its darkness factor reaches 1 here, at a brighter colour than the colour's

@@ -15,10 +15,14 @@ before the carving, and under dense absorbing smoke (t = 1) the thermal Stage 2 
 Scaling the whole set, not the Gaussians where the smoke reads dense, was chosen on the
 validation views: the local fade lost 3.6 dB on machine
 (docs/experiments/2026-12-02-haze-line-trust.md).
+
+``stage3.surface_init=by-clear-views`` needs no scene-wide trust: each RGB Gaussian keeps the
+share of its opacity that its training views see it clear of smoke (``clear_share``: the mean of
+1 − mask over the views that see its centre), so a surface always under dense smoke goes to the
+thermal Gaussians and one the smoke only crosses stays at the RGB's resolution, both in one scene.
 """
 from __future__ import annotations
 
-import math
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from typing import Any
@@ -38,6 +42,9 @@ from smokeseer.train.stage2 import Stage2Result, train_stage2, views_of
 from smokeseer.train.util import RunContext
 
 
+SHARE_FLOOR = 1e-3
+"""The least opacity share a faded Gaussian keeps, so that its logit stays finite; at under 0.005
+opacity it is pruned at the first densification step anyway."""
 FILL_OPAQUE_SHARE = 0.5
 """A thermal Gaussian is left out when the carved RGB surface is opaque (alpha > 0.5) where its
 centre lands in more than this share of the RGB training views that see it."""
@@ -60,16 +67,19 @@ def surface_start(colour: SmokeColourEstimate | None, smoke: bool) -> tuple[floa
                          "RGB sees the surface through the smoke that far")
 
 
-def fade(g: GaussianSet, share: float) -> GaussianSet:
-    """``g`` with every opacity scaled by ``share`` in (0, 1] (a copy; at 1 the same tensors)."""
-    if share == 1.0:
+def fade(g: GaussianSet, share: float | np.ndarray) -> GaussianSet:
+    """``g`` with its opacities scaled by ``share`` in (0, 1], one for all or one per Gaussian
+    (held to at least ``SHARE_FLOOR``); a copy, or the same tensors when every share is 1."""
+    if np.all(np.asarray(share) == 1.0):
         return g
     tensors = {k: v.detach().clone() for k, v in g.state_dict().items()}
     o = tensors["opacity"].double()
+    s = torch.as_tensor(np.clip(share, SHARE_FLOOR, 1.0), dtype=torch.float64, device=o.device)
+    s = s.reshape(-1, *([1] * (o.dim() - 1))) if s.dim() else s
     log_on = torch.nn.functional.logsigmoid(o)
     # logit(s σ(o)) = log s + log σ(o) − log(σ(−o) + (1 − s) σ(o)): finite for opaque o
-    off = torch.logaddexp(torch.nn.functional.logsigmoid(-o), math.log1p(-share) + log_on)
-    tensors["opacity"] = (math.log(share) + log_on - off).to(tensors["opacity"].dtype)
+    off = torch.logaddexp(torch.nn.functional.logsigmoid(-o), torch.log1p(-s) + log_on)
+    tensors["opacity"] = (torch.log(s) + log_on - off).to(tensors["opacity"].dtype)
     return GaussianSet(tensors)
 
 
@@ -106,6 +116,21 @@ def carve_in_front(means: np.ndarray, depths: np.ndarray, valid: np.ndarray, vie
         seen[idx[checked]] += 1
         in_front[idx[checked][z[checked] < (1.0 - tolerance) * depths[f, iv[checked], iu[checked]]]] += 1
     return CarveResult(~(2 * in_front > seen), seen, in_front)
+
+
+def clear_share(means: np.ndarray, masks: np.ndarray, depths: np.ndarray, valid: np.ndarray,
+                viewmats: np.ndarray, Ks: np.ndarray, tolerance: float) -> np.ndarray:
+    """Per point, the mean of 1 − ``masks`` (Stage 1's smoke masks at the training cameras
+    ``viewmats``, ``Ks``) over the views that see its centre: it lands on a valid pixel of the
+    surface rendered at that camera (``depths``/``valid``) and not behind it by more than
+    ``tolerance`` of its depth. Points no view sees get 1: nothing says smoke hides them."""
+    seen = np.zeros(len(means))
+    clear = np.zeros(len(means))
+    for f, idx, iu, iv, z in _landings(means, viewmats, Ks, depths.shape):
+        sees = ~valid[f, iv, iu] | (z <= (1.0 + tolerance) * depths[f, iv, iu])
+        seen[idx[sees]] += 1.0
+        clear[idx[sees]] += 1.0 - np.clip(masks[f, iv[sees], iu[sees]], 0.0, 1.0)
+    return np.where(seen > 0, clear / np.maximum(seen, 1.0), 1.0)
 
 
 def in_holes(means: np.ndarray, opaque: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray,
@@ -157,22 +182,29 @@ class TwoSurfaces:
         r = self.record
         return (f"surface from both Stage 2s: the {r['thermal_kept']} of {r['thermal']} thermal Gaussians in the RGB "
                 f"surface's holes + {r['rgb_kept']} of {r['rgb']} RGB Gaussians at {r['rgb_opacity_share']:.3g} × "
-                f"their opacities ({r['rgb'] - r['rgb_kept']} in front of the thermal surface carved, tolerance "
+                f"their opacities ({'mean of one share per Gaussian, by its clear views' if r['rgb_opacity_share_by'] == 'clear views' else 'one share for the scene'}) ({r['rgb'] - r['rgb_kept']} in front of the thermal surface carved, tolerance "
                 f"{r['tolerance']:g}; {r['rgb_unchecked']} no view could check kept)")
 
 
 def join_surfaces(ctx: RunContext, rgb: ModalityData, init_points: np.ndarray, thermal: Stage2Result,
-                  thermal_depth: DepthPriorMaps, rgb_share: float) -> TwoSurfaces:
+                  thermal_depth: DepthPriorMaps, rgb_share: float, by_clear_views: bool = False) -> TwoSurfaces:
     """Train RGB-only's Stage 2 (checkpoint ``stage2_rgb``, keyed as RGB-only's Stage 2 is), scale
-    its opacities by ``rgb_share`` (``surface_start``), carve it with the thermal surface's depth at
+    its opacities by ``rgb_share`` (``surface_start``), and with ``by_clear_views`` each one's by its
+    ``clear_share`` too, carve it with the thermal surface's depth at
     the RGB training cameras (``thermal_depth``), and join it with the thermal Gaussians in the
     carved surface's holes."""
     cfg = ctx.cfg
     rgb_s2 = train_stage2(ctx, rgb, init_points, deformable=False, checkpoint="stage2_rgb",
                           sha=replace(cfg, mode="rgb-only").stage2_sha256())
-    rgb_set = fade(rgb_s2.gaussians, rgb_share)
+    depths, valid = thermal_depth.maps.cpu().numpy(), thermal_depth.valid.cpu().numpy()
+    share: float | np.ndarray = rgb_share
+    if by_clear_views and rgb.masks is not None:
+        share = rgb_share * clear_share(rgb_s2.gaussians["means"].detach().cpu().numpy().astype(np.float64),
+                                        rgb.masks[rgb.indices("train")], depths, valid, *rgb.cameras("train"),
+                                        cfg.stage3.carve_tolerance)
+    rgb_set = fade(rgb_s2.gaussians, share)
     carve = carve_in_front(rgb_set["means"].detach().cpu().numpy().astype(np.float64),
-                           thermal_depth.maps.cpu().numpy(), thermal_depth.valid.cpu().numpy(), *rgb.cameras("train"),
+                           depths, valid, *rgb.cameras("train"),
                            cfg.stage3.carve_tolerance)
     dev = rgb_set["means"].device
     keep = torch.as_tensor(carve.keep, device=dev)
@@ -182,7 +214,12 @@ def join_surfaces(ctx: RunContext, rgb: ModalityData, init_points: np.ndarray, t
                      *rgb.cameras("train"), FILL_OPAQUE_SHARE)
     thermal_keep = torch.as_tensor(holes, device=dev)
     surface = union_surface(thermal.gaussians, rgb_set, keep, thermal_keep, cfg.sh_degree)
-    record = {"thermal": thermal.gaussians.n, "rgb": rgb_s2.gaussians.n, "rgb_opacity_share": rgb_share,
+    shares = np.broadcast_to(np.asarray(share, dtype=np.float64), (rgb_s2.gaussians.n,))
+    record = {"thermal": thermal.gaussians.n, "rgb": rgb_s2.gaussians.n,
+              "rgb_opacity_share": float(shares.mean()) if len(shares) else rgb_share,
+              "rgb_opacity_share_by": "clear views" if by_clear_views else "scene",
+              "rgb_opacity_share_quartiles": np.quantile(shares, [0.25, 0.5, 0.75]).round(4).tolist()
+              if len(shares) else [],
               "rgb_kept": int(carve.keep.sum()),
               "rgb_unchecked": int((carve.seen == 0).sum()), "tolerance": cfg.stage3.carve_tolerance,
               "thermal_kept": int(holes.sum()), "fill_opaque_share": FILL_OPAQUE_SHARE}
