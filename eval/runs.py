@@ -79,6 +79,12 @@ CANDIDATES: dict[str, Variant] = {
                      "that its training views see it clear of smoke, with no scene-wide trust "
                      "(docs/method.md, Decisions, row 13)",
                 overrides={"stage3.surface_init": "by-clear-views"}),
+        Variant("densify-by-gradient", "Full, a full cap grows the largest gradients", "full", "candidates", {},
+                note="every densification (Stage 2, the smoke, the surface refinement) takes the candidates with the "
+                     "largest mean gradient when they outnumber the room under its cap, in place of clones first in "
+                     "index order (docs/method.md, Decisions, row 7); it changes Stage 2, so it trains its own",
+                overrides={"stage2.densify.under_cap": "gradient", "stage3.smoke_densify.under_cap": "gradient",
+                           "stage3.surface_densify.under_cap": "gradient"}),
     )
 }
 """Rules in question, run beside Full on a drawn set (`regenerate-tables --candidates`) and chosen

@@ -63,6 +63,29 @@ def test_clone_split_prune_follow_3dgs_rules() -> None:
     assert (m == 0).sum() >= 3
 
 
+def test_a_full_cap_grows_the_largest_gradients_with_under_cap_gradient() -> None:
+    """Six hot Gaussians (rows 0-2 small, 3-5 large) and room for three under the cap. "index"
+    (3DGS) clones rows 0-2 and splits none; "gradient" takes the three largest mean gradients,
+    rows 5, 1 and 4: one clone and two splits. Below the cap both grow every candidate."""
+    grads = torch.tensor([[1.0, 0.0], [3.0, 0.0], [2.0, 0.0], [1.5, 0.0], [4.0, 0.0], [5.0, 0.0]])
+    for under_cap, cap, expect, grown in (("index", 9, {"cloned": 3, "split": 0}, [0, 1, 2]),
+                                          ("gradient", 9, {"cloned": 1, "split": 2}, [1, 4, 5]),
+                                          ("gradient", 100, {"cloned": 3, "split": 3}, [0, 1, 2, 3, 4, 5])):
+        cfg = DensifyConfig(start=0.01, stop=1.0, every=1, grad_threshold=1e-3, opacity_reset_every=0.0,
+                            max_gaussians=cap, under_cap=under_cap)
+        g = _set(6, scale=0.001)
+        g.params["log_scales"].data[3:] = math.log(0.5)
+        opt = _with_adam_state(g)
+        strat = DensifyStrategy(cfg, 100, ("opacity",), scene_extent=1.0)
+        strat.accumulate(grads, torch.full((6,), 3), width=2, height=2)
+        rep = strat.step(1, g, opt, torch.Generator().manual_seed(0))
+        assert {k: rep[k] for k in ("cloned", "split")} == expect
+        colours = [round(c) for c in g["color"].detach().squeeze(-1).tolist()]  # row numbers (one Adam step moved them)
+        assert sorted(c for c in set(colours) if colours.count(c) == 2) == grown  # each grown row now twice
+    with pytest.raises(ValueError, match="stage2.densify.under_cap: 'random' is not one of index, gradient"):
+        make_config("full", "quick", overrides={"stage2.densify.under_cap": "random"})
+
+
 def test_gradient_threshold_uses_ndc_units() -> None:
     """A pixel gradient g on a W-wide image is g·W/2 in NDC: below/above threshold flips."""
     cfg = DensifyConfig(start=0.1, stop=1.0, every=1, grad_threshold=2e-4, opacity_reset_every=0.0)

@@ -26,6 +26,7 @@ MODES: tuple[str, ...] = (
 )
 PROFILES: tuple[str, ...] = ("quick", "standard", "paper")
 SMOKE_COLOR_SOURCES: tuple[str, ...] = ("learned", "haze-lines")
+DENSIFY_UNDER_CAP: tuple[str, ...] = ("index", "gradient")
 SURFACE_INITS: tuple[str, ...] = ("thermal", "by-smoke-colour", "by-clear-views")
 POSE_SOURCES: tuple[str, ...] = ("given", "sfm")
 MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "estimated-meeting")
@@ -187,6 +188,11 @@ class DensifyConfig:
     prune_opacity: float = 0.005
     screen_size_threshold: float = 20.0
     max_gaussians: int = 1_000_000
+    under_cap: str = "index"
+    """Which candidates grow when they outnumber the room under ``max_gaussians``. "index" (3DGS):
+    clones before splits, each in index order, so a full cap keeps growing the first Gaussians and
+    never splits a large one. "gradient": the candidates with the largest mean gradient, clones and
+    splits alike."""
 
     def window(self, iterations: int) -> DensifyWindow:
         return DensifyWindow(at_iteration(self.start, iterations), at_iteration(self.stop, iterations), self.every,
@@ -478,6 +484,8 @@ class TrainConfig:
             if densify.every < 0 or densify.max_gaussians < 1 or not densify.grad_threshold >= 0:
                 raise ValueError(f"{name}: every must be >= 0, max_gaussians at least 1 and grad_threshold >= 0 "
                                  f"(got {densify.every}, {densify.max_gaussians}, {densify.grad_threshold})")
+            if densify.under_cap not in DENSIFY_UNDER_CAP:
+                raise ValueError(f"{name}.under_cap: {densify.under_cap!r} is not one of {', '.join(DENSIFY_UNDER_CAP)}")
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

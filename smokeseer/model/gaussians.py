@@ -201,11 +201,14 @@ class DensifyStrategy:
         max_scale = gset["log_scales"].detach().exp().max(-1).values
         hot = grads >= c.grad_threshold
         room = max(c.max_gaussians - gset.n, 0)
-        small = hot & (max_scale <= c.percent_dense * self.extent)
-        large = hot & ~small
-        clone_idx = torch.nonzero(small).squeeze(-1)[:room]
+        small = max_scale <= c.percent_dense * self.extent
+        if c.under_cap == "gradient" and int(hot.sum()) > room:
+            # the largest mean gradients first; a stable sort keeps index order among equals
+            ranked = torch.sort(torch.where(hot, grads, torch.full_like(grads, -1.0)), descending=True, stable=True)[1]
+            hot = torch.zeros_like(hot).index_fill_(0, ranked[:room], True)
+        clone_idx = torch.nonzero(hot & small).squeeze(-1)[:room]
         room -= clone_idx.numel()
-        split_idx = torch.nonzero(large).squeeze(-1)[: room]
+        split_idx = torch.nonzero(hot & ~small).squeeze(-1)[: room]
         n_split = split_idx.numel()
         if clone_idx.numel() or n_split:
             new_pos = self._split_positions(gset, split_idx, generator)
