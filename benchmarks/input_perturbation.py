@@ -1,0 +1,166 @@
+"""How far a result moves when the smoky RGB frames move by one 8-bit level: a rule that holds
+should not flip on noise a camera adds anyway (rules issue: ≤ 0.2 dB of test PSNR on machine,
+room and food_plate).
+
+    python -m benchmarks.input_perturbation --out data/input_perturbation [--scenes machine,room,food_plate]
+        [--datasets data/standard] [--levels 1] [--noise-seed 1] [--profile standard] [--seed 0] [--workers 2]
+        [--csv benchmarks/results/input_perturbation/per_scene.csv] [--compare-only]
+
+For each scene a copy of its dataset is written under OUT/datasets/SCENE-noisyLEVELS, identical
+but for the smoky RGB frames: each 8-bit value moves up or down by ``--levels`` (the sign drawn per
+value from ``--noise-seed``, clipped at 0 and 255), and `perturbation.json` beside dataset.json says
+so. Then one `regenerate-tables` call trains Full at one seed on the originals and the copies
+(OUT/tables, resumable; the run key holds each dataset's hash, so the two never share a run), and
+the CSV has one row per scene: ``scene, original_psnr, perturbed_psnr``, the difference, and both
+validation PSNRs.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from contracts.atomic import write_json, write_rows_csv
+from contracts.imageio import read_png, write_png
+from eval.finished_runs import finished_runs
+
+ROOT = Path(__file__).resolve().parents[1]
+SMOKY = Path("rgb") / "smoky"
+LIMIT_DB = 0.2
+"""The rules issue's bound on the move of the test PSNR."""
+
+
+def noisy_name(scene: str, levels: int) -> str:
+    return f"{scene}-noisy{levels}"
+
+
+def perturb_dataset(src: Path, dst: Path, levels: int, noise_seed: int) -> dict[str, Any]:
+    """Write ``dst``: ``src`` with every smoky RGB value moved by ±``levels`` (clipped). Staged beside
+    ``dst`` and renamed into place, so a stopped copy is never read as a dataset; a finished copy of
+    the same source and noise is kept."""
+    record = {"source": str(src), "pass": "rgb.smoky", "levels": levels, "noise_seed": noise_seed,
+              "noise": "each 8-bit value of each smoky RGB frame moved by +levels or -levels, the sign drawn "
+                       "uniformly per value, clipped to 0..255"}
+    done = dst / "perturbation.json"
+    if done.is_file():
+        kept = json.loads(done.read_text())
+        if {k: kept.get(k) for k in record} == record:
+            return kept
+        raise ValueError(f"{dst}: holds another perturbation ({done}); remove it or choose another --out")
+    staging = dst.parent / f".{dst.name}.partial"
+    shutil.rmtree(staging, ignore_errors=True)
+    shutil.copytree(src, staging)
+    rng = np.random.default_rng(noise_seed)
+    frames = sorted((staging / SMOKY).glob("*.png"))
+    if not frames:
+        raise ValueError(f"{src / SMOKY}: no smoky RGB frames")
+    moved, clipped = 0.0, 0
+    for path in frames:  # sorted, so the draws follow the frame order
+        image = read_png(path).astype(np.int16)
+        step = np.where(rng.random(image.shape) < 0.5, -levels, levels).astype(np.int16)
+        noisy = np.clip(image + step, 0, 255)
+        clipped += int(((image + step) != noisy).sum())
+        moved += float(np.abs(noisy - image).mean())
+        write_png(path, noisy.astype(np.uint8))
+    record.update(frames=len(frames), mean_abs_change_levels=round(moved / len(frames), 4), clipped_values=clipped)
+    write_json(staging / "perturbation.json", record)
+    staging.rename(dst)
+    return record
+
+
+def tables_command(pairs: dict[str, Path], profile: str, seed: int, workers: int, out: Path) -> list[str]:
+    """The `regenerate-tables` call that trains Full on every dataset of ``pairs`` at ``seed``."""
+    cmd = [sys.executable, "-m", "eval.harness_cli", "--profile", profile, "--workers", str(workers),
+           "--scenes", ",".join(pairs), "--methods", "full", "--seeds", f"{seed},", "--no-ablations",
+           "--out", str(out)]
+    for name, path in pairs.items():
+        cmd += ["--dataset", f"{name}={path}"]
+    return cmd
+
+
+def _validation_psnr(run: Path) -> float | None:
+    value = (json.loads((run / "metrics.json").read_text()).get("validation") or {}).get("psnr")
+    return None if value is None else float(value)
+
+
+def compare(tables: Path, scenes: list[str], levels: int, seed: int) -> list[dict[str, Any]]:
+    """One row per scene whose original and perturbed runs both finished (one trainer version)."""
+    _, runs = finished_runs(tables, ["full"])
+    by_name = {rec["scene"]: (run, rec) for run, rec in runs if rec["seed"] == seed}
+    rows = []
+    for scene in scenes:
+        if scene not in by_name or noisy_name(scene, levels) not in by_name:
+            continue
+        (o_run, o_rec), (p_run, p_rec) = by_name[scene], by_name[noisy_name(scene, levels)]
+        o, p = float(o_rec["metrics"]["psnr"]), float(p_rec["metrics"]["psnr"])
+        rows.append({"scene": scene, "original_psnr": round(o, 4), "perturbed_psnr": round(p, 4),
+                     "perturbed_minus_original": round(p - o, 4), "original_val_psnr": _validation_psnr(o_run),
+                     "perturbed_val_psnr": _validation_psnr(p_run), "levels": levels})
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m benchmarks.input_perturbation", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--out", type=Path, required=True, help="OUT/datasets holds the copies, OUT/tables the runs")
+    p.add_argument("--scenes", default="machine,room,food_plate")
+    p.add_argument("--datasets", type=Path, default=Path("data/standard"))
+    p.add_argument("--levels", type=int, default=1, help="8-bit levels each smoky value moves by")
+    p.add_argument("--noise-seed", type=int, default=1)
+    p.add_argument("--profile", default="standard")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--csv", type=Path, default=Path("benchmarks/results/input_perturbation/per_scene.csv"))
+    p.add_argument("--compare-only", action="store_true", help="train nothing; compare what has finished")
+    args = p.parse_args(argv)
+    scenes = [s for s in args.scenes.split(",") if s]
+    missing = [s for s in scenes if not (args.datasets / s / "dataset.json").is_file()]
+    if missing:
+        print(f"input_perturbation: error: {args.datasets}: no dataset for {', '.join(missing)}", file=sys.stderr)
+        return 2
+    if not 1 <= args.levels <= 64:
+        print(f"input_perturbation: error: --levels: 1 to 64 8-bit levels, got {args.levels}", file=sys.stderr)
+        return 2
+    tables = args.out / "tables"
+    if not args.compare_only:
+        pairs: dict[str, Path] = {}
+        for s in scenes:
+            copy = args.out / "datasets" / noisy_name(s, args.levels)
+            try:
+                rec = perturb_dataset(args.datasets / s, copy, args.levels, args.noise_seed)
+            except ValueError as exc:
+                print(f"input_perturbation: error: {exc}", file=sys.stderr)
+                return 2
+            print(f"{s}: {rec['frames']} smoky frames moved by ±{args.levels} (mean |change| "
+                  f"{rec['mean_abs_change_levels']} levels, {rec['clipped_values']} values clipped) in {copy}")
+            pairs[s], pairs[noisy_name(s, args.levels)] = args.datasets / s, copy
+        done = subprocess.run(tables_command(pairs, args.profile, args.seed, args.workers, tables), cwd=ROOT)
+        if done.returncode not in (0, 1):  # 1: tables written, some runs failed
+            return done.returncode
+    try:
+        rows = compare(tables, scenes, args.levels, args.seed)
+    except ValueError as exc:  # no finished run at all
+        print(f"input_perturbation: error: {exc}", file=sys.stderr)
+        return 2
+    if not rows:
+        print(f"input_perturbation: error: {tables}: no scene of {', '.join(scenes)} has both runs finished",
+              file=sys.stderr)
+        return 2
+    args.csv.parent.mkdir(parents=True, exist_ok=True)
+    write_rows_csv(args.csv, rows)
+    for r in rows:
+        print(f"{r['scene']:<11} original {r['original_psnr']:6.2f}  perturbed {r['perturbed_psnr']:6.2f}  "
+              f"difference {r['perturbed_minus_original']:+.3f} dB")
+    worst = max(abs(r["perturbed_minus_original"]) for r in rows)
+    print(f"largest move {worst:.3f} dB (limit {LIMIT_DB} dB) over {len(rows)} of {len(scenes)} scenes; wrote {args.csv}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
