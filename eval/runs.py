@@ -85,9 +85,13 @@ CANDIDATES: dict[str, Variant] = {
                      "index order (docs/method.md, Decisions, row 7); it changes Stage 2, so it trains its own",
                 overrides={"stage2.densify.under_cap": "gradient", "stage3.smoke_densify.under_cap": "gradient",
                            "stage3.surface_densify.under_cap": "gradient"}),
+        Variant("motion-planes", "Full, the smoke moved by the plane field", "full", "candidates", {},
+                note="the smoke's motion by the factorised space-time plane field in place of the deformation "
+                     "network (deform.kind=planes, docs/method.md, Plane field); Stage 3 only",
+                overrides={"deform.kind": "planes"}),
     )
 }
-"""Rules in question, run beside Full on a drawn set (`regenerate-tables --candidates`) and chosen
+"""Rules and settings in question, run beside Full on a drawn set (`regenerate-tables --candidates`) and chosen
 on its validation views (`benchmarks/random_set_scores.py --split val --candidates`); a candidate
 that holds replaces the profile's rule, and leaves this list."""
 

@@ -392,6 +392,10 @@ def test_rule_candidates_run_beside_full_and_share_its_stage2(tmp_path: Path) ->
     assert clear.overrides["stage3.surface_init"] == "by-clear-views"
     assert specs[("alpha", "start-thermal", 0)].overrides["stage3.surface_init"] == "thermal"
     assert stage2_sha(clear) == stage2_sha(full) == stage2_sha(specs[("alpha", "start-thermal", 0)])
+    planes = _cfg(tmp_path, methods=["full"], ablations=[], candidates=["motion-planes", "densify-by-gradient"])
+    specs = {(r.variant, r.seed): r for r in plan_runs(planes, ds, ds) if r.scene == "alpha"}
+    assert stage2_sha(specs[("motion-planes", 0)]) == stage2_sha(specs[("full", 0)])  # the motion is Stage 3's
+    assert stage2_sha(specs[("densify-by-gradient", 0)]) != stage2_sha(specs[("full", 0)])
     with pytest.raises(ValueError, match="candidates: unknown 'start-magic'"):
         _cfg(tmp_path, candidates=["start-magic"]).validate()
 
