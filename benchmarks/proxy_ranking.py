@@ -5,7 +5,7 @@ does on the ten standard scenes (rules issue, item 4).
 
     python benchmarks/proxy_ranking.py --standard data/tables_rules_standard --proxy data/tables_rules_proxy \
         --variants full,start-thermal,start-clear-views [--split val] [--seed 0] \
-        [--out benchmarks/results/rules/proxy_ranking.csv]
+        [--digest PREFIX] [--out benchmarks/results/rules/proxy_ranking.csv]
 
 Both folders are `regenerate-tables` outputs over the same scenes with the same variants (methods
 and `--candidates`), one at each profile. For every scene where every variant finished at both,
@@ -36,9 +36,11 @@ from contracts.atomic import write_rows_csv  # noqa: E402
 from eval.finished_runs import finished_runs  # noqa: E402
 
 
-def scores(tables: Path, variants: list[str], split: str, seed: int) -> tuple[str, dict[str, dict[str, float]]]:
-    """(trainer digest, {scene: {variant: PSNR on ``split`` views}}) of the finished runs at ``seed``."""
-    digest, runs = finished_runs(tables, variants)
+def scores(tables: Path, variants: list[str], split: str, seed: int,
+           digest: str | None = None) -> tuple[str, dict[str, dict[str, float]]]:
+    """(trainer digest, {scene: {variant: PSNR on ``split`` views}}) of the finished runs at ``seed`` of
+    one trainer (``digest``, a prefix; else the one with the most runs)."""
+    digest, runs = finished_runs(tables, variants, digest)
     out: dict[str, dict[str, float]] = {}
     for run, rec in runs:
         if rec["seed"] != seed:
@@ -91,6 +93,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--variants", required=True, help="comma list, the reference (Full) first")
     p.add_argument("--split", choices=("val", "test"), default="val")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--digest", help="the trainer version to read on both sides (a prefix; a tables folder that "
+                                    "keeps an earlier trainer's runs needs it)")
     p.add_argument("--out", type=Path, default=Path("benchmarks/results/rules/proxy_ranking.csv"))
     args = p.parse_args(argv)
     variants = [v for v in args.variants.split(",") if v]
@@ -98,8 +102,8 @@ def main(argv: list[str] | None = None) -> int:
         print("proxy_ranking: error: --variants: the reference and at least one candidate", file=sys.stderr)
         return 2
     try:
-        s_digest, standard = scores(args.standard, variants, args.split, args.seed)
-        p_digest, proxy = scores(args.proxy, variants, args.split, args.seed)
+        s_digest, standard = scores(args.standard, variants, args.split, args.seed, args.digest)
+        p_digest, proxy = scores(args.proxy, variants, args.split, args.seed, args.digest)
         rows, summary = compare(standard, proxy, variants)
     except (ValueError, FileNotFoundError) as exc:
         print(f"proxy_ranking: error: {exc}", file=sys.stderr)
