@@ -16,13 +16,13 @@ AVX2 machine has nothing to compare) or trained different trainer versions.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import subprocess
 import sys
 from pathlib import Path
 from typing import Any
 
+from benchmarks import full_seed_runs
 from contracts.atomic import write_rows_csv
 from contracts.float_setup import HELD_TO, ISA_VARIABLES
 from eval.finished_runs import finished_runs
@@ -40,24 +40,13 @@ def setup_environment(setup: str, base: dict[str, str] | None = None) -> dict[st
 def tables_command(scenes: list[str], datasets: Path, profile: str, seed: int, workers: int,
                    out: Path) -> list[str]:
     """The ``regenerate-tables`` call that trains Full on ``scenes`` at ``seed`` into ``out``."""
-    cmd = [sys.executable, "-m", "eval.harness_cli", "--profile", profile, "--workers", str(workers),
-           "--scenes", ",".join(scenes), "--methods", "full", "--seeds", f"{seed},", "--no-ablations",
-           "--out", str(out)]
-    for s in scenes:
-        cmd += ["--dataset", f"{s}={datasets / s}"]
-    return cmd
+    return full_seed_runs.tables_command({s: datasets / s for s in scenes}, profile, seed, workers, out)
 
 
 def side(tables: Path, seed: int, scenes: list[str]) -> tuple[str, dict[str, tuple[Path, dict[str, Any]]]]:
     """(trainer digest, {scene: (run folder, harness record)}) of the finished Full runs at ``seed``."""
     digest, runs = finished_runs(tables, ["full"])
     return digest, {rec["scene"]: (run, rec) for run, rec in runs if rec["seed"] == seed and rec["scene"] in scenes}
-
-
-def _validation_psnr(run: Path) -> float | None:
-    validation = json.loads((run / "metrics.json").read_text()).get("validation") or {}
-    value = validation.get("psnr")
-    return float(value) if value is not None else None
 
 
 def compare(default_tables: Path, avx2_tables: Path, seed: int, scenes: list[str]) -> list[dict[str, Any]]:
@@ -78,8 +67,8 @@ def compare(default_tables: Path, avx2_tables: Path, seed: int, scenes: list[str
                              "(on an AVX2 machine the default is AVX2: there is nothing to compare)")
         dp, ap = float(d_rec["metrics"]["psnr"]), float(a_rec["metrics"]["psnr"])
         rows.append({"scene": scene, "default_psnr": round(dp, 4), "avx2_psnr": round(ap, 4),
-                     "avx2_minus_default": round(ap - dp, 4), "default_val_psnr": _validation_psnr(d_run),
-                     "avx2_val_psnr": _validation_psnr(a_run), "default_float_setup": d_rec["float_setup"],
+                     "avx2_minus_default": round(ap - dp, 4), "default_val_psnr": full_seed_runs.validation_psnr(d_run),
+                     "avx2_val_psnr": full_seed_runs.validation_psnr(a_run), "default_float_setup": d_rec["float_setup"],
                      "avx2_float_setup": a_rec["float_setup"]})
     return rows
 
@@ -94,19 +83,12 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.float_setup", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", type=Path, required=True, help="OUT/default and OUT/avx2 hold the runs")
-    p.add_argument("--scenes", default="house,forest,food_plate,excavator,rover,chair,plant,brick_toy,machine,room")
-    p.add_argument("--datasets", type=Path, default=Path("data/standard"))
-    p.add_argument("--profile", default="standard")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--workers", type=int, default=2)
+    full_seed_runs.add_arguments(p, "house,forest,food_plate,excavator,rover,chair,plant,brick_toy,machine,room",
+                                 "benchmarks/results/float_setup/per_scene.csv")
     p.add_argument("--default-from", type=Path, help="a tables folder that holds (or will hold) the default side")
-    p.add_argument("--csv", type=Path, default=Path("benchmarks/results/float_setup/per_scene.csv"))
-    p.add_argument("--compare-only", action="store_true", help="train nothing; compare what has finished")
     args = p.parse_args(argv)
-    scenes = [s for s in args.scenes.split(",") if s]
-    missing = [s for s in scenes if not (args.datasets / s / "dataset.json").is_file()]
-    if missing:
-        print(f"float_setup: error: {args.datasets}: no dataset for {', '.join(missing)}", file=sys.stderr)
+    scenes = full_seed_runs.scenes_of(args, "float_setup")
+    if scenes is None:
         return 2
     folders = {"default": args.default_from or args.out / "default", "avx2": args.out / "avx2"}
     if not args.compare_only:

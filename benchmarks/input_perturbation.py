@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks import full_seed_runs
 from contracts.atomic import write_json, write_rows_csv
 from contracts.imageio import read_png, write_png
 from eval.finished_runs import finished_runs
@@ -74,21 +75,6 @@ def perturb_dataset(src: Path, dst: Path, levels: int, noise_seed: int) -> dict[
     return record
 
 
-def tables_command(pairs: dict[str, Path], profile: str, seed: int, workers: int, out: Path) -> list[str]:
-    """The `regenerate-tables` call that trains Full on every dataset of ``pairs`` at ``seed``."""
-    cmd = [sys.executable, "-m", "eval.harness_cli", "--profile", profile, "--workers", str(workers),
-           "--scenes", ",".join(pairs), "--methods", "full", "--seeds", f"{seed},", "--no-ablations",
-           "--out", str(out)]
-    for name, path in pairs.items():
-        cmd += ["--dataset", f"{name}={path}"]
-    return cmd
-
-
-def _validation_psnr(run: Path) -> float | None:
-    value = (json.loads((run / "metrics.json").read_text()).get("validation") or {}).get("psnr")
-    return None if value is None else float(value)
-
-
 def compare(tables: Path, scenes: list[str], levels: int, seed: int) -> list[dict[str, Any]]:
     """One row per scene whose original and perturbed runs both finished (one trainer version)."""
     _, runs = finished_runs(tables, ["full"])
@@ -100,8 +86,8 @@ def compare(tables: Path, scenes: list[str], levels: int, seed: int) -> list[dic
         (o_run, o_rec), (p_run, p_rec) = by_name[scene], by_name[noisy_name(scene, levels)]
         o, p = float(o_rec["metrics"]["psnr"]), float(p_rec["metrics"]["psnr"])
         rows.append({"scene": scene, "original_psnr": round(o, 4), "perturbed_psnr": round(p, 4),
-                     "perturbed_minus_original": round(p - o, 4), "original_val_psnr": _validation_psnr(o_run),
-                     "perturbed_val_psnr": _validation_psnr(p_run), "levels": levels})
+                     "perturbed_minus_original": round(p - o, 4), "original_val_psnr": full_seed_runs.validation_psnr(o_run),
+                     "perturbed_val_psnr": full_seed_runs.validation_psnr(p_run), "levels": levels})
     return rows
 
 
@@ -109,20 +95,12 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.input_perturbation", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", type=Path, required=True, help="OUT/datasets holds the copies, OUT/tables the runs")
-    p.add_argument("--scenes", default="machine,room,food_plate")
-    p.add_argument("--datasets", type=Path, default=Path("data/standard"))
+    full_seed_runs.add_arguments(p, "machine,room,food_plate", "benchmarks/results/input_perturbation/per_scene.csv")
     p.add_argument("--levels", type=int, default=1, help="8-bit levels each smoky value moves by")
     p.add_argument("--noise-seed", type=int, default=1)
-    p.add_argument("--profile", default="standard")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--workers", type=int, default=2)
-    p.add_argument("--csv", type=Path, default=Path("benchmarks/results/input_perturbation/per_scene.csv"))
-    p.add_argument("--compare-only", action="store_true", help="train nothing; compare what has finished")
     args = p.parse_args(argv)
-    scenes = [s for s in args.scenes.split(",") if s]
-    missing = [s for s in scenes if not (args.datasets / s / "dataset.json").is_file()]
-    if missing:
-        print(f"input_perturbation: error: {args.datasets}: no dataset for {', '.join(missing)}", file=sys.stderr)
+    scenes = full_seed_runs.scenes_of(args, "input_perturbation")
+    if scenes is None:
         return 2
     if not 1 <= args.levels <= 64:
         print(f"input_perturbation: error: --levels: 1 to 64 8-bit levels, got {args.levels}", file=sys.stderr)
@@ -140,7 +118,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{s}: {rec['frames']} smoky frames moved by ±{args.levels} (mean |change| "
                   f"{rec['mean_abs_change_levels']} levels, {rec['clipped_values']} values clipped) in {copy}")
             pairs[s], pairs[noisy_name(s, args.levels)] = args.datasets / s, copy
-        done = subprocess.run(tables_command(pairs, args.profile, args.seed, args.workers, tables), cwd=ROOT)
+        done = subprocess.run(full_seed_runs.tables_command(pairs, args.profile, args.seed, args.workers, tables),
+                              cwd=ROOT)
         if done.returncode not in (0, 1):  # 1: tables written, some runs failed
             return done.returncode
     try:

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks.input_perturbation import compare, main, noisy_name, perturb_dataset, tables_command
+from benchmarks.full_seed_runs import tables_command
+from benchmarks.input_perturbation import compare, main, noisy_name, perturb_dataset
 from contracts.dataset_format import validate_dataset
 from contracts.imageio import read_png
 from eval.harness_cli import build_parser

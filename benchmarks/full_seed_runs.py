@@ -1,0 +1,45 @@
+"""Full at one seed on a list of datasets, through one resumable `regenerate-tables` call: the
+shared part of the benchmarks that train the same runs twice under one change (the float setup,
+the input's noise) and compare them scene by scene."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+def add_arguments(p: argparse.ArgumentParser, scenes: str, csv: str) -> None:
+    """The options every such benchmark takes (its own go beside them)."""
+    p.add_argument("--scenes", default=scenes)
+    p.add_argument("--datasets", type=Path, default=Path("data/standard"))
+    p.add_argument("--profile", default="standard")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--csv", type=Path, default=Path(csv))
+    p.add_argument("--compare-only", action="store_true", help="train nothing; compare what has finished")
+
+
+def scenes_of(args: argparse.Namespace, prog: str) -> list[str] | None:
+    """The scenes asked for, or None after one error line when one has no dataset."""
+    scenes = [s for s in args.scenes.split(",") if s]
+    missing = [s for s in scenes if not (args.datasets / s / "dataset.json").is_file()]
+    if missing:
+        print(f"{prog}: error: {args.datasets}: no dataset for {', '.join(missing)}", file=sys.stderr)
+        return None
+    return scenes
+
+
+def tables_command(datasets: dict[str, Path], profile: str, seed: int, workers: int, out: Path) -> list[str]:
+    """The `regenerate-tables` call that trains Full at ``seed`` on each named dataset into ``out``."""
+    cmd = [sys.executable, "-m", "eval.harness_cli", "--profile", profile, "--workers", str(workers),
+           "--scenes", ",".join(datasets), "--methods", "full", "--seeds", f"{seed},", "--no-ablations",
+           "--out", str(out)]
+    for name, path in datasets.items():
+        cmd += ["--dataset", f"{name}={path}"]
+    return cmd
+
+
+def validation_psnr(run: Path) -> float | None:
+    value = (json.loads((run / "metrics.json").read_text()).get("validation") or {}).get("psnr")
+    return None if value is None else float(value)
