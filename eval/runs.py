@@ -79,6 +79,12 @@ CANDIDATES: dict[str, Variant] = {
                      "that its training views see it clear of smoke, with no scene-wide trust "
                      "(docs/method.md, Decisions, row 13)",
                 overrides={"stage3.surface_init": "by-clear-views"}),
+        Variant("mask-bound", "Full, the mask term pushes to what the images prove", "full", "candidates", {},
+                note="the mask term pushes each masked pixel's smoke alpha up to the alpha the smoky frames prove "
+                     "there (a clear view's reading, else the lower bound where the haze lines meet), in place of "
+                     "the floor at 0.4 where the estimate reaches it (loss.mask_floor_where=estimated-bound; "
+                     "docs/method.md, Decisions, rows 16-17)",
+                overrides={"loss.mask_floor_where": "estimated-bound"}),
         Variant("densify-by-gradient", "Full, a full cap grows the largest gradients", "full", "candidates", {},
                 note="every densification (Stage 2, the smoke, the surface refinement) takes the candidates with the "
                      "largest mean gradient when they outnumber the room under its cap, in place of clones first in "

@@ -35,7 +35,7 @@ from smokeseer.stage1.input_checks import input_warnings
 from smokeseer.stage1.pipeline import Stage1Report, run_stage1
 from smokeseer.train.depth_prior import DepthPriorMaps, file_depth_prior, monocular_depth_prior, rendered_depth_prior
 from smokeseer.train.divergence import StageDiverged
-from smokeseer.train.mask_floor import estimated_dense, never_seen_clear
+from smokeseer.train.mask_floor import estimated_alpha_bound, estimated_dense, never_seen_clear
 from smokeseer.train.plan import Stage3Plan, plan_stage3
 from smokeseer.train.stage2 import train_stage2, views_of
 from smokeseer.train.stage3 import build_scene_model, train_stage3
@@ -271,19 +271,30 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
         if plan.mask_floor != "all":
             # The floor reads the geometry Stage 3 starts from: with two surfaces, the joined one.
             floor_depth = rendered_depth_prior(joined.surface, rgb_views, "rgb") if joined else rgb_depth
-            plan.floor_pixels = mask_floor_pixels(plan, scene.rgb, floor_depth, cfg.loss.mask_alpha_floor,
-                                                  smoke_colour)
             masked = scene.rgb.masks[scene.rgb.indices("train")] > 0.5
-            meeting = None if smoke_colour is None else smoke_colour.meeting
-            rest = {"never-clear": "the rest are seen smoke-free from another training view",
-                    "estimated-meeting": "the rest are thinner smoke by the images (a clear view, or too far "
-                                         f"from where the haze lines meet, {np.round(meeting, 3).tolist()})"
-                                         if meeting is not None else
-                                         "the haze lines do not meet, so the smoke reads thin: only points seen "
-                                         "clear elsewhere and dense there, or the geometry does not cover them"
-                    }[plan.mask_floor]
-            note = (f"mask floor on {100 * int(plan.floor_pixels.sum()) / max(int(masked.sum()), 1):.0f} % "
-                    f"of the masked training pixels: {rest} (loss.mask_floor_where={plan.mask_floor})")
+            if plan.mask_floor == "estimated-bound":
+                plan.alpha_targets = alpha_targets(scene.rgb, floor_depth, cfg.loss.mask_alpha_floor, smoke_colour)
+                pushed = masked & (plan.alpha_targets > 0)
+                mean = float(plan.alpha_targets[pushed].mean()) if pushed.any() else 0.0
+                where = ("the haze lines meet" if smoke_colour is not None and smoke_colour.meeting is not None else
+                         "the haze lines do not meet: only points seen clear elsewhere, or the geometry does not "
+                         "cover them")
+                note = (f"mask term pushes the smoke alpha up to what the images prove on "
+                        f"{100 * int(pushed.sum()) / max(int(masked.sum()), 1):.0f} % of the masked training pixels, "
+                        f"mean target {mean:.2f} ({where}; loss.mask_floor_where=estimated-bound)")
+            else:
+                plan.floor_pixels = mask_floor_pixels(plan, scene.rgb, floor_depth, cfg.loss.mask_alpha_floor,
+                                                      smoke_colour)
+                meeting = None if smoke_colour is None else smoke_colour.meeting
+                rest = {"never-clear": "the rest are seen smoke-free from another training view",
+                        "estimated-meeting": "the rest are thinner smoke by the images (a clear view, or too far "
+                                             f"from where the haze lines meet, {np.round(meeting, 3).tolist()})"
+                                             if meeting is not None else
+                                             "the haze lines do not meet, so the smoke reads thin: only points seen "
+                                             "clear elsewhere and dense there, or the geometry does not cover them"
+                        }[plan.mask_floor]
+                note = (f"mask floor on {100 * int(plan.floor_pixels.sum()) / max(int(masked.sum()), 1):.0f} % "
+                        f"of the masked training pixels: {rest} (loss.mask_floor_where={plan.mask_floor})")
             plan.notes.append(note)
             ctx.log_line(f"stage 3: {note}")
         model = build_scene_model(ctx, s2, plan, smoke_pts, scene.smoke_static,
@@ -354,6 +365,17 @@ def mask_floor_pixels(plan: Stage3Plan, rgb: ModalityData, depth: DepthPriorMaps
         return never_seen_clear(rgb.masks[train], maps, valid, *rgb.cameras("train"))
     colour = estimate.meeting if estimate is not None else None
     return estimated_dense(rgb.masks[train], rgb.images[train], maps, valid, *rgb.cameras("train"), colour, floor)
+
+
+def alpha_targets(rgb: ModalityData, depth: DepthPriorMaps, floor: float,
+                  estimate: SmokeColourEstimate | None) -> np.ndarray:
+    """The smoke alpha the mask term pushes each masked training pixel up to with
+    ``loss.mask_floor_where=estimated-bound`` (``smokeseer.train.mask_floor.estimated_alpha_bound``);
+    ``floor`` where the geometry does not cover the pixel."""
+    train = rgb.indices("train")
+    colour = estimate.meeting if estimate is not None else None
+    return estimated_alpha_bound(rgb.masks[train], rgb.images[train], depth.maps.cpu().numpy(),
+                                 depth.valid.cpu().numpy(), *rgb.cameras("train"), colour, floor)
 
 
 def smoke_colour_record(plan: Stage3Plan, estimate: SmokeColourEstimate | None) -> dict[str, Any] | None:

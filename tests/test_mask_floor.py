@@ -10,7 +10,7 @@ from scenes.load import load_scene
 from smokeseer.config import make_config
 from smokeseer.stage1.pipeline import run_stage1
 from smokeseer.train.losses import mask_alignment
-from smokeseer.train.mask_floor import cube_reach, estimated_dense, never_seen_clear
+from smokeseer.train.mask_floor import cube_reach, estimated_alpha_bound, estimated_dense, never_seen_clear
 from smokeseer.train.plan import plan_stage3
 from tests.test_smokeseer_data import write_splat_dataset
 
@@ -118,6 +118,46 @@ def test_estimated_floor_on_unpinned_points_takes_the_middle_of_the_bounds() -> 
     assert not thin[0, :, 2:5].any() and not (thin & ~got).any()
 
 
+def test_the_bound_target_is_what_the_images_prove_and_never_more() -> None:
+    """estimated-bound on the two hand-worked cases above. Pinned (camera 0's columns 7-9, seen clear
+    by camera 1): with the smoke colour the exact alpha 0.1, 0.5, 0.9; without it the lower bound
+    1 / reach, never above the truth. Unpinned (columns 2-4 with the colour): the lower bounds 0.857,
+    0 and 0, each at most the truth (0.9, 0.05, 0.05); without the colour, 0. Uncovered masked pixels
+    take the floor given; unmasked pixels 0."""
+    viewmats, Ks, depths, valid = _two_cameras()
+    smoke = np.array([0.8, 0.8, 0.8])
+    surface = np.full((N, N, 3), 0.1)
+    surface[:, 4] = 0.6
+    alpha = np.zeros((2, N, N))
+    alpha[0, :, :10] = 0.6
+    alpha[0, :, 2], alpha[0, :, 3], alpha[0, :, 4] = 0.9, 0.05, 0.05
+    alpha[0, :, 7], alpha[0, :, 8], alpha[0, :, 9] = 0.1, 0.5, 0.9
+    alpha[1, :, :5] = 0.3
+    masks = (alpha > 0.02).astype(float)
+    frames = _smoky_frames(alpha, surface, smoke)
+    valid[0, 0] = False  # camera 0's top row: the geometry does not cover it
+    known = estimated_alpha_bound(masks, frames, depths, valid, viewmats, Ks, smoke, 0.4)
+    np.testing.assert_allclose(known[0, 1:, 7:10], np.broadcast_to([0.1, 0.5, 0.9], (N - 1, 3)), atol=1e-9)
+    np.testing.assert_allclose(known[0, 1:, 2:5], np.broadcast_to([0.857143, 0.0, 0.0], (N - 1, 3)), atol=1e-6)
+    assert (known[0, 0, :10] == 0.4).all() and (known[0, :, 10:] == 0).all() and (known[1, :, 5:] == 0).all()
+    unknown = estimated_alpha_bound(masks, frames, depths, valid, viewmats, Ks, None, 0.4)
+    assert (unknown[0, 1:, 2:5] == 0).all()
+    assert (unknown[0, 1:, 7:10] <= alpha[0, 1:, 7:10] + 1e-9).all() and (unknown[0, 1:, 9] > 0.5).all()
+    # the step's reading of the same estimate: the floor acts exactly where the bound's pinned alpha reaches it
+    step = estimated_dense(masks, frames, depths, valid, viewmats, Ks, smoke, 0.4)
+    assert (step[0, 1:, 7:10] == (known[0, 1:, 7:10] >= 0.4)).all()
+
+
+def test_mask_term_with_targets_pushes_up_to_each_pixels_target_and_never_down() -> None:
+    alpha = torch.tensor([[0.1, 0.6, 0.2, 0.3, 0.0]], requires_grad=True)
+    mask = torch.tensor([[1.0, 1.0, 1.0, 0.0, 0.0]])
+    targets = torch.tensor([[0.5, 0.4, 0.0, 0.0, 0.0]])
+    loss = mask_alignment(alpha, mask, 0.4, targets=targets)
+    assert loss.item() == pytest.approx((0.4 + 0.0 + 0.0 + 0.3 + 0.0) / 5)
+    loss.backward()
+    assert alpha.grad[0, 0] < 0 and alpha.grad[0, 1] == 0 and alpha.grad[0, 2] == 0 and alpha.grad[0, 3] > 0
+
+
 def test_mask_term_without_floor_keeps_only_the_push_to_zero() -> None:
     alpha = torch.tensor([[0.1, 0.1, 0.5, 0.3]], requires_grad=True)
     mask = torch.tensor([[1.0, 1.0, 0.0, 0.0]])
@@ -131,7 +171,7 @@ def test_mask_term_without_floor_keeps_only_the_push_to_zero() -> None:
 
 
 def test_bad_setting_names_the_field() -> None:
-    with pytest.raises(ValueError, match="loss.mask_floor_where: 'sometimes' is not one of all, never-clear, estimated-meeting"):
+    with pytest.raises(ValueError, match="loss.mask_floor_where: 'sometimes' is not one of all, never-clear, estimated-meeting, estimated-bound"):
         make_config("full", "quick", overrides={"loss.mask_floor_where": "sometimes"})
     with pytest.raises(ValueError, match="loss.mask_floor_where: estimated-meeting .* stage3.smoke_color=haze-lines"):
         make_config("full", "quick", overrides={"loss.mask_floor_where": "estimated-meeting",
@@ -143,7 +183,7 @@ def test_floor_rule_follows_the_setting_and_needs_masks_and_smoke(tmp_path) -> N
     and "all" (nothing to gate) by default."""
     ds = write_splat_dataset(tmp_path / "ds", n_rgb=4, n_thermal=3)
     for stage1 in ("ground-truth", "estimate"):
-        for where in ("never-clear", "estimated-meeting"):
+        for where in ("never-clear", "estimated-meeting", "estimated-bound"):
             cfg = make_config("full", "quick", overrides={"loss.mask_floor_where": where, "stage1": stage1,
                                                           "stage3.smoke_color": "haze-lines"})
             scene = load_scene(ds, cfg.max_width)

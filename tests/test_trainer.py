@@ -189,6 +189,19 @@ def test_by_clear_views_fades_each_rgb_gaussian_by_its_own_clear_views(splat: Pa
                for n in json.loads((run / "metrics.json").read_text())["stages"]["notes"])
 
 
+def test_the_bound_mask_term_trains_and_says_where_it_pushes(splat: Path, tmp_path: Path) -> None:
+    """loss.mask_floor_where=estimated-bound: the targets are made once Stage 3's geometry is known,
+    the note gives the share of masked pixels pushed and their mean target, and the run ends ok."""
+    run = tmp_path / "run"
+    rule = [{"loss.mask_floor_where=estimated-meeting": "loss.mask_floor_where=estimated-bound"}.get(a, a)
+            for a in BY_SMOKE_COLOUR]
+    assert main([str(splat), "--out", str(run)] + rule) == 0
+    stages = _assert_complete(run)["stages"]
+    assert stages["stage3_plan"]["mask_floor"] == "estimated-bound"
+    note = next(n for n in stages["notes"] if n.startswith("mask term pushes the smoke alpha up"))
+    assert "% of the masked training pixels, mean target" in note
+
+
 def test_by_smoke_colour_keeps_the_rgb_stage2_by_one_minus_the_surface_trust(
         splat: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """stage3.surface_init=by-smoke-colour: this tiny scene's haze lines give no estimate, so Stage 3

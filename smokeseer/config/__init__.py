@@ -29,7 +29,7 @@ SMOKE_COLOR_SOURCES: tuple[str, ...] = ("learned", "haze-lines")
 DENSIFY_UNDER_CAP: tuple[str, ...] = ("index", "gradient")
 SURFACE_INITS: tuple[str, ...] = ("thermal", "by-smoke-colour", "by-clear-views")
 POSE_SOURCES: tuple[str, ...] = ("given", "sfm")
-MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "estimated-meeting")
+MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "estimated-meeting", "estimated-bound")
 DEFORM_KINDS: tuple[str, ...] = ("mlp", "fourier", "planes")
 LPIPS_NETS: tuple[str, ...] = ("alex", "vgg")
 
@@ -66,7 +66,10 @@ class LossWeights:
     thin smoke over a surface seen clear elsewhere is not forced up to the floor; or
     "estimated-meeting", those whose smoke alpha, read off the smoky frames by the image formation
     with the colour where the haze lines meet (held, or too bright to hold), may reach the floor,
-    and where the lines do not meet (thin smoke) none that no other view sees clear."""
+    and where the lines do not meet (thin smoke) none that no other view sees clear; or
+    "estimated-bound", no step at all: every masked pixel is pushed up to the alpha the same
+    estimate proves there (the reading off a clear view, else the lower bound), a floor of its own
+    (``mask_floor.estimated_alpha_bound``)."""
 
 
 @dataclass
@@ -420,8 +423,8 @@ class TrainConfig:
         if self.loss.mask_floor_where not in MASK_FLOOR_WHERE:
             raise ValueError(f"loss.mask_floor_where: {self.loss.mask_floor_where!r} is not one of "
                              f"{', '.join(MASK_FLOOR_WHERE)}")
-        if self.loss.mask_floor_where == "estimated-meeting" and self.stage3.smoke_color != "haze-lines":
-            raise ValueError("loss.mask_floor_where: estimated-meeting reads the haze lines; it needs "
+        if self.loss.mask_floor_where.startswith("estimated") and self.stage3.smoke_color != "haze-lines":
+            raise ValueError(f"loss.mask_floor_where: {self.loss.mask_floor_where} reads the haze lines; it needs "
                              "stage3.smoke_color=haze-lines")
         if not 0.0 <= self.loss.thermal <= 10.0:
             raise ValueError(f"loss.thermal: must be in [0, 10], got {self.loss.thermal}")

@@ -91,7 +91,8 @@ def depth_consistency(depth: Tensor, prior: Tensor, valid: Tensor) -> Tensor:
     return (depth[valid] - (s * prior[valid] + b)).abs().mean()
 
 
-def mask_alignment(smoke_alpha: Tensor, mask: Tensor, floor: float, floor_where: Tensor | None = None) -> Tensor:
+def mask_alignment(smoke_alpha: Tensor, mask: Tensor, floor: float, floor_where: Tensor | None = None,
+                   targets: Tensor | None = None) -> Tensor:
     """L1 between the accumulated smoke alpha and the smoke mask, where smoke alpha at or above
     ``floor`` counts as 1 inside the mask (``loss.mask_alpha_floor``; the public code's threshold is 0.4).
 
@@ -101,7 +102,13 @@ def mask_alignment(smoke_alpha: Tensor, mask: Tensor, floor: float, floor_where:
     with the plain L1, 20.7 dB without the term). Outside the mask it still pulls alpha to 0.
 
     ``floor_where`` (bool, like the mask): inside the mask but outside it, any alpha counts as full
-    smoke, so only the push to zero outside the mask is left (``loss.mask_floor_where``)."""
+    smoke, so only the push to zero outside the mask is left (``loss.mask_floor_where``).
+
+    ``targets`` (like the mask, in [0, 1]; ``loss.mask_floor_where=estimated-bound``): inside the
+    mask the alpha is pushed up to its pixel's target and never down, a floor per pixel in place of
+    the one step at ``floor``."""
+    if targets is not None:
+        return torch.where(mask > 0.5, torch.relu(targets - smoke_alpha), (smoke_alpha - mask).abs()).mean()
     full = smoke_alpha >= floor if floor_where is None else (smoke_alpha >= floor) | ~floor_where
     counted = torch.where((mask > 0.5) & full, torch.ones_like(smoke_alpha), smoke_alpha)
     return (counted - mask).abs().mean()

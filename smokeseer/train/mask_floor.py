@@ -88,14 +88,12 @@ def cube_reach(origin: np.ndarray, direction: np.ndarray) -> np.ndarray:
     return np.clip(np.minimum(up, down).min(axis=1), 0.0, None)
 
 
-def estimated_dense(masks: np.ndarray, images: np.ndarray, depths: np.ndarray, valid: np.ndarray,
-                    viewmats: np.ndarray, Ks: np.ndarray, smoke_colour: np.ndarray | None, floor: float,
-                    tolerance: float = DEPTH_TOLERANCE) -> np.ndarray:
-    """(frames, H, W) bool: masked pixels whose smoke, read off the images, may reach ``floor``
-    (the module docstring gives the rule). ``images`` (frames, H, W, 3) are the smoky training
-    frames in [0, 1]; ``smoke_colour`` where the haze lines meet, None where they do not; the rest
-    as for ``never_seen_clear``."""
-    out = (masks > 0.5) & ~valid
+def _alpha_estimates(masks: np.ndarray, images: np.ndarray, depths: np.ndarray, valid: np.ndarray,
+                     viewmats: np.ndarray, Ks: np.ndarray, smoke_colour: np.ndarray | None, tolerance: float):
+    """Per frame, what the images say of the smoke alpha of its masked pixels the geometry covers
+    (the module docstring): (frame, rows, columns, whether another view sees the point clear, the
+    alpha read off that clear view, and the lower and upper bounds for a point no view sees clear,
+    None without ``smoke_colour``)."""
     stacked = np.concatenate([images.astype(np.float64), masks[..., None].astype(np.float64)], axis=-1)
     a = None if smoke_colour is None else np.asarray(smoke_colour, dtype=np.float64)[None]
     for ref, vs, us, seen_values, seen, clear in _views_of_masked_points(stacked, masks, depths, valid, viewmats,
@@ -105,15 +103,45 @@ def estimated_dense(masks: np.ndarray, images: np.ndarray, depths: np.ndarray, v
         surface = (seen_values[..., :3] * clear[..., None]).sum(axis=0) / np.maximum(n_clear, 1)[:, None]
         step = own - surface
         if a is None:
-            alpha_clear = 1.0 / np.maximum(cube_reach(surface, step), 1e-12)
-            dense_unpinned = np.zeros(len(vs), dtype=bool)
-        else:
-            towards = a - surface
-            span = (towards * towards).sum(axis=1)
-            alpha_clear = np.where(span > 1e-6, (step * towards).sum(axis=1) / np.maximum(span, 1e-6), 0.0)
-            alpha_upper = 1.0 - 1.0 / np.maximum(cube_reach(np.broadcast_to(a, own.shape), own - a), 1e-12)
-            reach_seen = (np.linalg.norm(seen_values[..., :3] - a[None], axis=-1) * seen).max(axis=0)
-            alpha_lower = 1.0 - np.linalg.norm(own - a, axis=1) / np.maximum(reach_seen, 1e-12)
-            dense_unpinned = 0.5 * (alpha_lower + alpha_upper) >= floor
-        out[ref, vs, us] = np.where(n_clear > 0, alpha_clear >= floor, dense_unpinned)
+            yield ref, vs, us, n_clear > 0, 1.0 / np.maximum(cube_reach(surface, step), 1e-12), None
+            continue
+        towards = a - surface
+        span = (towards * towards).sum(axis=1)
+        alpha_clear = np.where(span > 1e-6, (step * towards).sum(axis=1) / np.maximum(span, 1e-6), 0.0)
+        alpha_upper = 1.0 - 1.0 / np.maximum(cube_reach(np.broadcast_to(a, own.shape), own - a), 1e-12)
+        reach_seen = (np.linalg.norm(seen_values[..., :3] - a[None], axis=-1) * seen).max(axis=0)
+        alpha_lower = 1.0 - np.linalg.norm(own - a, axis=1) / np.maximum(reach_seen, 1e-12)
+        yield ref, vs, us, n_clear > 0, alpha_clear, (alpha_lower, alpha_upper)
+
+
+def estimated_dense(masks: np.ndarray, images: np.ndarray, depths: np.ndarray, valid: np.ndarray,
+                    viewmats: np.ndarray, Ks: np.ndarray, smoke_colour: np.ndarray | None, floor: float,
+                    tolerance: float = DEPTH_TOLERANCE) -> np.ndarray:
+    """(frames, H, W) bool: masked pixels whose smoke, read off the images, may reach ``floor``
+    (the module docstring gives the rule). ``images`` (frames, H, W, 3) are the smoky training
+    frames in [0, 1]; ``smoke_colour`` where the haze lines meet, None where they do not; the rest
+    as for ``never_seen_clear``."""
+    out = (masks > 0.5) & ~valid
+    for ref, vs, us, pinned, alpha_clear, bounds in _alpha_estimates(masks, images, depths, valid, viewmats, Ks,
+                                                                     smoke_colour, tolerance):
+        dense_unpinned = np.zeros(len(vs), dtype=bool) if bounds is None else 0.5 * (bounds[0] + bounds[1]) >= floor
+        out[ref, vs, us] = np.where(pinned, alpha_clear >= floor, dense_unpinned)
+    return out
+
+
+def estimated_alpha_bound(masks: np.ndarray, images: np.ndarray, depths: np.ndarray, valid: np.ndarray,
+                          viewmats: np.ndarray, Ks: np.ndarray, smoke_colour: np.ndarray | None, uncovered: float,
+                          tolerance: float = DEPTH_TOLERANCE) -> np.ndarray:
+    """(frames, H, W) in [0, 1]: the smoke alpha the images prove at each masked pixel, the target the
+    mask term pushes up to with ``loss.mask_floor_where=estimated-bound`` (a continuous floor in place
+    of the step at ``loss.mask_alpha_floor``). A point seen clear elsewhere: the alpha read off that
+    view (exact with the smoke colour, a lower bound without). A point no view sees clear: the lower
+    bound of its alpha (as if its clearest view were clear) where the haze lines meet, else 0: nothing
+    is proven. Masked pixels the geometry does not cover: ``uncovered`` (the step's floor, as there).
+    Unmasked pixels: 0."""
+    out = np.where((masks > 0.5) & ~valid, float(uncovered), 0.0)
+    for ref, vs, us, pinned, alpha_clear, bounds in _alpha_estimates(masks, images, depths, valid, viewmats, Ks,
+                                                                     smoke_colour, tolerance):
+        unpinned = np.zeros(len(vs)) if bounds is None else bounds[0]
+        out[ref, vs, us] = np.clip(np.where(pinned, alpha_clear, unpinned), 0.0, 1.0)
     return out

@@ -93,8 +93,8 @@ class Stage3Plan:
     """"none" (no smoke Gaussians), "learned", or "haze-lines": anchored to ``colour``, the estimate
     made once Stage 2 has given the geometry, by ``trust`` (``settle_colour``)."""
     mask_floor: str
-    """Where the mask term's floor acts: "all", "never-clear" or "estimated-meeting"
-    (``loss.mask_floor_where``)."""
+    """Where the mask term's floor acts: "all", "never-clear", "estimated-meeting", or
+    "estimated-bound" (a target per pixel in place of the floor) (``loss.mask_floor_where``)."""
     depth_prior: str | None
     """The prior the depth term compares with; None: the run has no depth term."""
     depth_camera: str | None
@@ -110,6 +110,9 @@ class Stage3Plan:
     floor_pixels: np.ndarray | None = None
     """(training RGB frames, H, W) bool: where the mask floor acts (never-clear or estimated-meeting, set
     once Stage 2 has given the geometry and the smoke colour is settled); None: everywhere."""
+    alpha_targets: np.ndarray | None = None
+    """(training RGB frames, H, W) in [0, 1]: with estimated-bound, the smoke alpha the mask term
+    pushes each masked pixel up to (``mask_floor.estimated_alpha_bound``); None otherwise."""
     thermal_dropped: str | None = None
     """Why the run trains without thermal (metrics.json ``stages.thermal_dropped``); None when it uses it."""
     thermal_warning: RunWarning | None = None
@@ -225,8 +228,8 @@ def _depth_file_notes(cfg: TrainConfig, scene: SceneData, plan: Stage3Plan) -> l
 
 
 def _mask_floor(cfg: TrainConfig, plan: Stage3Plan) -> str:
-    """The pixels the mask floor acts on: "all", "never-clear" or "estimated-meeting"; "all" without
-    masks or smoke, where there is nothing to gate."""
+    """The pixels the mask floor acts on: "all", "never-clear", "estimated-meeting" or
+    "estimated-bound"; "all" without masks or smoke, where there is nothing to gate."""
     where = cfg.loss.mask_floor_where
     if where == "all" or not (plan.use_smoke and plan.use_masks):
         return "all"

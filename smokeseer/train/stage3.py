@@ -134,6 +134,8 @@ class Stage3Problem(StageProblem):
                       if plan.use_masks and rgb.masks is not None and model.smoke is not None else None)
         self.mask_floor = (torch.as_tensor(plan.floor_pixels, device=dev)
                            if self.masks is not None and plan.floor_pixels is not None else None)
+        self.alpha_targets = (torch.as_tensor(plan.alpha_targets, dtype=self.masks.dtype, device=dev)
+                              if self.masks is not None and plan.alpha_targets is not None else None)
         self.th_views: list = []
         self.th_imgs = None
         if plan.use_thermal and thermal is not None:
@@ -187,7 +189,8 @@ class Stage3Problem(StageProblem):
             if self.masks is not None and weights["mask"] > 0:
                 terms["mask"] = mask_alignment(out.subset_alphas[0, ..., 0], self.masks[k],
                                                cfg.loss.mask_alpha_floor,
-                                               None if self.mask_floor is None else self.mask_floor[k])
+                                               None if self.mask_floor is None else self.mask_floor[k],
+                                               None if self.alpha_targets is None else self.alpha_targets[k])
             if self.th_imgs is not None and weights["thermal_smoke_opacity"] > 0:
                 terms["thermal_smoke_opacity"] = torch.sigmoid(model.smoke["opacity_thermal"]).mean()
         if self.depth_on:
