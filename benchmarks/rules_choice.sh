@@ -7,8 +7,9 @@
 #   bash benchmarks/rules_choice.sh motion      the ten standard scenes: Full and the plane field
 #                                               (into data/tables_standard, beside Table 1's runs)
 #   bash benchmarks/rules_choice.sh standard    the ten standard scenes: Full, RGB-only and the
-#                                               route candidates (into data/tables_standard)
-#   bash benchmarks/rules_choice.sh dev         random-dev: the same (into data/tables_random_dev)
+#                                               rule candidates (into data/tables_standard)
+#   bash benchmarks/rules_choice.sh dev [--first N]   random-dev: the same (into data/tables_random_dev),
+#                                               the first N scenes only with --first
 #   bash benchmarks/rules_choice.sh report DIGEST   the per-scene comparisons, validation views
 #
 # A shorter Stage 3 does not stand in for the standard profile: at 1000 + 1000 iterations and 80 px
@@ -17,7 +18,7 @@
 # Extra arguments go to regenerate-tables (e.g. --dry-run).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-ROUTES=start-thermal,start-clear-views
+RULES=start-thermal,start-clear-views,mask-bound
 RESULTS=benchmarks/results/rules
 step=${1:-}
 shift || true
@@ -34,15 +35,15 @@ standard_plan() {  # standard_plan METHODS CANDIDATES [options]: the ten standar
 }
 case $step in
     motion) standard_plan full motion-planes "$@" ;;
-    standard) standard_plan full,rgb-only "$ROUTES" "$@" ;;
-    dev) bash benchmarks/random_set_tables.sh data/random_dev data/tables_random_dev --candidates "$ROUTES" "$@" ;;
+    standard) standard_plan full,rgb-only "$RULES" "$@" ;;
+    dev) bash benchmarks/random_set_tables.sh data/random_dev data/tables_random_dev "$@" --candidates "$RULES" ;;
     report)
         [[ $# -ge 1 ]] || { echo "usage: bash benchmarks/rules_choice.sh report DIGEST" >&2; exit 2; }
         .venv/bin/python benchmarks/random_set_scores.py --tables data/tables_standard --datasets data/standard \
-            --split val --digest "$1" --candidates "$ROUTES" \
+            --split val --digest "$1" --candidates "$RULES" \
             --out "$RESULTS/standard_val.csv" --summary "$RESULTS/standard_rules_val.csv"
         .venv/bin/python benchmarks/random_set_scores.py --tables data/tables_random_dev --datasets data/random_dev \
-            --split val --digest "$1" --candidates "$ROUTES" \
+            --split val --digest "$1" --candidates "$RULES" \
             --out "$RESULTS/random_dev_val.csv" --summary "$RESULTS/random_dev_rules_val.csv" ;;
     *) echo "usage: bash benchmarks/rules_choice.sh motion|standard|dev|report DIGEST [options]" >&2
        exit 2 ;;

@@ -112,6 +112,10 @@ def test_the_set_script_plans_both_methods_on_every_finished_scene(demo_dataset:
     assert done.returncode == 0, done.stderr
     assert "2 scenes of" in done.stderr
     assert "plan: 2 scene(s) x 2 variant(s) x 1 seed(s) = 4 runs" in done.stdout + done.stderr
+    first = subprocess.run(["bash", "benchmarks/random_set_tables.sh", str(sets), str(tmp_path / "tables"), "--first", "1",
+                            "--dry-run"], cwd=root, capture_output=True, text=True)
+    assert first.returncode == 0, first.stderr
+    assert "1 scenes of" in first.stderr and "= 2 runs" in first.stdout + first.stderr   # random_3 alone
     empty = subprocess.run(["bash", "benchmarks/random_set_tables.sh", str(tmp_path / "none"), str(tmp_path / "t")],
                            cwd=root, capture_output=True, text=True)
     assert empty.returncode == 2 and "no finished drawn scene" in empty.stderr
