@@ -85,6 +85,11 @@ CANDIDATES: dict[str, Variant] = {
                      "the floor at 0.4 where the estimate reaches it (loss.mask_floor_where=estimated-bound; "
                      "docs/method.md, Decisions, rows 16-17)",
                 overrides={"loss.mask_floor_where": "estimated-bound"}),
+        Variant("background-black", "Full, no environment behind the surface", "full", "candidates", {},
+                note="no learned environment behind any render (background=black, as the official code): a "
+                     "surface that is not opaque can no longer show an environment that fits the smoke through "
+                     "it (the surface issue; surface_diagnostics' black-background PSNR measures the leak)",
+                overrides={"background": "black"}),
         Variant("densify-by-gradient", "Full, a full cap grows the largest gradients", "full", "candidates", {},
                 note="every densification (Stage 2, the smoke, the surface refinement) takes the candidates with the "
                      "largest mean gradient when they outnumber the room under its cap, in place of clones first in "
