@@ -398,6 +398,12 @@ def test_rule_candidates_run_beside_full_and_share_its_stage2(tmp_path: Path) ->
     assert stage2_sha(specs[("densify-by-gradient", 0)]) != stage2_sha(specs[("full", 0)])
     with pytest.raises(ValueError, match="candidates: unknown 'start-magic'"):
         _cfg(tmp_path, candidates=["start-magic"]).validate()
+    # the tables and the report are written with candidates among the runs
+    cfg = _cfg(tmp_path, methods=["full"], ablations=[], candidates=["start-thermal"], seeds=[0])
+    results, paths = regenerate(cfg, train_fn=identity_train, generate_fn=tiny_generate)
+    assert sorted({r.variant for r in results}) == ["full", "start-thermal"] and all(r.status == "ok" for r in results)
+    report = paths["report.md"].read_text()
+    assert "rule candidates" in report and "start-thermal" in report
 
 
 def test_results_json_names_the_commit_threads_and_machine(tmp_path: Path) -> None:
