@@ -1,0 +1,127 @@
+"""The colour cast a de-smoked surface keeps, for finished runs that were scored before the trainer
+measured it (the surface issue's first diagnostic): the mean signed error per channel of the
+surface render against the clean frame, on the test pixels the smoke mask marks.
+
+    python benchmarks/colour_bias.py [--tables data/tables_standard] [--digest d65d2bcb]
+        [--variants full,rgb-only] [--out benchmarks/results/standard/colour_bias]
+
+A run's bias is read from its saved 8-bit surface renders (`renders/surface/*.png`, what run
+folders keep) against the clean frames and smoke masks of the dataset its harness record names,
+loaded at the renders' width as the trainer loads them: the formula of metrics.json
+`surface_diagnostics.colour_bias_smoky`, which newer runs record from their float renders (the
+two agree to the 8-bit rounding, under 0.002; tests/test_colour_bias.py). Writes OUT.csv (one row
+per run) and OUT.md: per variant, the per-channel bias on the ten-scene mean (mean ± std over
+seeds) and the largest |bias| of any scene (mean over its seeds), the two numbers the surface
+issue bounds (0.02 and 0.05); then per scene.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from contracts.atomic import write_rows_csv, write_text  # noqa: E402
+from contracts.imageio import image01, read_png  # noqa: E402
+from contracts.recorded_paths import recorded_location  # noqa: E402
+from eval.finished_runs import finished_runs  # noqa: E402
+from eval.runs import variant_label  # noqa: E402
+from scenes.load import load_scene  # noqa: E402
+
+CHANNELS = ("r", "g", "b")
+MEAN_LIMIT, SCENE_LIMIT = 0.02, 0.05
+"""The surface issue's bounds: |bias| per channel on the mean of the scenes, and on each scene."""
+
+
+def run_bias(run: Path, scene_cache: dict[tuple[str, int], Any]) -> dict[str, Any]:
+    """The run's per-channel signed error on its test views' masked pixels, and their count."""
+    rec = json.loads((run / "harness.json").read_text())
+    stems = [e["file_stem"] for e in json.loads((run / "metrics.json").read_text())["per_image"]]
+    renders = [image01(read_png(run / "renders" / "surface" / f"{s}.png")) for s in stems]
+    width = renders[0].shape[1]
+    dataset = str(recorded_location(rec["dataset"]))
+    key = (dataset, width)
+    if key not in scene_cache:
+        scene_cache[key] = load_scene(Path(dataset), max_width=width)
+    rgb = scene_cache[key].rgb
+    if rgb.masks is None or rgb.clean is None:
+        raise ValueError(f"{dataset}: no smoke masks or clean frames to measure a colour cast against")
+    index = {f.file_stem: i for i, f in enumerate(rgb.frames)}
+    total, pixels = np.zeros(3), 0
+    for stem, img in zip(stems, renders):
+        i = index[stem]
+        inside = rgb.masks[i] > 0.5
+        total += (img[inside] - rgb.clean[i][inside].astype(np.float64)).sum(axis=0)
+        pixels += int(inside.sum())
+    bias = total / pixels if pixels else np.full(3, np.nan)
+    return {"scene": rec["scene"], "variant": rec["variant"], "seed": rec["seed"], "run": rec["run_dir"],
+            **{f"bias_{c}": round(float(b), 5) for c, b in zip(CHANNELS, bias)},
+            "max_abs_bias": round(float(np.abs(bias).max()), 5), "smoky_pixels": pixels}
+
+
+def summary(rows: list[dict[str, Any]], variants: list[str], digest: str) -> str:
+    lines = [f"# The colour cast of the de-smoked surface (trainer {digest[:8]})", "",
+             "Mean signed error per channel (render − clean, in [0, 1]) on the test pixels the smoke mask "
+             "marks, from each run's saved 8-bit surface renders (`python benchmarks/colour_bias.py`). "
+             f"The surface issue bounds it at {MEAN_LIMIT} per channel on the mean of the scenes and "
+             f"{SCENE_LIMIT} on each scene.", "",
+             "| variant | seeds | scenes | R | G | B | largest scene |bias| (scene) |",
+             "|---|---|---|---|---|---|---|"]
+    per_scene: dict[str, dict[str, np.ndarray]] = {}
+    for v in variants:
+        mine = [r for r in rows if r["variant"] == v]
+        if not mine:
+            continue
+        seeds = sorted({r["seed"] for r in mine})
+        scenes = sorted({r["scene"] for r in mine})
+        by_seed = [np.mean([[r[f"bias_{c}"] for c in CHANNELS] for r in mine if r["seed"] == s], axis=0)
+                   for s in seeds]
+        mean, std = np.mean(by_seed, axis=0), (np.std(by_seed, axis=0, ddof=1) if len(seeds) > 1 else None)
+        per_scene[v] = {s: np.mean([[r[f"bias_{c}"] for c in CHANNELS] for r in mine if r["scene"] == s], axis=0)
+                        for s in scenes}
+        worst = max(per_scene[v], key=lambda s: np.abs(per_scene[v][s]).max())
+        cells = [f"{m:+.4f}" + (f" ± {d:.4f}" if std is not None else "") for m, d in
+                 zip(mean, std if std is not None else mean)]
+        lines.append(f"| {variant_label(v)} | {', '.join(map(str, seeds))} | {len(scenes)} | {' | '.join(cells)} | "
+                     f"{np.abs(per_scene[v][worst]).max():.4f} ({worst}) |")
+    lines += ["", "Per scene, mean over its seeds (R, G, B):", "",
+              "| scene | " + " | ".join(variant_label(v) for v in per_scene) + " |",
+              "|---|" + "---|" * len(per_scene)]
+    for s in sorted({s for d in per_scene.values() for s in d}):
+        cells = [", ".join(f"{b:+.3f}" for b in per_scene[v][s]) if s in per_scene[v] else "" for v in per_scene]
+        lines.append(f"| {s} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python benchmarks/colour_bias.py", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--tables", type=Path, default=Path("data/tables_standard"))
+    p.add_argument("--digest", help="the trainer version whose runs to read (a prefix; else the one with the most)")
+    p.add_argument("--variants", default="full,rgb-only")
+    p.add_argument("--out", type=Path, default=Path("benchmarks/results/standard/colour_bias"))
+    args = p.parse_args(argv)
+    variants = [v for v in args.variants.split(",") if v]
+    try:
+        digest, runs = finished_runs(args.tables, variants, args.digest)
+        cache: dict[tuple[str, int], Any] = {}
+        rows = [run_bias(run, cache) for run, _ in sorted(runs, key=lambda x: str(x[0]))]
+    except (ValueError, FileNotFoundError, KeyError) as exc:
+        print(f"colour_bias: error: {exc}", file=sys.stderr)
+        return 2
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    write_rows_csv(args.out.with_suffix(".csv"), rows)
+    write_text(args.out.with_suffix(".md"), summary(rows, variants, digest))
+    print(summary(rows, variants, digest))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

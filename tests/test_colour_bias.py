@@ -1,0 +1,56 @@
+"""The colour cast read from a finished run's saved renders (benchmarks/colour_bias.py) against the
+trainer's own float measurement of it (metrics.json surface_diagnostics)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from benchmarks.colour_bias import main, run_bias
+from smokeseer.cli import main as train
+from tests.test_smokeseer_data import write_splat_dataset
+from tests.test_trainer import TINY
+
+
+def _as_harness_run(run: Path, dataset: Path) -> None:
+    (run / "harness.json").write_text(json.dumps(
+        {"scene": "splat", "variant": "full", "seed": 0, "status": "ok", "run_dir": str(run),
+         "dataset": str(dataset), "code_digest": "c" * 64, "metrics": {}}))
+
+
+def test_the_saved_renders_give_the_trainers_own_colour_bias(tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """A tiny real run: its 8-bit renders give the bias the trainer measured on its float renders,
+    to the 8-bit rounding (half a grey level, 0.002)."""
+    dataset = write_splat_dataset(tmp_path / "splat")
+    run = tmp_path / "tables" / "runs" / "splat" / "full" / "seed0-x"
+    assert train([str(dataset), "--out", str(run)] + TINY) == 0
+    _as_harness_run(run, dataset)
+    recorded = json.loads((run / "metrics.json").read_text())["surface_diagnostics"]
+    row = run_bias(run, {})
+    assert row["smoky_pixels"] == recorded["smoky_pixels"] > 0
+    np.testing.assert_allclose([row["bias_r"], row["bias_g"], row["bias_b"]], recorded["colour_bias_smoky"], atol=2e-3)
+    out = tmp_path / "out" / "colour_bias"
+    assert main(["--tables", str(tmp_path / "tables"), "--variants", "full", "--out", str(out)]) == 0
+    assert out.with_suffix(".csv").is_file() and "| Ours (Full) | 0 | 1 |" in out.with_suffix(".md").read_text()
+
+
+def test_a_dataset_whose_masks_are_gone_is_one_line_naming_the_file(tmp_path: Path,
+                                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    dataset = write_splat_dataset(tmp_path / "splat", smoke="none")
+    for mask in (dataset / "rgb" / "smoke_mask").glob("*"):
+        mask.unlink()
+    (dataset / "rgb" / "smoke_mask").rmdir()
+    run = tmp_path / "tables" / "runs" / "splat" / "full" / "seed0-x"
+    (run / "renders" / "surface").mkdir(parents=True)
+    (run / "train_log.csv").write_text("iteration\n")
+    clean = sorted((dataset / "rgb" / "clean").glob("*.png"))[0]
+    (run / "metrics.json").write_text(json.dumps({"per_image": [{"file_stem": clean.stem}]}))
+    (run / "renders" / "surface" / clean.name).write_bytes(clean.read_bytes())
+    _as_harness_run(run, dataset)
+    assert main(["--tables", str(tmp_path / "tables"), "--variants", "full", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "smoke_mask/0000.png: missing file" in err
+    assert not (tmp_path / "o.csv").exists()
