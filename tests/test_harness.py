@@ -396,6 +396,12 @@ def test_rule_candidates_run_beside_full_and_share_its_stage2(tmp_path: Path) ->
     specs = {(r.variant, r.seed): r for r in plan_runs(planes, ds, ds) if r.scene == "alpha"}
     assert stage2_sha(specs[("motion-planes", 0)]) == stage2_sha(specs[("full", 0)])  # the motion is Stage 3's
     assert stage2_sha(specs[("densify-by-gradient", 0)]) != stage2_sha(specs[("full", 0)])
+    from eval.runs import CANDIDATES
+    from smokeseer.config import make_config
+
+    for key, v in CANDIDATES.items():  # every candidate is a Full run the standard profile accepts
+        assert v.mode == "full" and v.table == "candidates" and v.overrides, key
+        make_config("full", "standard", overrides=v.overrides)
     with pytest.raises(ValueError, match="candidates: unknown 'start-magic'"):
         _cfg(tmp_path, candidates=["start-magic"]).validate()
     # the tables and the report are written with candidates among the runs
