@@ -23,7 +23,6 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks import full_seed_runs
-from contracts.atomic import write_rows_csv
 from contracts.float_setup import HELD_TO, ISA_VARIABLES
 from eval.finished_runs import finished_runs
 
@@ -104,14 +103,9 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"float_setup: error: {exc}", file=sys.stderr)
         return 2
-    if not rows:
-        print(f"float_setup: error: no scene of {', '.join(scenes)} has finished on both sides", file=sys.stderr)
+    if not full_seed_runs.write_pairs("float_setup", args.csv, rows, ("default", "avx2"), "avx2_minus_default",
+                                      f"no scene of {', '.join(scenes)} has finished on both sides"):
         return 2
-    args.csv.parent.mkdir(parents=True, exist_ok=True)
-    write_rows_csv(args.csv, rows)
-    for r in rows:
-        print(f"{r['scene']:<11} default {r['default_psnr']:6.2f}  avx2 {r['avx2_psnr']:6.2f}  "
-              f"difference {r['avx2_minus_default']:+.2f} dB")
     print(f"wrote {args.csv} ({len(rows)} of {len(scenes)} scenes finished on both sides)")
     return 0
 

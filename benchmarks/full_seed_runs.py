@@ -7,6 +7,9 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import Any
+
+from contracts.atomic import write_rows_csv
 
 
 def add_arguments(p: argparse.ArgumentParser, scenes: str, csv: str) -> None:
@@ -43,3 +46,19 @@ def tables_command(datasets: dict[str, Path], profile: str, seed: int, workers: 
 def validation_psnr(run: Path) -> float | None:
     value = (json.loads((run / "metrics.json").read_text()).get("validation") or {}).get("psnr")
     return None if value is None else float(value)
+
+
+def write_pairs(prog: str, csv: Path, rows: list[dict[str, Any]], sides: tuple[str, str], difference: str,
+                missing: str) -> bool:
+    """Write the per-scene CSV of two sides' PSNRs (``sides``: the two row keys' prefixes, e.g.
+    ("default", "avx2")) and print a line per scene; False after one error line (``missing``) when
+    no scene has both."""
+    if not rows:
+        print(f"{prog}: error: {missing}", file=sys.stderr)
+        return False
+    csv.parent.mkdir(parents=True, exist_ok=True)
+    write_rows_csv(csv, rows)
+    a, b = sides
+    for r in rows:
+        print(f"{r['scene']:<11} {a} {r[f'{a}_psnr']:6.2f}  {b} {r[f'{b}_psnr']:6.2f}  difference {r[difference]:+.3f} dB")
+    return True

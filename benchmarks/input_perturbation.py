@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks import full_seed_runs
-from contracts.atomic import write_json, write_rows_csv
+from contracts.atomic import write_json
 from contracts.imageio import read_png, write_png
 from eval.finished_runs import finished_runs
 
@@ -127,15 +127,10 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:  # no finished run at all
         print(f"input_perturbation: error: {exc}", file=sys.stderr)
         return 2
-    if not rows:
-        print(f"input_perturbation: error: {tables}: no scene of {', '.join(scenes)} has both runs finished",
-              file=sys.stderr)
+    if not full_seed_runs.write_pairs("input_perturbation", args.csv, rows, ("original", "perturbed"),
+                                      "perturbed_minus_original",
+                                      f"{tables}: no scene of {', '.join(scenes)} has both runs finished"):
         return 2
-    args.csv.parent.mkdir(parents=True, exist_ok=True)
-    write_rows_csv(args.csv, rows)
-    for r in rows:
-        print(f"{r['scene']:<11} original {r['original_psnr']:6.2f}  perturbed {r['perturbed_psnr']:6.2f}  "
-              f"difference {r['perturbed_minus_original']:+.3f} dB")
     worst = max(abs(r["perturbed_minus_original"]) for r in rows)
     print(f"largest move {worst:.3f} dB (limit {LIMIT_DB} dB) over {len(rows)} of {len(scenes)} scenes; wrote {args.csv}")
     return 0
