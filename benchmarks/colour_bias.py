@@ -83,12 +83,13 @@ def summary(rows: list[dict[str, Any]], variants: list[str], digest: str) -> str
         scenes = sorted({r["scene"] for r in mine})
         by_seed = [np.mean([[r[f"bias_{c}"] for c in CHANNELS] for r in mine if r["seed"] == s], axis=0)
                    for s in seeds]
-        mean, std = np.mean(by_seed, axis=0), (np.std(by_seed, axis=0, ddof=1) if len(seeds) > 1 else None)
+        mean = np.mean(by_seed, axis=0)
         per_scene[v] = {s: np.mean([[r[f"bias_{c}"] for c in CHANNELS] for r in mine if r["scene"] == s], axis=0)
                         for s in scenes}
         worst = max(per_scene[v], key=lambda s: np.abs(per_scene[v][s]).max())
-        cells = [f"{m:+.4f}" + (f" ± {d:.4f}" if std is not None else "") for m, d in
-                 zip(mean, std if std is not None else mean)]
+        cells = [f"{m:+.4f}" for m in mean]
+        if len(seeds) > 1:
+            cells = [f"{c} ± {d:.4f}" for c, d in zip(cells, np.std(by_seed, axis=0, ddof=1))]
         lines.append(f"| {variant_label(v)} | {', '.join(map(str, seeds))} | {len(scenes)} | {' | '.join(cells)} | "
                      f"{np.abs(per_scene[v][worst]).max():.4f} ({worst}) |")
     lines += ["", "Per scene, mean over its seeds (R, G, B):", "",
