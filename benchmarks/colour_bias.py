@@ -7,8 +7,8 @@ surface render against the clean frame, on the test pixels the smoke mask marks.
 
 A run's bias is read from its saved 8-bit surface renders (`renders/surface/*.png`, what run
 folders keep) against the clean frames and smoke masks of the dataset its harness record names,
-loaded at the renders' width as the trainer loads them: the formula of metrics.json
-`surface_diagnostics.colour_bias_smoky`, which newer runs record from their float renders (the
+loaded at the renders' width as the trainer loads them: the trainer's own function
+(`smokeseer.evaluation.scoring.masked_colour_bias`), which newer runs record from their float renders (the
 two agree to the 8-bit rounding, under 0.002; tests/test_colour_bias.py). Writes OUT.csv (one row
 per run) and OUT.md: per variant, the per-channel bias on the ten-scene mean (mean ± std over
 seeds) and the largest |bias| of any scene (mean over its seeds), the two numbers the surface
@@ -34,6 +34,7 @@ from contracts.recorded_paths import recorded_location  # noqa: E402
 from eval.finished_runs import finished_runs  # noqa: E402
 from eval.runs import variant_label  # noqa: E402
 from scenes.load import load_scene  # noqa: E402
+from smokeseer.evaluation.scoring import masked_colour_bias  # noqa: E402
 
 CHANNELS = ("r", "g", "b")
 MEAN_LIMIT, SCENE_LIMIT = 0.02, 0.05
@@ -54,13 +55,9 @@ def run_bias(run: Path, scene_cache: dict[tuple[str, int], Any]) -> dict[str, An
     if rgb.masks is None or rgb.clean is None:
         raise ValueError(f"{dataset}: no smoke masks or clean frames to measure a colour cast against")
     index = {f.file_stem: i for i, f in enumerate(rgb.frames)}
-    total, pixels = np.zeros(3), 0
-    for stem, img in zip(stems, renders):
-        i = index[stem]
-        inside = rgb.masks[i] > 0.5
-        total += (img[inside] - rgb.clean[i][inside].astype(np.float64)).sum(axis=0)
-        pixels += int(inside.sum())
-    bias = total / pixels if pixels else np.full(3, np.nan)
+    found, pixels = masked_colour_bias((img, rgb.clean[index[stem]], rgb.masks[index[stem]])
+                                       for stem, img in zip(stems, renders))
+    bias = np.asarray(found if found is not None else [np.nan] * 3)
     return {"scene": rec["scene"], "variant": rec["variant"], "seed": rec["seed"], "run": rec["run_dir"],
             **{f"bias_{c}": round(float(b), 5) for c, b in zip(CHANNELS, bias)},
             "max_abs_bias": round(float(np.abs(bias).max()), 5), "smoky_pixels": pixels}

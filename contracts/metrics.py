@@ -58,10 +58,31 @@ def _image_pair(pred: Any, target: Any) -> tuple[np.ndarray, np.ndarray]:
 
 def psnr(pred: Any, target: Any, max_val: float = 1.0) -> float:
     """Peak signal-to-noise ratio in dB of one image pair (average per image, not per pixel pool)."""
+    _check_max_val(max_val)
+    p, t = _image_pair(pred, target)
+    return _psnr_of_mse(float(np.mean((p - t) ** 2)), max_val)
+
+
+def psnr_where(pred: Any, target: Any, where: Any, max_val: float = 1.0) -> float | None:
+    """PSNR in dB of one image pair over the pixels ``where`` (H×W, true or > 0.5) marks, every
+    channel of them; None where it marks none."""
+    _check_max_val(max_val)
+    p, t = _image_pair(pred, target)
+    w = np.asarray(where)
+    if w.shape != p.shape[:2]:
+        raise ValueError(f"where: shape {w.shape} does not match the image's {p.shape[:2]}")
+    inside = w > 0.5 if w.dtype != bool else w
+    if not inside.any():
+        return None
+    return _psnr_of_mse(float(np.mean((p[inside] - t[inside]) ** 2)), max_val)
+
+
+def _check_max_val(max_val: float) -> None:
     if not (max_val > 0 and math.isfinite(max_val)):
         raise ValueError(f"max_val: must be positive and finite, got {max_val}")
-    p, t = _image_pair(pred, target)
-    mse = float(np.mean((p - t) ** 2))
+
+
+def _psnr_of_mse(mse: float, max_val: float) -> float:
     mse = max(mse, max_val**2 * 10 ** (-PSNR_CAP_DB / 10))
     return float(10.0 * math.log10(max_val**2 / mse))
 

@@ -12,11 +12,14 @@ RESULTS_FORMAT = "smokeseer-synth-results"
 RESULTS_FORMAT_VERSION = 1
 METRIC_KEYS = ("psnr", "ssim", "lpips", "lpips_status", "psnr_input", "depth_absrel", "depth_rmse", "mask_iou")
 SHADOWED_METRIC_KEYS = ("psnr_shadowed", "ssim_shadowed", "psnr_input_shadowed")
-SURFACE_DIAGNOSTIC_KEYS = ("colour_bias_smoky", "smoky_pixels", "colour_bias_smoky_max", "surface_alpha_under_0_9",
-                           "psnr_black_background")
-"""metrics.json ``surface_diagnostics`` (smokeseer/evaluation/scoring.py): how the de-smoked surface errs."""
 """Scores against the dataset's shadowed ground truth (``rgb.shadowed``): null without it, and absent
 from runs written before it existed."""
+SURFACE_DIAGNOSTIC_KEYS = ("colour_bias_smoky", "smoky_pixels", "colour_bias_smoky_max", "surface_alpha_under_0_9")
+"""metrics.json ``surface_diagnostics`` (smokeseer/evaluation/scoring.py): how the de-smoked surface errs."""
+SURFACE_PSNR_KEYS = ("psnr_surface_pixels", "psnr_surface_pixels_on_black")
+"""``surface_diagnostics``' PSNRs on the pixels with a surface in the clean depth, with the environment
+and on black; runs of trainer 5e0f3ef6 recorded ``psnr_black_background`` (every pixel, on black) instead."""
+SURFACE_PSNR_KEYS_BEFORE = ("psnr_black_background",)
 TOP_KEYS = ("format", "format_version", "scene", "dataset", "method", "profile", "seed", "status", "provenance")
 PROVENANCE_KEYS = ("commit", "version", "source_digest", "threads", "machine")
 RENDER_DIRS = ("composite", "surface", "smoke")
@@ -134,7 +137,9 @@ def surface_diagnostics(doc: dict[str, Any], mpath: Path) -> dict[str, Any] | No
         raise ResultsFormatError(f"{mpath}: field 'surface_diagnostics.colour_bias_smoky' must be 3 numbers or null")
     for i, value in enumerate(bias or []):
         _finite_or_null(mpath, f"surface_diagnostics.colour_bias_smoky[{i}]", value)
-    for key in ("colour_bias_smoky_max", "surface_alpha_under_0_9", "psnr_black_background"):
+    psnr_keys = SURFACE_PSNR_KEYS_BEFORE if "psnr_black_background" in found else SURFACE_PSNR_KEYS
+    _object_with(found, "surface_diagnostics", psnr_keys, mpath)
+    for key in ("colour_bias_smoky_max", "surface_alpha_under_0_9", *psnr_keys):
         _finite_or_null(mpath, f"surface_diagnostics.{key}", found[key])
     return found
 

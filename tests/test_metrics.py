@@ -11,7 +11,7 @@ import torch.nn.functional as F
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
 from contracts import metrics
-from contracts.metrics import depth_errors, load_lpips, mask_iou, psnr, ssim_3dgs, ssim_map_3dgs
+from contracts.metrics import depth_errors, load_lpips, mask_iou, psnr, psnr_where, ssim_3dgs, ssim_map_3dgs
 
 
 def _pair(seed: int = 0, shape: tuple[int, ...] = (40, 56, 3)) -> tuple[np.ndarray, np.ndarray]:
@@ -40,6 +40,21 @@ def test_psnr_matches_skimage_and_accepts_torch() -> None:
     ref = peak_signal_noise_ratio(t, p, data_range=1.0)
     assert psnr(p, t) == pytest.approx(ref, abs=1e-9)
     assert psnr(torch.from_numpy(p), torch.from_numpy(t)) == pytest.approx(ref, abs=1e-9)
+
+
+def test_psnr_where_scores_only_the_marked_pixels() -> None:
+    p, t = _pair(3)
+    where = np.zeros(p.shape[:2], dtype=bool)
+    where[5:20, 10:40] = True
+    far = p.copy()
+    far[~where] = 1.0 - t[~where]  # what lies outside the marked pixels must not count
+    ref = peak_signal_noise_ratio(t[where], p[where], data_range=1.0)
+    assert psnr_where(far, t, where) == pytest.approx(ref, abs=1e-9)
+    assert psnr_where(far, t, where.astype(float)) == pytest.approx(ref, abs=1e-9)  # a 0/1 mask reads the same
+    assert psnr_where(p, t, np.ones(p.shape[:2])) == pytest.approx(psnr(p, t), abs=1e-9)
+    assert psnr_where(p, t, np.zeros(p.shape[:2])) is None  # nothing marked, nothing to score
+    with pytest.raises(ValueError, match="where: shape"):
+        psnr_where(p, t, where[:, :-1])
 
 
 def test_psnr_identical_is_capped_finite() -> None:

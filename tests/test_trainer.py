@@ -50,7 +50,8 @@ def _assert_complete(run: Path, thermal: bool = True) -> dict:
     assert doc["warnings"] == [], doc["warnings"]  # well-formed input, a sound optimisation: nothing to say
     assert doc["stages"]["thermal_used"] is thermal
     diagnostics = doc["surface_diagnostics"]  # the surface's own errors beside its PSNR
-    assert 0.0 <= diagnostics["surface_alpha_under_0_9"] <= 1.0 and math.isfinite(diagnostics["psnr_black_background"])
+    assert 0.0 <= diagnostics["surface_alpha_under_0_9"] <= 1.0 and all(
+        math.isfinite(diagnostics[k]) for k in ("psnr_surface_pixels", "psnr_surface_pixels_on_black"))
     stems = [e["file_stem"] for e in doc["per_image"]]
     assert stems
     for sub in ("composite", "surface", "smoke") + (("thermal",) if thermal else ()):

@@ -7,14 +7,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 import numpy as np
 import torch
 from PIL import Image
 
 from contracts.atomic import atomic_path
-from contracts.metrics import depth_errors, load_lpips, mask_iou, psnr, ssim_3dgs
+from contracts.metrics import depth_errors, load_lpips, mask_iou, psnr, psnr_where, ssim_3dgs
 from contracts.results_format import SHADOWED_METRIC_KEYS
 from scenes.scene import SceneData
 from smokeseer.model.scene import SceneModel, View, make_view, sh_coeffs, smoke_sh
@@ -133,28 +133,49 @@ def write_renders(model: SceneModel, scene: SceneData, out: Path, device: torch.
     return res
 
 
+def masked_colour_bias(pairs: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> tuple[list[float] | None, int]:
+    """The colour cast a de-smoked surface keeps: the mean signed error per channel (render − clean)
+    over the pixels each view's smoke mask marks (> 0.5), from (render, clean, mask) triples, and the
+    number of those pixels; None where no mask marks any. The one formula behind metrics.json
+    ``surface_diagnostics.colour_bias_smoky`` and ``benchmarks/colour_bias.py``."""
+    total, pixels = np.zeros(3), 0
+    for render, clean, mask in pairs:
+        inside = mask > 0.5
+        total += (np.asarray(render, dtype=np.float64)[inside] - np.asarray(clean, dtype=np.float64)[inside]).sum(axis=0)
+        pixels += int(inside.sum())
+    return ((total / pixels).tolist() if pixels else None), pixels
+
+
+def _mean_or_none(values: list[float | None]) -> float | None:
+    kept = [v for v in values if v is not None]
+    return float(np.mean(kept)) if kept else None
+
+
 def surface_diagnostics(renders: TestRenders, scene: SceneData) -> dict[str, Any] | None:
     """How the de-smoked surface goes wrong, beyond its PSNR (metrics.json ``surface_diagnostics``):
-    its mean signed error per channel on the test pixels the smoke mask marks (a colour cast left by
-    the removed smoke), the share of test pixels where the surface is not opaque (alpha under
-    ``OPAQUE_SURFACE``: the environment shows through), and the PSNR with the environment swapped
-    for black (how much of the score the background carries). None without clean ground truth."""
+    its colour cast on the test pixels the smoke mask marks (``masked_colour_bias``), the share of
+    test pixels where the surface is not opaque (alpha under ``OPAQUE_SURFACE``: the environment
+    shows through), and, on the pixels where the clean depth has a surface, the PSNR of the surface
+    render and of the surface rendered on black: their gap is how much of the score the environment
+    seen through the surface carries. The sky, where black is wrong by construction, is left out.
+    None without clean ground truth; the surface-pixel PSNRs are None without clean depth."""
     rgb = scene.rgb
     idx = rgb.indices("test")
     if rgb.clean is None or not idx:
         return None
-    errors, smoky = [], 0
-    if rgb.masks is not None:
+    bias, smoky = (None, 0) if rgb.masks is None else masked_colour_bias(
+        (renders.surface[k], rgb.clean[i], rgb.masks[i]) for k, i in enumerate(idx))
+    on_surface: dict[str, list[float | None]] = {"psnr_surface_pixels": [], "psnr_surface_pixels_on_black": []}
+    if rgb.depth is not None:
         for k, i in enumerate(idx):
-            inside = rgb.masks[i] > 0.5
-            errors.append((renders.surface[k][inside] - rgb.clean[i][inside].astype(np.float64)).sum(axis=0))
-            smoky += int(inside.sum())
-    bias = (np.sum(errors, axis=0) / smoky).tolist() if smoky else None
-    black = float(np.mean([psnr(img, rgb.clean[i]) for img, i in zip(renders.surface_on_black, idx)]))
+            where = rgb.depth[i] > 0
+            on_surface["psnr_surface_pixels"].append(psnr_where(renders.surface[k], rgb.clean[i], where))
+            on_surface["psnr_surface_pixels_on_black"].append(
+                psnr_where(renders.surface_on_black[k], rgb.clean[i], where))
     return {"colour_bias_smoky": bias, "smoky_pixels": smoky,
             "colour_bias_smoky_max": max(abs(b) for b in bias) if bias else None,
             "surface_alpha_under_0_9": float(np.mean([(a < OPAQUE_SURFACE).mean() for a in renders.surface_alpha])),
-            "psnr_black_background": black}
+            **{key: _mean_or_none(values) for key, values in on_surface.items()}}
 
 
 def score(renders: TestRenders, scene: SceneData, lpips_net: str = "alex", lpips_weights: str | None = None,
