@@ -89,17 +89,22 @@ def kept_rows(path: Path, replaced: set[tuple]) -> list[dict]:
 
 
 def save_panels(path: Path, titles: list[str], draw: Callable[[Any, int], None], xlabel: str, ylabel: str) -> None:
-    """One panel per title, side by side, each drawn by ``draw(axes, index)``, with a grid and a
-    legend; written atomically as a PNG."""
+    """One panel per title, side by side, each drawn by ``draw(axes, index)``, with a grid, and one
+    legend for all of them below (trainer labels can be long settings); written atomically as a PNG."""
     fig, axes = plt.subplots(1, len(titles), figsize=(4 * len(titles), 3.6), squeeze=False)
+    entries: dict[str, Any] = {}
     for i, (ax, title) in enumerate(zip(axes[0], titles)):
         draw(ax, i)
         ax.set_title(title)
         ax.set_xlabel(xlabel)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
+        for handle, label in zip(*ax.get_legend_handles_labels()):
+            entries.setdefault(label, handle)
     axes[0][0].set_ylabel(ylabel)
-    fig.tight_layout()
+    legend_in = 0.2 * len(entries) + 0.2
+    fig.set_size_inches(fig.get_figwidth(), 3.6 + legend_in)
+    fig.legend(list(entries.values()), list(entries), loc="lower left", fontsize=7, frameon=False)
+    fig.tight_layout(rect=(0.0, legend_in / (3.6 + legend_in), 1.0, 1.0))
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=100, format="png")
     plt.close(fig)

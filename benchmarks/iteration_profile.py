@@ -225,7 +225,7 @@ class ProfiledProblem(StageProblem):
 
     def __init__(self, inner: StageProblem, offset: int, prof: profile) -> None:
         self.inner, self.offset, self.prof = inner, offset, prof
-        self.stage, self.name = inner.stage, inner.name
+        self.stage, self.name, self.streams = inner.stage, inner.name, inner.streams
         self.checkpoint = f"{inner.checkpoint}_profiled"  # never the real stage's: nothing to resume
         self.clock: dict[int, tuple[float, float]] = {}
 
@@ -341,7 +341,8 @@ def profile_case(dataset: Path, mode: str, counts: Counts, tmp: Path, fraction: 
     split_rng = torch.Generator().manual_seed(0)
     windows: dict[int, Window] = {}
 
-    def stage2_window(ctx: Any, mod: Any, init_points: Any, deformable: bool, heldout_psnr: Any = None) -> Any:
+    def stage2_window(ctx: Any, mod: Any, init_points: Any, deformable: bool, heldout_psnr: Any = None,
+                      sha: Any = None) -> Any:
         problem = Stage2Problem(ctx, mod, init_points, deformable, heldout_psnr)
         problem.load_state(payload[2])
         loaded = problem.g.n
