@@ -71,7 +71,7 @@ def psnr_where(pred: Any, target: Any, where: Any, max_val: float = 1.0) -> floa
     w = np.asarray(where)
     if w.shape != p.shape[:2]:
         raise ValueError(f"where: shape {w.shape} does not match the image's {p.shape[:2]}")
-    inside = w > 0.5 if w.dtype != bool else w
+    inside = w > 0.5
     if not inside.any():
         return None
     return _psnr_of_mse(float(np.mean((p[inside] - t[inside]) ** 2)), max_val)

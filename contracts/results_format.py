@@ -137,7 +137,7 @@ def surface_diagnostics(doc: dict[str, Any], mpath: Path) -> dict[str, Any] | No
         raise ResultsFormatError(f"{mpath}: field 'surface_diagnostics.colour_bias_smoky' must be 3 numbers or null")
     for i, value in enumerate(bias or []):
         _finite_or_null(mpath, f"surface_diagnostics.colour_bias_smoky[{i}]", value)
-    psnr_keys = SURFACE_PSNR_KEYS_BEFORE if "psnr_black_background" in found else SURFACE_PSNR_KEYS
+    psnr_keys = SURFACE_PSNR_KEYS_BEFORE if SURFACE_PSNR_KEYS_BEFORE[0] in found else SURFACE_PSNR_KEYS
     _object_with(found, "surface_diagnostics", psnr_keys, mpath)
     for key in ("colour_bias_smoky_max", "surface_alpha_under_0_9", *psnr_keys):
         _finite_or_null(mpath, f"surface_diagnostics.{key}", found[key])

@@ -88,7 +88,8 @@ CANDIDATES: dict[str, Variant] = {
         Variant("background-black", "Full, no environment behind the surface", "full", "candidates", {},
                 note="no learned environment behind any render (background=black, as the official code): a "
                      "surface that is not opaque can no longer show an environment that fits the smoke through "
-                     "it (the surface issue; surface_diagnostics' surface-pixel PSNRs, with the environment and on black, measure the leak)",
+                     "it (the surface issue; surface_diagnostics' surface-pixel PSNRs, with the environment "
+                     "and on black, measure the leak)",
                 overrides={"background": "black"}),
         *(Variant(f"priors-{name}", f"Full, smoke priors at {share} of the official strength", "full", "candidates", {},
                   note="the smoke priors at a share of the official code's synthetic weights, in this trainer's units "

@@ -133,7 +133,8 @@ def write_renders(model: SceneModel, scene: SceneData, out: Path, device: torch.
     return res
 
 
-def masked_colour_bias(pairs: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> tuple[list[float] | None, int]:
+def masked_colour_bias(
+        pairs: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> tuple[list[float] | None, int]:
     """The colour cast a de-smoked surface keeps: the mean signed error per channel (render − clean)
     over the pixels each view's smoke mask marks (> 0.5), from (render, clean, mask) triples, and the
     number of those pixels; None where no mask marks any. The one formula behind metrics.json
@@ -165,17 +166,14 @@ def surface_diagnostics(renders: TestRenders, scene: SceneData) -> dict[str, Any
         return None
     bias, smoky = (None, 0) if rgb.masks is None else masked_colour_bias(
         (renders.surface[k], rgb.clean[i], rgb.masks[i]) for k, i in enumerate(idx))
-    on_surface: dict[str, list[float | None]] = {"psnr_surface_pixels": [], "psnr_surface_pixels_on_black": []}
-    if rgb.depth is not None:
-        for k, i in enumerate(idx):
-            where = rgb.depth[i] > 0
-            on_surface["psnr_surface_pixels"].append(psnr_where(renders.surface[k], rgb.clean[i], where))
-            on_surface["psnr_surface_pixels_on_black"].append(
-                psnr_where(renders.surface_on_black[k], rgb.clean[i], where))
+    on_surface = {key: None if rgb.depth is None else _mean_or_none(
+                      [psnr_where(images[k], rgb.clean[i], rgb.depth[i] > 0) for k, i in enumerate(idx)])
+                  for key, images in (("psnr_surface_pixels", renders.surface),
+                                      ("psnr_surface_pixels_on_black", renders.surface_on_black))}
     return {"colour_bias_smoky": bias, "smoky_pixels": smoky,
             "colour_bias_smoky_max": max(abs(b) for b in bias) if bias else None,
             "surface_alpha_under_0_9": float(np.mean([(a < OPAQUE_SURFACE).mean() for a in renders.surface_alpha])),
-            **{key: _mean_or_none(values) for key, values in on_surface.items()}}
+            **on_surface}
 
 
 def score(renders: TestRenders, scene: SceneData, lpips_net: str = "alex", lpips_weights: str | None = None,
