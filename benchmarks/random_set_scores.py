@@ -17,7 +17,9 @@ smoky input.
 `--candidates start-thermal,...` reads the rule candidates run beside Full (`regenerate-tables
 --candidates`) too: each gets a column, and the same counts with it in Full's place, plus its
 paired difference from Full (mean, std over scenes, scenes ahead). That is what a rule is chosen on,
-with `--split val` on random-dev; `--summary CSV` writes those counts, one row per rule.
+with `--split val` on random-dev; `--summary CSV` writes those counts, one row per rule. With
+candidates a scene needs Full and every candidate, not RGB-only: the counts against RGB-only read
+the scenes where it was trained, and say how many.
 """
 from __future__ import annotations
 
@@ -62,17 +64,19 @@ def score_rows(tables: Path, datasets: Path, split: str, seed: int, digest: str 
     for run, rec in runs:
         if rec["seed"] == seed:
             by_scene.setdefault(rec["scene"], {})[rec["variant"]] = (run, rec)
+    required = {"full", *candidates} if candidates else {"full", "rgb-only"}
     rows = []
     for scene in sorted(by_scene):
-        if not {"full", "rgb-only", *candidates} <= set(by_scene[scene]):
+        if not required <= set(by_scene[scene]):
             continue
         meta = json.loads((datasets / scene / "dataset.json").read_text())
         depth = (meta.get("smoke", {}).get("optical_depth") or {}).get("achieved")
         full, full_input = _psnrs(*by_scene[scene]["full"], split)
-        rgb, _ = _psnrs(*by_scene[scene]["rgb-only"], split)
+        rgb = _psnrs(*by_scene[scene]["rgb-only"], split)[0] if "rgb-only" in by_scene[scene] else None
         rows.append({"scene": scene, "rgb_optical_depth": depth, "input_psnr": round(full_input, 4),
-                     "full_psnr": round(full, 4), "rgb_only_psnr": round(rgb, 4),
-                     "full_minus_rgb_only": round(full - rgb, 4), "full_minus_input": round(full - full_input, 4),
+                     "full_psnr": round(full, 4), "rgb_only_psnr": None if rgb is None else round(rgb, 4),
+                     "full_minus_rgb_only": None if rgb is None else round(full - rgb, 4),
+                     "full_minus_input": round(full - full_input, 4),
                      **{column(c): round(_psnrs(*by_scene[scene][c], split)[0], 4) for c in candidates}})
     return chosen, rows
 
@@ -82,23 +86,27 @@ def counts(rows: list[dict[str, Any]], variant: str = "full") -> dict[str, Any]:
     0.3 dB of RGB-only or better, its mean lead on dense scenes (optical depth >= 1), scenes where it
     beats the input; and its paired difference from Full."""
     score = np.array([r[column(variant)] for r in rows])
-    lead = score - np.array([r["rgb_only_psnr"] for r in rows])
+    paired = np.array([r["rgb_only_psnr"] is not None for r in rows])
+    lead = score[paired] - np.array([r["rgb_only_psnr"] for r in rows if r["rgb_only_psnr"] is not None])
     over_full = score - np.array([r["full_psnr"] for r in rows])
-    dense = np.array([r["rgb_optical_depth"] is not None and r["rgb_optical_depth"] >= DENSE for r in rows])
+    dense = np.array([r["rgb_optical_depth"] is not None and r["rgb_optical_depth"] >= DENSE
+                      for r in rows], dtype=bool)[paired]
     return {"rule": variant, "scenes": len(rows), "mean_psnr": float(score.mean()),
-            "within_0.3": int((lead >= -0.3).sum()),
+            "rgb_only_scenes": int(paired.sum()), "within_0.3": int((lead >= -0.3).sum()) if paired.any() else None,
             "dense_scenes": int(dense.sum()), "dense_mean_lead": float(lead[dense].mean()) if dense.any() else None,
             "beats_input": int(sum(score > np.array([r["input_psnr"] for r in rows]))),
-            "mean_lead": float(lead.mean()), "minus_full_mean": float(over_full.mean()),
+            "mean_lead": float(lead.mean()) if paired.any() else None, "minus_full_mean": float(over_full.mean()),
             "minus_full_std": float(over_full.std(ddof=1)) if len(rows) > 1 else 0.0,
             "ahead_of_full": int((over_full > 0).sum())}
 
 
 def describe(c: dict[str, Any]) -> str:
     dense = "n/a" if c["dense_mean_lead"] is None else f"{c['dense_mean_lead']:+.2f} dB"
-    line = (f"{c['rule']}: mean {c['mean_psnr']:.2f} dB; within 0.3 dB of RGB-only or better on {c['within_0.3']}; "
-            f"- RGB-only {c['mean_lead']:+.2f} dB on the mean, {dense} on the {c['dense_scenes']} scenes at optical "
-            f"depth >= {DENSE:g}; over the smoky input on {c['beats_input']}")
+    of = "" if c["rgb_only_scenes"] == c["scenes"] else f" (RGB-only trained on {c['rgb_only_scenes']} of them)"
+    versus = ("RGB-only not trained; " if c["rgb_only_scenes"] == 0 else
+              f"within 0.3 dB of RGB-only or better on {c['within_0.3']}{of}; - RGB-only {c['mean_lead']:+.2f} dB "
+              f"on the mean, {dense} on the {c['dense_scenes']} scenes at optical depth >= {DENSE:g}; ")
+    line = f"{c['rule']}: mean {c['mean_psnr']:.2f} dB; {versus}over the smoky input on {c['beats_input']}"
     if c["rule"] != "full":
         line += (f"; - Full {c['minus_full_mean']:+.2f} ± {c['minus_full_std']:.2f} dB, ahead on "
                  f"{c['ahead_of_full']} of {c['scenes']}")
@@ -124,8 +132,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"random_set_scores: error: {exc}", file=sys.stderr)
         return 2
     if not rows:
-        print(f"random_set_scores: error: {args.tables}: no scene has finished Full and RGB-only runs"
-              f"{' and every candidate' if candidates else ''} at seed {args.seed}", file=sys.stderr)
+        print(f"random_set_scores: error: {args.tables}: no scene has finished "
+              f"{'Full and every candidate' if candidates else 'Full and RGB-only runs'} at seed {args.seed}",
+              file=sys.stderr)
         return 2
     args.out.parent.mkdir(parents=True, exist_ok=True)
     write_rows_csv(args.out, rows)

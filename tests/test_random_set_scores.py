@@ -57,7 +57,8 @@ def test_scenes_are_paired_and_the_must_hold_counts_are_printed(tmp_path: Path,
 def test_candidates_are_counted_in_fulls_place_and_against_full(tmp_path: Path,
                                                                capsys: pytest.CaptureFixture[str]) -> None:
     """A rule candidate gets its column and the same counts, plus its paired difference from Full; a
-    scene where a candidate has not finished has no row."""
+    scene where a candidate has not finished has no row, one without RGB-only has one (the counts
+    against RGB-only leave it out and say so)."""
     tables, datasets = tmp_path / "tables", tmp_path / "sets"
     for scene, depth, full, rgb, cand in (("random_1", 0.2, 21.0, 21.2, 21.5), ("random_2", 1.5, 19.0, 16.0, 20.0),
                                           ("random_3", 2.5, 18.0, 18.5, 20.5)):
@@ -81,6 +82,24 @@ def test_candidates_are_counted_in_fulls_place_and_against_full(tmp_path: Path,
     assert "- Full +1.33 ± 1.04 dB, ahead on 3 of 3" in text          # 0.5, 1.0, 2.5
     with open(summary) as f:
         assert [r["rule"] for r in csv.DictReader(f)] == ["full", "start-thermal"]
+    _dataset(datasets, "random_5", 1.2)  # Full and the candidate, no RGB-only: a row, left out of those counts
+    _run(tables, "random_5", "full", 20.0, 18.0)
+    _run(tables, "random_5", "start-thermal", 19.0, 17.0)
+    assert main(["--tables", str(tables), "--datasets", str(datasets), "--out", str(out),
+                 "--candidates", "start-thermal"]) == 0
+    with open(out) as f:
+        last = list(csv.DictReader(f))[-1]
+    assert (last["scene"], last["rgb_only_psnr"], last["start_thermal_psnr"]) == ("random_5", "", "19.0")
+    text = capsys.readouterr().out
+    assert "4 scenes" in text and "(RGB-only trained on 3 of them)" in text
+    assert "+3.00 dB on the 2 scenes at optical depth >= 1" in text   # random_5 has no pair
+    assert "- Full +0.75 ± 1.44 dB, ahead on 3 of 4" in text          # 0.5, 1.0, 2.5, -1.0
+    shutil.rmtree(tables / "runs" / "random_1" / "rgb-only")
+    shutil.rmtree(tables / "runs" / "random_2" / "rgb-only")
+    shutil.rmtree(tables / "runs" / "random_3" / "rgb-only")
+    assert main(["--tables", str(tables), "--datasets", str(datasets), "--out", str(out),
+                 "--candidates", "start-thermal"]) == 0
+    assert "start-thermal: mean 20.25 dB; RGB-only not trained; over the smoky input on" in capsys.readouterr().out
 
 
 def test_runs_without_validation_views_or_pairs_are_one_line(tmp_path: Path,
