@@ -85,6 +85,13 @@ CANDIDATES: dict[str, Variant] = {
                      "the floor at 0.4 where the estimate reaches it (loss.mask_floor_where=estimated-bound; "
                      "docs/method.md, Decisions, rows 16-17)",
                 overrides={"loss.mask_floor_where": "estimated-bound"}),
+        Variant("thermal-where-smoky", "Full, the thermal term shapes the surface only under smoke", "full",
+                "candidates", {},
+                note="the thermal render term moves each surface Gaussian's position, shape and opacity by the share "
+                     "of the RGB training views whose smoke mask covers it, so the coarse thermal frames cost nothing "
+                     "where the RGB sees the surface clear (stage3.thermal_surface_grad=smoky-views; the surface "
+                     "issue: Full's clean ceiling is 1.2 dB under RGB-only's)",
+                overrides={"stage3.thermal_surface_grad": "smoky-views"}),
         Variant("background-black", "Full, no environment behind the surface", "full", "candidates", {},
                 note="no learned environment behind any render (background=black, as the official code): a "
                      "surface that is not opaque can no longer show an environment that fits the smoke through "

@@ -190,6 +190,17 @@ def test_by_clear_views_fades_each_rgb_gaussian_by_its_own_clear_views(splat: Pa
                for n in json.loads((run / "metrics.json").read_text())["stages"]["notes"])
 
 
+def test_the_thermal_gate_trains_and_says_how_much_thermal_shapes_the_surface(splat: Path, tmp_path: Path) -> None:
+    """stage3.thermal_surface_grad=smoky-views (the gradient itself: tests/test_thermal_surface_grad.py):
+    this tiny scene's smoke covers part of every view, so the mean share at the start lies strictly
+    between 0 and 1, the note says so, and the run ends ok."""
+    run = tmp_path / "run"
+    assert main([str(splat), "--out", str(run)] + TINY + ["--set", "stage3.thermal_surface_grad=smoky-views"]) == 0
+    notes = _assert_complete(run)["stages"]["notes"]
+    note = next(n for n in notes if n.startswith("the thermal term moves each surface Gaussian"))
+    assert 0.0 < float(note.split("mean ")[1].split(" ")[0]) < 1.0
+
+
 def test_the_bound_mask_term_trains_and_says_where_it_pushes(splat: Path, tmp_path: Path) -> None:
     """loss.mask_floor_where=estimated-bound: the targets are made once Stage 3's geometry is known,
     the note gives the share of masked pixels pushed and their mean target, and the run ends ok."""

@@ -28,6 +28,7 @@ PROFILES: tuple[str, ...] = ("quick", "standard", "paper")
 SMOKE_COLOR_SOURCES: tuple[str, ...] = ("learned", "haze-lines")
 DENSIFY_UNDER_CAP: tuple[str, ...] = ("index", "gradient")
 SURFACE_INITS: tuple[str, ...] = ("thermal", "by-smoke-colour", "by-clear-views")
+THERMAL_SURFACE_GRAD: tuple[str, ...] = ("all", "smoky-views")
 POSE_SOURCES: tuple[str, ...] = ("given", "sfm")
 MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "estimated-meeting", "estimated-bound")
 DEFORM_KINDS: tuple[str, ...] = ("mlp", "fourier", "planes")
@@ -298,6 +299,13 @@ class Stage3Config:
     partly learned colour: machine's estimate (channel mean 0.35) with the RGB Stage 2 at a quarter
     of its opacities fell from 13.7 to 9.4 dB at iteration 250, and with the thermal start and the
     colour at trust 0.75 it ended level (docs/experiments/2026-12-02-colour-ramp.md)."""
+    thermal_surface_grad: str = "all"
+    """Which surface Gaussians the thermal render term may move (position, shape, opacity; their
+    thermal values always learn). "all": every one (the paper). "smoky-views": each one's gradient
+    from that term times the share of the RGB training views whose Stage-1 mask covers its centre
+    (1 where no RGB view sees it), so that the low-resolution thermal frames shape the surface only
+    where the RGB cannot see it, and a scene without smoke trains its surface as RGB-only does
+    (``smokeseer.train.surface_union.smoky_share``)."""
     carve_tolerance: float = 0.05
     """With two surfaces: an RGB Gaussian nearer than (1 − this) × the thermal
     surface's depth in most views that see it is smoke taken for surface, and is dropped."""
@@ -403,6 +411,9 @@ class TrainConfig:
         if self.stage3.surface_init == "by-smoke-colour" and self.stage3.smoke_color != "haze-lines":
             raise ValueError("stage3.surface_init: by-smoke-colour reads the haze lines; it needs "
                              "stage3.smoke_color=haze-lines")
+        if self.stage3.thermal_surface_grad not in THERMAL_SURFACE_GRAD:
+            raise ValueError(f"stage3.thermal_surface_grad: {self.stage3.thermal_surface_grad!r} is not one of "
+                             f"{', '.join(THERMAL_SURFACE_GRAD)}")
         if not 0.0 <= self.stage3.carve_tolerance < 1.0:
             raise ValueError(f"stage3.carve_tolerance: must be in [0, 1), got {self.stage3.carve_tolerance}")
         if not 0.0 < self.stage3.surface_densify_max_smoke <= 1.0:

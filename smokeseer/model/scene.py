@@ -113,6 +113,13 @@ def place_static(g: GaussianSet) -> Placed:
     return Placed(g["means"], g.quats, g["log_scales"])
 
 
+def scaled_gradient(x: Tensor, share: Tensor) -> Tensor:
+    """``x`` unchanged in the forward pass, with the gradient that reaches it through this
+    value multiplied row by row by ``share`` (one value per Gaussian)."""
+    held = x.detach()
+    return held + share.reshape(-1, *([1] * (x.dim() - 1))) * (x - held)
+
+
 MotionField = DeformNetwork | PlaneField
 """A field of offsets over position and time: ``field(means, t, center)``, or ``encode`` once and
 ``decode`` per time (``smokeseer.model.deform``)."""
@@ -332,15 +339,22 @@ class SceneModel:
 
     def render_thermal(self, view: View, surface: bool = True, smoke: bool = True,
                        deform_active: bool = True, surface_depth: bool = False, depth: bool = True,
-                       motion: SmokeMotion | None = None) -> RasterOutput:
+                       motion: SmokeMotion | None = None, surface_grad_share: Tensor | None = None) -> RasterOutput:
         """Thermal = surface ∪ smoke with thermal opacities and 1-channel thermal colours.
-        ``surface_depth``, ``depth``, ``motion``: as for ``render_rgb``."""
+        ``surface_depth``, ``depth``, ``motion``: as for ``render_rgb``. ``surface_grad_share``:
+        one value per surface Gaussian by which the gradient into its position, shape and opacity
+        through this render is multiplied (``stage3.thermal_surface_grad``); its thermal value
+        learns in full."""
         if surface_depth and not surface:
             raise ValueError("render_thermal: surface_depth needs the surface in the render")
         parts = []
         if surface:
-            placed, logits = self.surface_at(view.time), self.surface["opacity"]
-            parts.append((placed, torch.sigmoid(logits), torch.sigmoid(self.surface["thermal"])))
+            placed, opacity = self.surface_at(view.time), torch.sigmoid(self.surface["opacity"])
+            if surface_grad_share is not None:
+                placed = Placed(*(scaled_gradient(x, surface_grad_share)
+                                  for x in (placed.means, placed.quats, placed.log_scales)))
+                opacity = scaled_gradient(opacity, surface_grad_share)
+            parts.append((placed, opacity, torch.sigmoid(self.surface["thermal"])))
         use_smoke = smoke and self.smoke is not None
         if use_smoke:
             placed, _, o_th = self.smoke_at(view.time, deform_active, view, motion)

@@ -29,9 +29,16 @@ from smokeseer.train.losses import (depth_consistency, mask_alignment, monochrom
                                     smoke_alpha_variance, smoke_color_variance)
 from smokeseer.train.plan import Stage3Plan
 from smokeseer.train.stage2 import Stage2Result, draw_index, make_background, views_of
+from smokeseer.train.surface_union import smoky_share
 from smokeseer.train.util import RunContext, grads_of, state_or_none, step_optimizers
 
 HeldoutPsnr = Callable[[SceneModel, int], dict[str, float | None] | None]
+
+SHARE_REFRESH = 100
+"""With ``stage3.thermal_surface_grad=smoky-views`` each surface Gaussian's smoky-view share is
+recomputed at the start of every block of this many iterations, and whenever densification has
+changed the surface's count (it acts at most once a block): its position moves far less than a
+pixel between."""
 
 
 def build_scene_model(ctx: RunContext, s2: Stage2Result, plan: Stage3Plan,
@@ -142,6 +149,23 @@ class Stage3Problem(StageProblem):
             th_idx = thermal.indices("train")
             self.th_views = views_of(thermal, th_idx, dev)
             self.th_imgs = torch.as_tensor(thermal.images[th_idx], device=dev)
+        self.gate_thermal = self.th_imgs is not None and cfg.stage3.thermal_surface_grad == "smoky-views"
+        if self.gate_thermal and model.smoke is not None and rgb.masks is None:
+            raise ValueError("stage3.thermal_surface_grad: smoky-views reads Stage 1's smoke masks, "
+                             "and this run's RGB frames have none")
+        self.rgb_cameras = rgb.cameras("train")
+        self.rgb_masks = (rgb.masks[rgb_idx] if model.smoke is not None and rgb.masks is not None
+                          else np.zeros((len(rgb_idx), *rgb.images.shape[1:3]), dtype=np.float32))
+        self.thermal_share: torch.Tensor | None = None
+        if self.gate_thermal:
+            share = self._thermal_share(1)
+            note = (f"the thermal term moves each surface Gaussian by the share of the RGB training views whose "
+                    f"smoke mask covers it: mean {float(share.mean()):.3f} at the start, "
+                    f"{100 * float((share == 0).float().mean()):.0f} % not at all"
+                    + ("" if model.smoke is not None else " (no smoke: only what no RGB view sees)")
+                    + " (stage3.thermal_surface_grad=smoky-views)")
+            plan.notes.append(note)
+            ctx.log_line(f"stage 3: {note}")
         self.depth_on = prior is not None and self.weights["depth"] > 0
         self.depth_on_thermal = self.depth_on and prior.camera == "thermal"
         if self.depth_on_thermal and self.th_imgs is None:
@@ -173,7 +197,8 @@ class Stage3Problem(StageProblem):
         if self.th_imgs is not None:
             j = draw_index(self.streams["stage3.views.thermal"], len(self.th_views))
             tout = model.render_thermal(self.th_views[j], deform_active=deform_on,
-                                        surface_depth=self.depth_on_thermal, depth=False, motion=motion)
+                                        surface_depth=self.depth_on_thermal, depth=False, motion=motion,
+                                        surface_grad_share=self._thermal_share(it) if self.gate_thermal else None)
             terms["render_thermal"] = render_loss(tout.colors[0], self.th_imgs[j], cfg.loss.dssim)
             if self.depth_on_thermal:
                 depth_source = (tout, j)
@@ -200,6 +225,16 @@ class Stage3Problem(StageProblem):
         share = {"render_rgb": 1.0, "render_thermal": cfg.loss.thermal}
         loss = sum(weights["render"] * share[n] * v if n in share else weights[n] * v for n, v in terms.items())
         return IterationOutput(loss, terms, {"raster": out, "view": view, "index": k, "deform_on": deform_on})
+
+    def _thermal_share(self, it: int) -> torch.Tensor:
+        """Each surface Gaussian's smoky-view share (``smoky_share`` over the RGB training views;
+        without smoke Gaussians every mask is empty), refreshed as ``SHARE_REFRESH`` says."""
+        surface = self.model.surface
+        if self.thermal_share is None or (it - 1) % SHARE_REFRESH == 0 or len(self.thermal_share) != surface.n:
+            means = surface["means"].detach().cpu().numpy().astype(np.float64)
+            share = smoky_share(means, self.rgb_masks, *self.rgb_cameras)
+            self.thermal_share = torch.as_tensor(share, dtype=torch.float32, device=surface["means"].device)
+        return self.thermal_share
 
     def _depth_term(self, raster: RasterOutput, k: int) -> torch.Tensor:
         """The surface's own depth (from the same pass, see ``model.render``) against
@@ -269,6 +304,7 @@ class Stage3Problem(StageProblem):
                 "smoke": state_or_none(model.smoke), "smoke_optimizer": state_or_none(self.smoke_optimizer),
                 "deform": state_or_none(model.deform), "deform_optimizer": state_or_none(self.deform_optimizer),
                 "background_optimizer": state_or_none(self.background_optimizer),
+                "thermal_share": self.thermal_share if self.gate_thermal else None,
                 **{name: bg.state_dict() for name, bg in _backgrounds(model).items()}}
 
     def load_state(self, payload: dict[str, Any]) -> None:
@@ -281,6 +317,8 @@ class Stage3Problem(StageProblem):
         for name, bg in _backgrounds(model).items():
             if payload.get(name) is not None:
                 bg.load_state_dict(payload[name])
+        share = payload.get("thermal_share")
+        self.thermal_share = share.to(dev) if share is not None and self.gate_thermal else None
         self._make_optimizers()
         self.surface_optimizer.load_state_dict(payload["surface_optimizer"])
         for opt, key in ((self.smoke_optimizer, "smoke_optimizer"), (self.deform_optimizer, "deform_optimizer"),
