@@ -92,6 +92,11 @@ CANDIDATES: dict[str, Variant] = {
                      "where the RGB sees the surface clear (stage3.thermal_surface_grad=smoky-views; the surface "
                      "issue: Full's clean ceiling is 1.2 dB under RGB-only's)",
                 overrides={"stage3.thermal_surface_grad": "smoky-views"}),
+        Variant("surface-continues", "Full, Stage 3 carries on Stage 2's surface schedules", "full", "candidates", {},
+                note="the surface keeps every SH degree and Stage 2's last position rate into Stage 3 instead of "
+                     "restarting both, as the official code continues its schedules "
+                     "(stage3.surface_continues=true; the surface issue's continuity)",
+                overrides={"stage3.surface_continues": True}),
         Variant("background-black", "Full, no environment behind the surface", "full", "candidates", {},
                 note="no learned environment behind any render (background=black, as the official code): a "
                      "surface that is not opaque can no longer show an environment that fits the smoke through "
