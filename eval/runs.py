@@ -97,6 +97,12 @@ CANDIDATES: dict[str, Variant] = {
                      "restarting both, as the official code continues its schedules "
                      "(stage3.surface_continues=true; the surface issue's continuity)",
                 overrides={"stage3.surface_continues": True}),
+        Variant("background-clear", "Full, the environment learns from clear pixels only", "full", "candidates", {},
+                note="each training pixel's gradient into the RGB environment is weighted by 1 - Stage 1's smoke mask, "
+                     "in the RGB Stage 2 and in Stage 3, so the environment cannot learn the smoke's colour and "
+                     "show it behind the de-smoked surface (background_from=clear-pixels; the surface issue); its "
+                     "RGB Stage 2 is its own",
+                overrides={"background_from": "clear-pixels"}),
         Variant("background-black", "Full, no environment behind the surface", "full", "candidates", {},
                 note="no learned environment behind any render (background=black, as the official code): a "
                      "surface that is not opaque can no longer show an environment that fits the smoke through "

@@ -201,6 +201,16 @@ def test_the_thermal_gate_trains_and_says_how_much_thermal_shapes_the_surface(sp
     assert 0.0 < float(note.split("mean ")[1].split(" ")[0]) < 1.0
 
 
+def test_an_environment_learning_from_clear_pixels_trains_both_stages(splat: Path, tmp_path: Path) -> None:
+    """background_from=clear-pixels (the gradient itself: tests/test_gradient_gates.py) through an RGB
+    Stage 2 and Stage 3 on this tiny scene's masks: the run ends ok and records the setting."""
+    run = tmp_path / "run"
+    assert main([str(splat), "--out", str(run), "--mode", "rgb-only"] + TINY
+                + ["--set", "background_from=clear-pixels"]) == 0
+    _assert_complete(run, thermal=False)
+    assert json.loads((run / "config.json").read_text())["background_from"] == "clear-pixels"
+
+
 def test_a_continuing_surface_keeps_every_sh_degree_and_stage2s_last_position_rate(
         splat: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """stage3.surface_continues: every Stage-3 RGB render uses the profile's full SH degree and the

@@ -29,6 +29,7 @@ SMOKE_COLOR_SOURCES: tuple[str, ...] = ("learned", "haze-lines")
 DENSIFY_UNDER_CAP: tuple[str, ...] = ("index", "gradient")
 SURFACE_INITS: tuple[str, ...] = ("thermal", "by-smoke-colour", "by-clear-views")
 THERMAL_SURFACE_GRAD: tuple[str, ...] = ("all", "smoky-views")
+BACKGROUND_FROM: tuple[str, ...] = ("all", "clear-pixels")
 POSE_SOURCES: tuple[str, ...] = ("given", "sfm")
 MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "estimated-meeting", "estimated-bound")
 DEFORM_KINDS: tuple[str, ...] = ("mlp", "fourier", "planes")
@@ -341,6 +342,12 @@ class TrainConfig:
     lr: LearningRates = field(default_factory=LearningRates)
     background: str = "environment"
     background_sh_degree: int = 2
+    background_from: str = "all"
+    """Which pixels the RGB environment learns from. "all": every pixel of the training frames
+    (the environment shows through wherever the surface is not opaque, so on smoky frames it can
+    learn the smoke's colour and put it back behind the de-smoked surface). "clear-pixels": each
+    pixel's gradient into the environment is multiplied by 1 − Stage 1's smoke mask there, in
+    every RGB Stage 2 and in Stage 3; the thermal environment learns from every pixel."""
     depth_prior: str = "thermal-render"
     depth_camera: str = "thermal"
     mono_weights: str = ""
@@ -379,6 +386,10 @@ class TrainConfig:
             raise ValueError(f"sh_degree: must be in 0..3, got {self.sh_degree}")
         if self.background not in ("environment", "black"):
             raise ValueError(f"background: {self.background!r} is not environment or black")
+        if self.background_from not in BACKGROUND_FROM:
+            raise ValueError(f"background_from: {self.background_from!r} is not one of {', '.join(BACKGROUND_FROM)}")
+        if self.background_from != "all" and self.background == "black":
+            raise ValueError("background_from: a black background learns nothing; leave it at all")
         if not 0 <= self.background_sh_degree <= 3:
             raise ValueError(f"background_sh_degree: must be in 0..3, got {self.background_sh_degree}")
         if self.depth_prior not in ("thermal-render", "mono", "files", "none"):
@@ -513,13 +524,15 @@ class TrainConfig:
     def stage2_sha256(self) -> str:
         """Hash of the settings Stage 2 depends on, so a Stage 2 checkpoint is reused by runs
         that differ only in Stage 3 (ablations, Stage 3 budgets) or in where Stage 1's masks come
-        from (Stage 2 reads no mask: ``stage1``, ``mask_dir``) on the same geometry."""
+        from (Stage 2 reads no mask, unless an RGB Stage 2's environment learns from the clear
+        pixels only: ``stage1``, ``mask_dir``, ``background_from``) on the same geometry."""
         d = self.to_dict()
+        d["mode"] = {"rgb-only": "rgb", "deformable-3dgs": "deformable-3dgs"}.get(self.mode, "thermal")
+        reads_masks = d["mode"] == "rgb" and self.background_from == "clear-pixels"
         for key in ("stage3", "loss", "depth_prior", "depth_camera", "mono_weights", "smoke_ply_times", "progress",
                     "log_every", "checkpoint_every", "profile", "lpips_net", "lpips_weights", "lpips_heads",
-                    "stage1", "mask_dir"):
+                    *(() if reads_masks else ("stage1", "mask_dir", "background_from"))):
             d.pop(key)
-        d["mode"] = {"rgb-only": "rgb", "deformable-3dgs": "deformable-3dgs"}.get(self.mode, "thermal")
         if d["mode"] != "deformable-3dgs":
             d.pop("deform")
             d["stage2"].pop("deform_warmup")

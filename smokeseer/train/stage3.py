@@ -28,7 +28,7 @@ from smokeseer.train.loop import IterationOutput, StageProblem, StageSchedule, r
 from smokeseer.train.losses import (depth_consistency, mask_alignment, monochromaticity, render_loss,
                                     smoke_alpha_variance, smoke_color_variance)
 from smokeseer.train.plan import Stage3Plan
-from smokeseer.train.stage2 import Stage2Result, draw_index, make_background, views_of
+from smokeseer.train.stage2 import Stage2Result, clear_pixel_weights, draw_index, make_background, views_of
 from smokeseer.train.surface_union import smoky_share
 from smokeseer.train.util import RunContext, grads_of, state_or_none, step_optimizers
 
@@ -139,6 +139,8 @@ class Stage3Problem(StageProblem):
         rgb_idx = rgb.indices("train")
         self.rgb_views = views_of(rgb, rgb_idx, dev)
         self.rgb_imgs = torch.as_tensor(rgb.images[rgb_idx], device=dev)
+        self.background_grad = (clear_pixel_weights(cfg, rgb, rgb_idx, dev) if model.background_rgb is not None
+                                else None)
         self.masks = (torch.as_tensor(rgb.masks[rgb_idx], device=dev)
                       if plan.use_masks and rgb.masks is not None and model.smoke is not None else None)
         self.mask_floor = (torch.as_tensor(plan.floor_pixels, device=dev)
@@ -194,7 +196,8 @@ class Stage3Problem(StageProblem):
         motion = model.smoke_motion(deform_on, cfg.deform.shared_position,
                                     cfg.deform.view_cull_margin * self.ctx.extent if cfg.deform.view_cull else None)
         out = model.render_rgb(view, degree=degree, deform_active=deform_on,
-                               surface_depth=self.depth_on and not self.depth_on_thermal, depth=False, motion=motion)
+                               surface_depth=self.depth_on and not self.depth_on_thermal, depth=False, motion=motion,
+                               background_grad=None if self.background_grad is None else self.background_grad[k])
         terms: dict[str, torch.Tensor] = {"render_rgb": render_loss(out.colors[0], self.rgb_imgs[k], cfg.loss.dssim)}
         depth_source = (out, k)
         if self.th_imgs is not None:
