@@ -124,6 +124,11 @@ CANDIDATES: dict[str, Variant] = {
                      "index order (docs/method.md, Decisions, row 7); it changes Stage 2, so it trains its own",
                 overrides={"stage2.densify.under_cap": "gradient", "stage3.smoke_densify.under_cap": "gradient",
                            "stage3.surface_densify.under_cap": "gradient"}),
+        Variant("caps-doubled", "Full, twice the surface's Gaussian caps", "full", "candidates", {},
+                note="Stage 2 and the surface refinement may grow to twice the standard profile's caps (80k, 160k): at "
+                     "k = 0 chair fills both before half its stages and stays far under its smoke-free input (the "
+                     "surface issue's capacity); it changes Stage 2, so it trains its own, and costs time",
+                overrides={"stage2.densify.max_gaussians": 80_000, "stage3.surface_densify.max_gaussians": 160_000}),
         Variant("motion-planes", "Full, the smoke moved by the plane field", "full", "candidates", {},
                 note="the smoke's motion by the factorised space-time plane field in place of the deformation "
                      "network (deform.kind=planes, docs/method.md, Plane field); Stage 3 only",
