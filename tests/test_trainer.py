@@ -201,6 +201,31 @@ def test_the_thermal_gate_trains_and_says_how_much_thermal_shapes_the_surface(sp
     assert 0.0 < float(note.split("mean ")[1].split(" ")[0]) < 1.0
 
 
+def test_stage2_starts_from_points_triangulated_in_the_training_frames(splat: Path, tmp_path: Path,
+                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """stage2.init_from=images (the triangulation itself: tests/test_triangulation.py): Stage 2
+    starts from the triangulated points filled up with random ones to stage2.init_points, in the
+    box around them, and the notes and metrics.json say how many."""
+    from smokeseer import api
+
+    monkeypatch.setenv("SMOKESEER_SFM_CACHE", str(tmp_path / "cache"))
+    starts: list[int] = []
+    train_stage2 = api.train_stage2
+
+    def recording(ctx, mod, init_points, *args, **kwargs):
+        starts.append(len(init_points))
+        return train_stage2(ctx, mod, init_points, *args, **kwargs)
+
+    monkeypatch.setattr(api, "train_stage2", recording)
+    run = tmp_path / "run"
+    assert main([str(splat), "--out", str(run)] + TINY + ["--set", "stage2.init_from=images"]) == 0
+    doc = _assert_complete(run)
+    record = doc["stages"]["start_points"]
+    assert record["source"] == "triangulated from the training RGB frames at their poses" and record["points"] > 0
+    assert any(n.startswith(f"stage 2 start: {record['points']} starting points triangulated") for n in doc["stages"]["notes"])
+    assert starts[0] == max(record["points"], 300)
+
+
 def test_an_environment_learning_from_clear_pixels_trains_both_stages(splat: Path, tmp_path: Path) -> None:
     """background_from=clear-pixels (the gradient itself: tests/test_gradient_gates.py) through an RGB
     Stage 2 and Stage 3 on this tiny scene's masks: the run ends ok and records the setting."""

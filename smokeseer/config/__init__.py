@@ -30,6 +30,7 @@ DENSIFY_UNDER_CAP: tuple[str, ...] = ("index", "gradient")
 SURFACE_INITS: tuple[str, ...] = ("thermal", "by-smoke-colour", "by-clear-views")
 THERMAL_SURFACE_GRAD: tuple[str, ...] = ("all", "smoky-views")
 BACKGROUND_FROM: tuple[str, ...] = ("all", "clear-pixels")
+INIT_FROM: tuple[str, ...] = ("random", "images")
 POSE_SOURCES: tuple[str, ...] = ("given", "sfm")
 MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "estimated-meeting", "estimated-bound")
 DEFORM_KINDS: tuple[str, ...] = ("mlp", "fourier", "planes")
@@ -226,6 +227,13 @@ class Stage2Config:
 
     iterations: int = 15000
     init_points: int = 100_000
+    init_from: str = "random"
+    """Where Stage 2 starts when the dataset brings no points of its own. "random": ``init_points``
+    random points in the box the training cameras look at. "images": SfM on the training RGB
+    frames, moved onto their given poses (``smokeseer.stage1.sparse_points``), filled up with
+    random points to ``init_points`` in the box those points span; no SfM model, random alone,
+    and the notes say so. A flyover's optical axes do not meet near the scene, so its cameras'
+    box can miss it."""
     init_opacity: float = 0.1
     init_scale_max: float = 0.02
     densify: DensifyConfig = field(default_factory=DensifyConfig)
@@ -428,6 +436,8 @@ class TrainConfig:
         if self.stage3.surface_init == "by-smoke-colour" and self.stage3.smoke_color != "haze-lines":
             raise ValueError("stage3.surface_init: by-smoke-colour reads the haze lines; it needs "
                              "stage3.smoke_color=haze-lines")
+        if self.stage2.init_from not in INIT_FROM:
+            raise ValueError(f"stage2.init_from: {self.stage2.init_from!r} is not one of {', '.join(INIT_FROM)}")
         if self.stage3.thermal_surface_grad not in THERMAL_SURFACE_GRAD:
             raise ValueError(f"stage3.thermal_surface_grad: {self.stage3.thermal_surface_grad!r} is not one of "
                              f"{', '.join(THERMAL_SURFACE_GRAD)}")
@@ -577,8 +587,8 @@ def _quick() -> TrainConfig:
 def _standard() -> TrainConfig:
     """The benchmark's scale on one CPU core with the compiled rasterizer (a `standard` dataset:
     60 frames, 200x150 RGB, 80x60 thermal): full resolution, 3000 + 3000 iterations with the
-    3DGS schedules scaled to them (densification 300-2400, warm-up 500), and a validation split
-    for every choice. No opacity reset, a gated surface refinement, no depth term, a
+    3DGS schedules scaled to them (densification 300-2400, warm-up 500), Stage 2 from the points
+    seen in the training frames, and a validation split for every choice. No opacity reset, a gated surface refinement, no depth term, a
     half-equalised thermal curve, the haze-line smoke colour weighted by its trust (many lines,
     meeting, dark), Stage 3's surface chosen by the same trust, and the mask floor where the images say the smoke may
     be dense: each chosen on the validation views, with its measurements in docs/method.md,
@@ -586,6 +596,7 @@ def _standard() -> TrainConfig:
     s2 = Stage2Config(
         iterations=3000,
         init_points=5000,
+        init_from="images",
         densify=DensifyConfig(start=0.1, stop=0.8, every=100, opacity_reset_every=0.0,
                               max_gaussians=40_000),
         deform_warmup=1 / 6,
