@@ -85,6 +85,24 @@ CANDIDATES: dict[str, Variant] = {
                      "the floor at 0.4 where the estimate reaches it (loss.mask_floor_where=estimated-bound; "
                      "docs/method.md, Decisions, rows 16-17)",
                 overrides={"loss.mask_floor_where": "estimated-bound"}),
+        Variant("thermal-where-smoky", "Full, the thermal term shapes the surface only under smoke", "full",
+                "candidates", {},
+                note="the thermal render term moves each surface Gaussian's position, shape and opacity by the share "
+                     "of the RGB training views whose smoke mask covers it, so the coarse thermal frames cost nothing "
+                     "where the RGB sees the surface clear (stage3.thermal_surface_grad=smoky-views; the surface "
+                     "issue: Full's clean ceiling is 1.2 dB under RGB-only's)",
+                overrides={"stage3.thermal_surface_grad": "smoky-views"}),
+        Variant("surface-continues", "Full, Stage 3 carries on Stage 2's surface schedules", "full", "candidates", {},
+                note="the surface keeps every SH degree and Stage 2's last position rate into Stage 3 instead of "
+                     "restarting both, as the official code continues its schedules "
+                     "(stage3.surface_continues=true; the surface issue's continuity)",
+                overrides={"stage3.surface_continues": True}),
+        Variant("background-clear", "Full, the environment learns from clear pixels only", "full", "candidates", {},
+                note="each training pixel's gradient into the RGB environment is weighted by 1 - Stage 1's smoke mask, "
+                     "in the RGB Stage 2 and in Stage 3, so the environment cannot learn the smoke's colour and "
+                     "show it behind the de-smoked surface (background_from=clear-pixels; the surface issue); its "
+                     "RGB Stage 2 is its own",
+                overrides={"background_from": "clear-pixels"}),
         Variant("background-black", "Full, no environment behind the surface", "full", "candidates", {},
                 note="no learned environment behind any render (background=black, as the official code): a "
                      "surface that is not opaque can no longer show an environment that fits the smoke through "
@@ -106,6 +124,11 @@ CANDIDATES: dict[str, Variant] = {
                      "index order (docs/method.md, Decisions, row 7); it changes Stage 2, so it trains its own",
                 overrides={"stage2.densify.under_cap": "gradient", "stage3.smoke_densify.under_cap": "gradient",
                            "stage3.surface_densify.under_cap": "gradient"}),
+        Variant("caps-doubled", "Full, twice the surface's Gaussian caps", "full", "candidates", {},
+                note="Stage 2 and the surface refinement may grow to twice the standard profile's caps (80k, 160k): at "
+                     "k = 0 chair fills both before half its stages and stays far under its smoke-free input (the "
+                     "surface issue's capacity); it changes Stage 2, so it trains its own, and costs time",
+                overrides={"stage2.densify.max_gaussians": 80_000, "stage3.surface_densify.max_gaussians": 160_000}),
         Variant("motion-planes", "Full, the smoke moved by the plane field", "full", "candidates", {},
                 note="the smoke's motion by the factorised space-time plane field in place of the deformation "
                      "network (deform.kind=planes, docs/method.md, Plane field); Stage 3 only",

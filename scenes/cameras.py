@@ -53,15 +53,34 @@ class SceneBounds:
     extent: float
 
 
-def scene_bounds(viewmats: np.ndarray, Ks: np.ndarray, widths: np.ndarray) -> SceneBounds:
-    """Estimate the observed region from the cameras alone (no GT geometry is used).
+POINTS_QUANTILE = 75.0
+"""With points, the half-size is ``POINTS_GROWTH`` × this percentile of their largest per-axis
+distance from their median: a flyover's points include a tenth or more far away (the ground to
+the horizon, poorly triangulated far features), which a box over all of them would take in ..."""
+POINTS_GROWTH = 1.5
+"""... and the growth brings back the rest of the scene around its densest three quarters."""
 
-    The centre is the least-squares point nearest all optical axes (cameras of a capture look
-    at the scene); the half-size is the image half-width at the mean camera distance, so the
-    box covers what the cameras see. The extent is 3DGS's: 1.1 × the largest camera distance
-    from the mean camera centre (floored so a static camera still gets a usable scale).
+
+def scene_bounds(viewmats: np.ndarray, Ks: np.ndarray, widths: np.ndarray,
+                 points: np.ndarray | None = None) -> SceneBounds:
+    """Estimate the observed region from the cameras, or from points seen in the images (no GT
+    geometry is used).
+
+    Without ``points`` the centre is the least-squares point nearest all optical axes (cameras of
+    a capture look at the scene) and the half-size the image half-width at the mean camera
+    distance, so the box covers what the cameras see; the axes of a flyover need not meet near
+    the scene, so that box can miss it. With ``points`` the centre is their per-axis median and
+    the half-size as ``POINTS_QUANTILE`` says. The extent is 1.1 × the larger of the half-size
+    and 3DGS's (the largest camera distance from the mean camera centre), floored so a static
+    camera still gets a usable scale.
     """
     centres = np.stack([camera_center(v) for v in viewmats])
+    spread = np.linalg.norm(centres - centres.mean(0), axis=1).max()
+    if points is not None and len(points) > 0:
+        center = np.median(points, axis=0)
+        reach = np.percentile(np.abs(points - center).max(axis=1), POINTS_QUANTILE)
+        half_size = float(max(POINTS_GROWTH * reach, 1e-3))
+        return SceneBounds(center=center, half_size=half_size, extent=float(1.1 * max(spread, half_size)))
     dirs = np.stack([v[2, :3] for v in viewmats])
     a = np.zeros((3, 3))
     b = np.zeros(3)
@@ -77,7 +96,6 @@ def scene_bounds(viewmats: np.ndarray, Ks: np.ndarray, widths: np.ndarray) -> Sc
         center = centres.mean(0) + dirs.mean(0) * dist
     half_fov = np.mean([math.atan(0.5 * w / k[0, 0]) for k, w in zip(Ks, widths)])
     half_size = float(max(dist * math.tan(half_fov), 1e-3))
-    spread = np.linalg.norm(centres - centres.mean(0), axis=1).max()
     extent = float(1.1 * max(spread, half_size))
     return SceneBounds(center=center, half_size=half_size, extent=extent)
 

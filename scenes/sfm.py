@@ -226,8 +226,27 @@ def _check(result: SfmResult, settings: SfmSettings, what: str) -> None:
                        f"{result.stats.get('why', 'see the statistics')}")
 
 
-def _solve(names: list[str], images: list[np.ndarray], masks: list[np.ndarray] | None, K: np.ndarray | None,
-           settings: SfmSettings, what: str) -> SfmResult:
+@dataclass
+class FeatureDatabase:
+    """COLMAP's database of SIFT features and geometrically verified matches for frames written as
+    ``files`` (upsampled by ``up``): what mapping and triangulation both start from."""
+
+    path: Path
+    image_dir: Path
+    files: list[str]
+    up: int
+    keypoints: np.ndarray
+    keep: list[float]
+    pairs: int
+    exhaustive: bool
+    timings: dict[str, float]
+
+
+def match_features(work: Path, images: list[np.ndarray], masks: list[np.ndarray] | None, K: np.ndarray | None,
+                   settings: SfmSettings) -> FeatureDatabase:
+    """Write ``images`` (uint8, one size) under ``work``, extract SIFT outside ``masks`` (True =
+    smoke) and match them (exhaustive or sequential, ``settings.matcher``), with ``K`` held fixed
+    when given."""
     import pycolmap
     from PIL import Image
 
@@ -235,58 +254,71 @@ def _solve(names: list[str], images: list[np.ndarray], masks: list[np.ndarray] |
     timings: dict[str, float] = {}
     h, w = images[0].shape[:2]
     up = max(1, -(-settings.min_width // w))
+    img_dir, mask_dir = work / "images", work / "masks"
+    for d in (img_dir, mask_dir):
+        d.mkdir()
+    files = [f"{i:06d}.png" for i in range(len(images))]
+    keep = []
+    for i, (f, img) in enumerate(zip(files, images)):
+        valid = np.ones((h, w), bool) if masks is None else ~np.asarray(masks[i], bool)
+        keep.append(float(valid.mean()))
+        picture, mask = Image.fromarray(img), Image.fromarray((valid * 255).astype(np.uint8))
+        if up > 1:
+            picture = picture.resize((w * up, h * up), Image.BICUBIC)
+            mask = mask.resize((w * up, h * up), Image.NEAREST)
+        picture.save(img_dir / f)
+        mask.save(mask_dir / f"{f}.png")
+    db_path = work / "database.db"
+    reader = pycolmap.ImageReaderOptions()
+    reader.mask_path = str(mask_dir)
+    if K is not None:
+        reader.camera_model = "PINHOLE"
+        reader.camera_params = ",".join(f"{up * v:.12g}" for v in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
+    else:
+        reader.camera_model = "SIMPLE_PINHOLE"
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.num_threads = settings.threads
+    extraction.sift.max_num_features = settings.max_features
+    extraction.sift.peak_threshold = settings.peak_threshold
+    t0 = time.perf_counter()
+    pycolmap.extract_features(db_path, img_dir, image_names=files, camera_mode=pycolmap.CameraMode.SINGLE,
+                              reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
+    timings["extract_s"] = time.perf_counter() - t0
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = settings.threads
+    exhaustive = settings.matcher == "exhaustive" or (settings.matcher == "auto"
+                                                      and len(files) <= settings.exhaustive_max)
+    t0 = time.perf_counter()
+    if exhaustive:
+        pycolmap.match_exhaustive(db_path, matching_options=matching, device=pycolmap.Device.cpu)
+    else:
+        pairing = pycolmap.SequentialPairingOptions()
+        pairing.overlap = settings.overlap
+        pairing.quadratic_overlap = True
+        pairing.num_threads = settings.threads
+        pycolmap.match_sequential(db_path, matching_options=matching, pairing_options=pairing,
+                                  device=pycolmap.Device.cpu)
+    timings["match_s"] = time.perf_counter() - t0
+    db = pycolmap.Database.open(db_path)
+    ids = {im.name: im.image_id for im in db.read_all_images()}
+    keypoints = np.array([db.num_keypoints_for_image(ids[f]) for f in files])
+    pairs = int(db.num_verified_image_pairs())
+    db.close()
+    return FeatureDatabase(db_path, img_dir, files, up, keypoints, keep, pairs, exhaustive, timings)
+
+
+def _solve(names: list[str], images: list[np.ndarray], masks: list[np.ndarray] | None, K: np.ndarray | None,
+           settings: SfmSettings, what: str) -> SfmResult:
+    import pycolmap
+
     with tempfile.TemporaryDirectory(prefix="sfm-") as tmp:
         work = Path(tmp)
-        img_dir, mask_dir, out_dir = work / "images", work / "masks", work / "sparse"
-        for d in (img_dir, mask_dir, out_dir):
-            d.mkdir()
-        files = [f"{i:06d}.png" for i in range(len(names))]
-        keep = []
-        for i, (f, img) in enumerate(zip(files, images)):
-            valid = np.ones((h, w), bool) if masks is None else ~np.asarray(masks[i], bool)
-            keep.append(float(valid.mean()))
-            picture, mask = Image.fromarray(img), Image.fromarray((valid * 255).astype(np.uint8))
-            if up > 1:
-                picture = picture.resize((w * up, h * up), Image.BICUBIC)
-                mask = mask.resize((w * up, h * up), Image.NEAREST)
-            picture.save(img_dir / f)
-            mask.save(mask_dir / f"{f}.png")
-        db_path = work / "database.db"
-        reader = pycolmap.ImageReaderOptions()
-        reader.mask_path = str(mask_dir)
-        if K is not None:
-            reader.camera_model = "PINHOLE"
-            reader.camera_params = ",".join(f"{up * v:.12g}" for v in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
-        else:
-            reader.camera_model = "SIMPLE_PINHOLE"
-        extraction = pycolmap.FeatureExtractionOptions()
-        extraction.num_threads = settings.threads
-        extraction.sift.max_num_features = settings.max_features
-        extraction.sift.peak_threshold = settings.peak_threshold
-        t0 = time.perf_counter()
-        pycolmap.extract_features(db_path, img_dir, image_names=files, camera_mode=pycolmap.CameraMode.SINGLE,
-                                  reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
-        timings["extract_s"] = time.perf_counter() - t0
-        matching = pycolmap.FeatureMatchingOptions()
-        matching.num_threads = settings.threads
-        exhaustive = settings.matcher == "exhaustive" or (settings.matcher == "auto"
-                                                          and len(files) <= settings.exhaustive_max)
-        t0 = time.perf_counter()
-        if exhaustive:
-            pycolmap.match_exhaustive(db_path, matching_options=matching, device=pycolmap.Device.cpu)
-        else:
-            pairing = pycolmap.SequentialPairingOptions()
-            pairing.overlap = settings.overlap
-            pairing.quadratic_overlap = True
-            pairing.num_threads = settings.threads
-            pycolmap.match_sequential(db_path, matching_options=matching, pairing_options=pairing,
-                                      device=pycolmap.Device.cpu)
-        timings["match_s"] = time.perf_counter() - t0
-        db = pycolmap.Database.open(db_path)
-        ids = {im.name: im.image_id for im in db.read_all_images()}
-        keypoints = np.array([db.num_keypoints_for_image(ids[f]) for f in files])
-        pairs = int(db.num_verified_image_pairs())
-        db.close()
+        out_dir = work / "sparse"
+        out_dir.mkdir()
+        feats = match_features(work, images, masks, K, settings)
+        db_path, img_dir, files, up = feats.path, feats.image_dir, feats.files, feats.up
+        keypoints, keep, pairs, exhaustive, timings = (feats.keypoints, feats.keep, feats.pairs, feats.exhaustive,
+                                                       feats.timings)
         options = pycolmap.IncrementalPipelineOptions()
         options.num_threads = settings.threads
         options.random_seed = settings.seed

@@ -53,12 +53,18 @@ def _sample(mod: ModalityData, n: int, bounds: Any, rng: np.random.Generator) ->
                           np.array([x.height for x in f]), rng)
 
 
-def _init_points(scene: SceneData, mod: ModalityData, n: int, bounds: Any, rng: np.random.Generator) -> np.ndarray:
-    """Stage 2's starting points: the capture's SfM points when it has some, else ``n`` random ones
-    that ``mod``'s training cameras see."""
+def _init_points(scene: SceneData, report: Stage1Report, mod: ModalityData, n: int, bounds: Any,
+                 rng: np.random.Generator) -> np.ndarray:
+    """Stage 2's starting points: the capture's SfM points when it has some; else Stage 1's from
+    the training frames (``stage2.init_from=images``) filled up to ``n`` with random ones in their
+    box; else ``n`` random ones. Random points are ones ``mod``'s training cameras see."""
     if scene.init_points is not None and len(scene.init_points) >= 4:
         return scene.init_points
-    return _sample(mod, n, bounds, rng)
+    given = report.start_points.points if report.start_points is not None else None
+    if given is None:
+        return _sample(mod, n, bounds, rng)
+    fill = n - len(given)
+    return np.concatenate([given, _sample(mod, fill, bounds, rng)]) if fill > 0 else given
 
 
 def _metrics_doc(prep: PreparedRun, status: str) -> dict[str, Any]:
@@ -208,7 +214,8 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
         ctx.log_line(f"stage 3: {note}")
     for warning in prep.warnings:
         ctx.log_line(warning.line())
-    init = _init_points(scene, geo, cfg.stage2.init_points, b, numpy_stream(cfg.seed, f"init.points.{geo.name}"))
+    init = _init_points(scene, report, geo, cfg.stage2.init_points, b,
+                        numpy_stream(cfg.seed, f"init.points.{geo.name}"))
     deformable = cfg.mode == "deformable-3dgs"
     estimate = None
     smoke_colour: SmokeColourEstimate | None = None
@@ -262,7 +269,8 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
             rgb_share = 1.0
         if rgb_share > 0.0:
             t_rgb = time.perf_counter()
-            rgb_init = _init_points(scene, scene.rgb, cfg.stage2.init_points, b, numpy_stream(cfg.seed, "init.points.rgb"))
+            rgb_init = _init_points(scene, report, scene.rgb, cfg.stage2.init_points, b,
+                                    numpy_stream(cfg.seed, "init.points.rgb"))
             joined = join_surfaces(ctx, scene.rgb, rgb_init, s2, rgb_depth, rgb_share,
                                    by_clear_views=cfg.stage3.surface_init == "by-clear-views" and plan.use_smoke)
             wall["stage2_rgb"] = time.perf_counter() - t_rgb
@@ -336,6 +344,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
                      "smoke_colour": smoke_colour_record(plan, smoke_colour),
                      "surface_union": joined.record if joined else None,
                      "thermal_scale": thermal_record,
+                     "start_points": report.start_points.record if report.start_points is not None else None,
                      "thermal_used": plan.use_thermal, "thermal_dropped": plan.thermal_dropped,
                      "loss_rise": {name: round(rise, 4) for name, rise in ctx.loss_rise.items()},
                      "stage3_plan": None if deformable else plan.record(),

@@ -8,8 +8,8 @@ import torch
 from smokeseer.model.gaussians import GaussianSet
 from smokeseer.model.scene import add_rgb_sh
 from smokeseer.stage1.haze_lines import SmokeColourEstimate
-from smokeseer.train.surface_union import (SHARE_FLOOR, carve_in_front, clear_share, fade, in_holes, surface_start,
-                                           union_surface)
+from smokeseer.train.surface_union import (SHARE_FLOOR, carve_in_front, clear_share, fade, in_holes, smoky_share,
+                                           surface_start, union_surface)
 
 W, H, F = 40, 30, 20.0
 
@@ -179,3 +179,24 @@ def test_clear_share_is_the_mean_unmasked_share_of_the_views_that_see_a_point() 
                       [-2.4, 0.0, 3.0]])    # ... behind it at column 4: seen only through view 2's hole
     share = clear_share(means, masks, maps, valid, *cameras, 0.05)
     np.testing.assert_allclose(share, [1 / 3, 1.0, 0.75, 1.0, 1.0, 1 / 3, 1 / 3, 1.0])
+
+
+def test_smoky_share_is_the_mean_mask_of_every_view_a_centre_lands_in() -> None:
+    """The thermal gate's share (stage3.thermal_surface_grad=smoky-views) on clear_share's views:
+    no occlusion test, so a point behind the wall counts the wall's masks; a point no view sees
+    gets 1 (only the thermal frames speak of it). Where no surface hides anything the two shares
+    add up to 1 for every point some view sees."""
+    cameras = _cameras([0.0, 0.0, 0.0])
+    masks = np.zeros((3, H, W))
+    masks[:2, :, : W // 2 + 1] = 1.0
+    masks[:, :, W // 2 + 5:] = 0.25
+    means = np.array([[0.0, 0.0, 2.0],      # centre column: masked in views 0 and 1
+                      [0.4, 0.0, 2.0],      # column 24: no mask
+                      [0.9, 0.0, 2.0],      # column 29: the soft mask
+                      [0.0, 0.0, 3.0],      # behind the wall's centre: the wall's masks
+                      [50.0, 0.0, 2.0]])    # outside every view
+    share = smoky_share(means, masks, *cameras)
+    np.testing.assert_allclose(share, [2 / 3, 0.0, 0.25, 2 / 3, 1.0])
+    maps, valid = _wall(3, 2.0, valid_cols=0)  # no surface: nothing hidden
+    clear = clear_share(means, masks, maps, valid, *cameras, 0.05)
+    np.testing.assert_allclose(share[:4] + clear[:4], 1.0)

@@ -190,6 +190,91 @@ def test_by_clear_views_fades_each_rgb_gaussian_by_its_own_clear_views(splat: Pa
                for n in json.loads((run / "metrics.json").read_text())["stages"]["notes"])
 
 
+def test_the_thermal_gate_trains_and_says_how_much_thermal_shapes_the_surface(splat: Path, tmp_path: Path) -> None:
+    """stage3.thermal_surface_grad=smoky-views (the gradient itself: tests/test_thermal_surface_grad.py):
+    this tiny scene's smoke covers part of every view, so the mean share at the start lies strictly
+    between 0 and 1, the note says so, and the run ends ok."""
+    run = tmp_path / "run"
+    assert main([str(splat), "--out", str(run)] + TINY + ["--set", "stage3.thermal_surface_grad=smoky-views"]) == 0
+    notes = _assert_complete(run)["stages"]["notes"]
+    note = next(n for n in notes if n.startswith("the thermal term moves each surface Gaussian"))
+    assert 0.0 < float(note.split("mean ")[1].split(" ")[0]) < 1.0
+
+
+def test_stage2_starts_from_points_triangulated_in_the_training_frames(splat: Path, tmp_path: Path,
+                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """stage2.init_from=images (the triangulation itself: tests/test_triangulation.py): Stage 2
+    starts from the triangulated points filled up with random ones to stage2.init_points, in the
+    box around them, and the notes and metrics.json say how many."""
+    from smokeseer import api
+
+    monkeypatch.setenv("SMOKESEER_SFM_CACHE", str(tmp_path / "cache"))
+    starts: list[int] = []
+    train_stage2 = api.train_stage2
+
+    def recording(ctx, mod, init_points, *args, **kwargs):
+        starts.append(len(init_points))
+        return train_stage2(ctx, mod, init_points, *args, **kwargs)
+
+    monkeypatch.setattr(api, "train_stage2", recording)
+    run = tmp_path / "run"
+    assert main([str(splat), "--out", str(run)] + TINY + ["--set", "stage2.init_from=images"]) == 0
+    doc = _assert_complete(run)
+    record = doc["stages"]["start_points"]
+    assert record["source"] == "triangulated from the training RGB frames at their poses" and record["points"] > 0
+    assert any(n.startswith(f"stage 2 start: {record['points']} starting points triangulated") for n in doc["stages"]["notes"])
+    assert starts[0] == max(record["points"], 300)
+
+
+def test_an_environment_learning_from_clear_pixels_trains_both_stages(splat: Path, tmp_path: Path) -> None:
+    """background_from=clear-pixels (the gradient itself: tests/test_gradient_gates.py) through an RGB
+    Stage 2 and Stage 3 on this tiny scene's masks: the run ends ok and records the setting."""
+    run = tmp_path / "run"
+    assert main([str(splat), "--out", str(run), "--mode", "rgb-only"] + TINY
+                + ["--set", "background_from=clear-pixels"]) == 0
+    _assert_complete(run, thermal=False)
+    assert json.loads((run / "config.json").read_text())["background_from"] == "clear-pixels"
+
+
+def test_a_continuing_surface_keeps_every_sh_degree_and_stage2s_last_position_rate(
+        splat: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """stage3.surface_continues: every Stage-3 RGB render uses the profile's full SH degree and the
+    surface's position rate stays at lr.means_final × extent at every step while the smoke's still
+    decays from lr.means_init; by default the degree starts at 0 and the surface's rate decays too."""
+    from smokeseer.model.scene import SceneModel
+    from smokeseer.train.stage3 import Stage3Problem
+
+    seen: dict[str, dict[str, list]] = {}
+    render_rgb, optimizer_step = SceneModel.render_rgb, Stage3Problem.optimizer_step
+
+    def recording_render(self, view, *args, degree=None, **kwargs):
+        if degree is not None:
+            seen[name]["degree"].append(degree)
+        return render_rgb(self, view, *args, degree=degree, **kwargs)
+
+    def recording_step(self, it: int) -> None:
+        optimizer_step(self, it)
+        rates = {opt: next(g["lr"] for g in opt.param_groups if g["name"] == "means")
+                 for opt in (self.surface_optimizer, self.smoke_optimizer)}
+        ends = (self.cfg.lr.means_init * self.ctx.extent, self.cfg.lr.means_final * self.ctx.extent)
+        seen[name]["rates"].append((rates[self.surface_optimizer], rates[self.smoke_optimizer], *ends,
+                                    self.cfg.sh_degree))
+
+    monkeypatch.setattr(SceneModel, "render_rgb", recording_render)
+    monkeypatch.setattr(Stage3Problem, "optimizer_step", recording_step)
+    for name, extra in (("continues", ["--set", "stage3.surface_continues=true"]), ("restarts", [])):
+        seen[name] = {"degree": [], "rates": []}
+        assert main([str(splat), "--out", str(tmp_path / name)] + TINY + extra) == 0
+    surface, smoke, init, final, full = zip(*seen["continues"]["rates"])
+    assert len(surface) == 12 and full[0] >= 1
+    assert seen["continues"]["degree"] == [full[0]] * 12
+    np.testing.assert_allclose(surface, final, rtol=1e-6)
+    assert smoke[0] > smoke[-1] > final[0]
+    surface, smoke, *_ = zip(*seen["restarts"]["rates"])
+    assert seen["restarts"]["degree"][0] == 0
+    np.testing.assert_allclose(surface, smoke, rtol=1e-6)
+
+
 def test_the_bound_mask_term_trains_and_says_where_it_pushes(splat: Path, tmp_path: Path) -> None:
     """loss.mask_floor_where=estimated-bound: the targets are made once Stage 3's geometry is known,
     the note gives the share of masked pixels pushed and their mean target, and the run ends ok."""

@@ -28,6 +28,9 @@ PROFILES: tuple[str, ...] = ("quick", "standard", "paper")
 SMOKE_COLOR_SOURCES: tuple[str, ...] = ("learned", "haze-lines")
 DENSIFY_UNDER_CAP: tuple[str, ...] = ("index", "gradient")
 SURFACE_INITS: tuple[str, ...] = ("thermal", "by-smoke-colour", "by-clear-views")
+THERMAL_SURFACE_GRAD: tuple[str, ...] = ("all", "smoky-views")
+BACKGROUND_FROM: tuple[str, ...] = ("all", "clear-pixels")
+INIT_FROM: tuple[str, ...] = ("random", "images")
 POSE_SOURCES: tuple[str, ...] = ("given", "sfm")
 MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "estimated-meeting", "estimated-bound")
 DEFORM_KINDS: tuple[str, ...] = ("mlp", "fourier", "planes")
@@ -224,6 +227,13 @@ class Stage2Config:
 
     iterations: int = 15000
     init_points: int = 100_000
+    init_from: str = "random"
+    """Where Stage 2 starts when the dataset brings no points of its own. "random": ``init_points``
+    random points in the box the training cameras look at. "images": SfM on the training RGB
+    frames, moved onto their given poses (``smokeseer.stage1.sparse_points``), filled up with
+    random points to ``init_points`` in the box those points span; no SfM model, random alone,
+    and the notes say so. A flyover's optical axes do not meet near the scene, so its cameras'
+    box can miss it."""
     init_opacity: float = 0.1
     init_scale_max: float = 0.02
     densify: DensifyConfig = field(default_factory=DensifyConfig)
@@ -298,6 +308,19 @@ class Stage3Config:
     partly learned colour: machine's estimate (channel mean 0.35) with the RGB Stage 2 at a quarter
     of its opacities fell from 13.7 to 9.4 dB at iteration 250, and with the thermal start and the
     colour at trust 0.75 it ended level (docs/experiments/2026-12-02-colour-ramp.md)."""
+    surface_continues: bool = False
+    """Stage 3 carries on Stage 2's schedules for the surface instead of restarting them: the RGB
+    render uses every SH degree from the first iteration, and the surface's position learning rate
+    stays at the rate where Stage 2's ended (``lr.means_final``) rather than decaying again from
+    ``lr.means_init`` (the smoke's still does). The official code continues both; a restart moves
+    a converged RGB surface and hides its view-dependent colour for the first SH steps."""
+    thermal_surface_grad: str = "all"
+    """Which surface Gaussians the thermal render term may move (position, shape, opacity; their
+    thermal values always learn). "all": every one (the paper). "smoky-views": each one's gradient
+    from that term times the share of the RGB training views whose Stage-1 mask covers its centre
+    (1 where no RGB view sees it), so that the low-resolution thermal frames shape the surface only
+    where the RGB cannot see it, and a scene without smoke trains its surface as RGB-only does
+    (``smokeseer.train.surface_union.smoky_share``)."""
     carve_tolerance: float = 0.05
     """With two surfaces: an RGB Gaussian nearer than (1 − this) × the thermal
     surface's depth in most views that see it is smoke taken for surface, and is dropped."""
@@ -327,6 +350,12 @@ class TrainConfig:
     lr: LearningRates = field(default_factory=LearningRates)
     background: str = "environment"
     background_sh_degree: int = 2
+    background_from: str = "all"
+    """Which pixels the RGB environment learns from. "all": every pixel of the training frames
+    (the environment shows through wherever the surface is not opaque, so on smoky frames it can
+    learn the smoke's colour and put it back behind the de-smoked surface). "clear-pixels": each
+    pixel's gradient into the environment is multiplied by 1 − Stage 1's smoke mask there, in
+    every RGB Stage 2 and in Stage 3; the thermal environment learns from every pixel."""
     depth_prior: str = "thermal-render"
     depth_camera: str = "thermal"
     mono_weights: str = ""
@@ -365,6 +394,10 @@ class TrainConfig:
             raise ValueError(f"sh_degree: must be in 0..3, got {self.sh_degree}")
         if self.background not in ("environment", "black"):
             raise ValueError(f"background: {self.background!r} is not environment or black")
+        if self.background_from not in BACKGROUND_FROM:
+            raise ValueError(f"background_from: {self.background_from!r} is not one of {', '.join(BACKGROUND_FROM)}")
+        if self.background_from != "all" and self.background == "black":
+            raise ValueError("background_from: a black background learns nothing; leave it at all")
         if not 0 <= self.background_sh_degree <= 3:
             raise ValueError(f"background_sh_degree: must be in 0..3, got {self.background_sh_degree}")
         if self.depth_prior not in ("thermal-render", "mono", "files", "none"):
@@ -403,6 +436,11 @@ class TrainConfig:
         if self.stage3.surface_init == "by-smoke-colour" and self.stage3.smoke_color != "haze-lines":
             raise ValueError("stage3.surface_init: by-smoke-colour reads the haze lines; it needs "
                              "stage3.smoke_color=haze-lines")
+        if self.stage2.init_from not in INIT_FROM:
+            raise ValueError(f"stage2.init_from: {self.stage2.init_from!r} is not one of {', '.join(INIT_FROM)}")
+        if self.stage3.thermal_surface_grad not in THERMAL_SURFACE_GRAD:
+            raise ValueError(f"stage3.thermal_surface_grad: {self.stage3.thermal_surface_grad!r} is not one of "
+                             f"{', '.join(THERMAL_SURFACE_GRAD)}")
         if not 0.0 <= self.stage3.carve_tolerance < 1.0:
             raise ValueError(f"stage3.carve_tolerance: must be in [0, 1), got {self.stage3.carve_tolerance}")
         if not 0.0 < self.stage3.surface_densify_max_smoke <= 1.0:
@@ -496,13 +534,15 @@ class TrainConfig:
     def stage2_sha256(self) -> str:
         """Hash of the settings Stage 2 depends on, so a Stage 2 checkpoint is reused by runs
         that differ only in Stage 3 (ablations, Stage 3 budgets) or in where Stage 1's masks come
-        from (Stage 2 reads no mask: ``stage1``, ``mask_dir``) on the same geometry."""
+        from (Stage 2 reads no mask, unless an RGB Stage 2's environment learns from the clear
+        pixels only: ``stage1``, ``mask_dir``, ``background_from``) on the same geometry."""
         d = self.to_dict()
+        d["mode"] = {"rgb-only": "rgb", "deformable-3dgs": "deformable-3dgs"}.get(self.mode, "thermal")
+        reads_masks = d["mode"] == "rgb" and self.background_from == "clear-pixels"
         for key in ("stage3", "loss", "depth_prior", "depth_camera", "mono_weights", "smoke_ply_times", "progress",
                     "log_every", "checkpoint_every", "profile", "lpips_net", "lpips_weights", "lpips_heads",
-                    "stage1", "mask_dir"):
+                    *(() if reads_masks else ("stage1", "mask_dir", "background_from"))):
             d.pop(key)
-        d["mode"] = {"rgb-only": "rgb", "deformable-3dgs": "deformable-3dgs"}.get(self.mode, "thermal")
         if d["mode"] != "deformable-3dgs":
             d.pop("deform")
             d["stage2"].pop("deform_warmup")
@@ -547,8 +587,8 @@ def _quick() -> TrainConfig:
 def _standard() -> TrainConfig:
     """The benchmark's scale on one CPU core with the compiled rasterizer (a `standard` dataset:
     60 frames, 200x150 RGB, 80x60 thermal): full resolution, 3000 + 3000 iterations with the
-    3DGS schedules scaled to them (densification 300-2400, warm-up 500), and a validation split
-    for every choice. No opacity reset, a gated surface refinement, no depth term, a
+    3DGS schedules scaled to them (densification 300-2400, warm-up 500), Stage 2 from the points
+    seen in the training frames, and a validation split for every choice. No opacity reset, a gated surface refinement, no depth term, a
     half-equalised thermal curve, the haze-line smoke colour weighted by its trust (many lines,
     meeting, dark), Stage 3's surface chosen by the same trust, and the mask floor where the images say the smoke may
     be dense: each chosen on the validation views, with its measurements in docs/method.md,
@@ -556,6 +596,7 @@ def _standard() -> TrainConfig:
     s2 = Stage2Config(
         iterations=3000,
         init_points=5000,
+        init_from="images",
         densify=DensifyConfig(start=0.1, stop=0.8, every=100, opacity_reset_every=0.0,
                               max_gaussians=40_000),
         deform_warmup=1 / 6,

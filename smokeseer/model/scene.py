@@ -113,6 +113,14 @@ def place_static(g: GaussianSet) -> Placed:
     return Placed(g["means"], g.quats, g["log_scales"])
 
 
+def scaled_gradient(x: Tensor, share: Tensor) -> Tensor:
+    """``x`` unchanged in the forward pass, with the gradient that reaches it through this
+    value multiplied by ``share``, whose shape is ``x``'s leading dimensions (one value per
+    Gaussian, or per pixel of an image)."""
+    held = x.detach()
+    return held + share.reshape(*share.shape, *([1] * (x.dim() - share.dim()))) * (x - held)
+
+
 MotionField = DeformNetwork | PlaneField
 """A field of offsets over position and time: ``field(means, t, center)``, or ``encode`` once and
 ``decode`` per time (``smokeseer.model.deform``)."""
@@ -196,7 +204,8 @@ class SmokeAnchor:
 
 def render(view: View, parts: list[tuple[Placed, Tensor, Tensor]], sh_degree: int | None,
            background: Tensor | EnvironmentBackground | None, subset: int | None = None,
-           normalize_depth: bool = True, rest_alone: bool = False, depth: bool = True) -> RasterOutput:
+           normalize_depth: bool = True, rest_alone: bool = False, depth: bool = True,
+           background_grad: Tensor | None = None) -> RasterOutput:
     """Rasterize several placed sets in one pass. Each part is (placed, opacity, colour); with
     ``subset`` = k, the k-th part's accumulated alpha is returned in the same pass, and with
     ``rest_alone`` also the depth and alpha of the other parts rendered without it
@@ -210,7 +219,10 @@ def render(view: View, parts: list[tuple[Placed, Tensor, Tensor]], sh_degree: in
 
     ``depth=False`` leaves out the depth image (``depths`` is None) unless ``rest_alone`` needs
     it: each channel costs kernel work per blended pair, and a training pass without a depth
-    term never reads it. Colours, alphas and their gradients are the same bytes either way."""
+    term never reads it. Colours, alphas and their gradients are the same bytes either way.
+
+    ``background_grad`` (H, W): a learned environment's gradient is multiplied by it pixel by
+    pixel (``background_from=clear-pixels``); the image is the same."""
     means = torch.cat([p.means for p, _, _ in parts])
     quats = torch.cat([p.quats for p, _, _ in parts])
     scales = torch.cat([p.log_scales for p, _, _ in parts])
@@ -233,7 +245,7 @@ def render(view: View, parts: list[tuple[Placed, Tensor, Tensor]], sh_degree: in
         out = replace(out, rest_depths=out.depths, rest_alphas=out.alphas)
     if env is None:
         return out
-    sky = view.sky(env)
+    sky = view.sky(env) if background_grad is None else scaled_gradient(view.sky(env), background_grad)
     return replace(out, colors=composite_over(out.colors, out.alphas, sky))
 
 
@@ -306,13 +318,14 @@ class SceneModel:
 
     def render_rgb(self, view: View, surface: bool = True, smoke: bool = True, degree: int | None = None,
                    deform_active: bool = True, surface_depth: bool = False, depth: bool = True,
-                   motion: SmokeMotion | None = None, background: bool = True) -> RasterOutput:
+                   motion: SmokeMotion | None = None, background: bool = True,
+                   background_grad: Tensor | None = None) -> RasterOutput:
         """RGB = surface ∪ smoke with RGB opacities; with both, smoke alpha comes from the same pass.
         The environment is drawn behind any render that includes the surface (a smoke-only
         view is shown on black), unless ``background`` is false (the evaluation's check of how much
         of a score the environment carries). ``surface_depth``: the surface's own depth and alpha as
         ``rest_depths``/``rest_alphas``, from the same pass; ``depth``: the depth image (both: see
-        ``render``); ``motion``: see ``smoke_at``."""
+        ``render``); ``motion``: see ``smoke_at``; ``background_grad``: see ``render``."""
         if surface_depth and not surface:
             raise ValueError("render_rgb: surface_depth needs the surface in the render")
         degree = self.sh_degree if degree is None else degree
@@ -328,19 +341,26 @@ class SceneModel:
         if not parts:
             raise ValueError("render_rgb: nothing to render (no surface and no smoke)")
         return render(view, parts, degree, self.background_rgb if surface and background else None, subset=subset,
-                      rest_alone=surface_depth, depth=depth)
+                      rest_alone=surface_depth, depth=depth, background_grad=background_grad)
 
     def render_thermal(self, view: View, surface: bool = True, smoke: bool = True,
                        deform_active: bool = True, surface_depth: bool = False, depth: bool = True,
-                       motion: SmokeMotion | None = None) -> RasterOutput:
+                       motion: SmokeMotion | None = None, surface_grad_share: Tensor | None = None) -> RasterOutput:
         """Thermal = surface ∪ smoke with thermal opacities and 1-channel thermal colours.
-        ``surface_depth``, ``depth``, ``motion``: as for ``render_rgb``."""
+        ``surface_depth``, ``depth``, ``motion``: as for ``render_rgb``. ``surface_grad_share``:
+        one value per surface Gaussian by which the gradient into its position, shape and opacity
+        through this render is multiplied (``stage3.thermal_surface_grad``); its thermal value
+        learns in full."""
         if surface_depth and not surface:
             raise ValueError("render_thermal: surface_depth needs the surface in the render")
         parts = []
         if surface:
-            placed, logits = self.surface_at(view.time), self.surface["opacity"]
-            parts.append((placed, torch.sigmoid(logits), torch.sigmoid(self.surface["thermal"])))
+            placed, opacity = self.surface_at(view.time), torch.sigmoid(self.surface["opacity"])
+            if surface_grad_share is not None:
+                placed = Placed(*(scaled_gradient(x, surface_grad_share)
+                                  for x in (placed.means, placed.quats, placed.log_scales)))
+                opacity = scaled_gradient(opacity, surface_grad_share)
+            parts.append((placed, opacity, torch.sigmoid(self.surface["thermal"])))
         use_smoke = smoke and self.smoke is not None
         if use_smoke:
             placed, _, o_th = self.smoke_at(view.time, deform_active, view, motion)

@@ -30,6 +30,7 @@ from smokeseer.config.streams import numpy_stream
 from smokeseer.stage1.poses_from_images import pose_from_images
 from smokeseer.stage1.registration import register_rig
 from smokeseer.stage1.smoke_presence import ESTIMATOR, decide_smoke_presence
+from smokeseer.stage1.sparse_points import SparsePoints, sparse_points
 
 
 @dataclass
@@ -45,6 +46,9 @@ class Stage1Report:
     registration: dict[str, Any] | None = None
     masks: str = "dataset"
     notes: list[str] = field(default_factory=list)
+    start_points: SparsePoints | None = None
+    """Stage 2's starting points from the training frames (``stage2.init_from=images`` on a
+    dataset with no points of its own); ``bounds`` is then their box."""
 
 
 def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
@@ -107,7 +111,14 @@ def run_stage1(cfg: TrainConfig, scene: SceneData) -> Stage1Report:
         rng = numpy_stream(cfg.seed, "stage1.pose-noise")
         for m in mods:
             perturb_poses(m, cfg.pose_noise_rot_deg, cfg.pose_noise_trans * bounds.extent, rng)
-    return Stage1Report(registered, scale, rmse, inliers, noisy, bounds, registration, masks, notes)
+    start = None
+    if cfg.stage2.init_from == "images" and scene.init_points is None:
+        start = sparse_points(scene)
+        notes.append(f"stage 2 start: {start.note}")
+        if start.points is not None:
+            bounds = scene_bounds(np.stack([f.viewmat for f in train]), np.stack([f.K for f in train]),
+                                  np.array([f.width for f in train]), start.points)
+    return Stage1Report(registered, scale, rmse, inliers, noisy, bounds, registration, masks, notes, start)
 
 
 def _given_rig(scene: SceneData) -> RigExtrinsic | None:

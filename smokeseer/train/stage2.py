@@ -57,6 +57,17 @@ def make_background(cfg: TrainConfig, channels: int, device: torch.device) -> En
     return EnvironmentBackground(channels, cfg.background_sh_degree, device)
 
 
+def clear_pixel_weights(cfg: TrainConfig, mod: ModalityData, idx: list[int], device: torch.device
+                        ) -> torch.Tensor | None:
+    """Per training view ``idx`` of ``mod``, the weight of each pixel's gradient into the learned
+    environment: 1 − Stage 1's smoke mask on the RGB frames under ``background_from=clear-pixels``;
+    None (every pixel in full) otherwise, on the thermal frames, and where the frames carry no
+    mask (no smoke marked)."""
+    if cfg.background_from != "clear-pixels" or mod.name == "thermal" or mod.masks is None:
+        return None
+    return 1.0 - torch.as_tensor(np.clip(mod.masks[idx], 0.0, 1.0), dtype=torch.float32, device=device)
+
+
 def draw_index(generator: torch.Generator, n: int) -> int:
     """A uniformly drawn training-view index from a view-order stream (a seeded CPU generator)."""
     return int(torch.randint(n, (1,), generator=generator, device=generator.device))
@@ -101,6 +112,7 @@ class Stage2Problem(StageProblem):
         idx = mod.indices("train")
         self.views = views_of(mod, idx, dev)
         self.images = torch.as_tensor(mod.images[idx], device=dev)
+        self.background_grad = clear_pixel_weights(cfg, mod, idx, dev) if self.background is not None else None
 
     def forward(self, it: int) -> IterationOutput:
         cfg = self.cfg
@@ -110,7 +122,8 @@ class Stage2Problem(StageProblem):
         placed = place_deformed(self.g, self.deform, view.time, self.ctx.center, deform_on)
         cols, is_sh = colors_for(self.g, self.color)
         degree = min(cfg.sh_degree, (it - 1) // max(cfg.sh_increase_every, 1)) if is_sh else None
-        out = render(view, [(placed, torch.sigmoid(self.g["opacity"]), cols)], degree, self.background, depth=False)
+        out = render(view, [(placed, torch.sigmoid(self.g["opacity"]), cols)], degree, self.background, depth=False,
+                     background_grad=None if self.background_grad is None else self.background_grad[k])
         loss = render_loss(out.colors[0], self.images[k], cfg.loss.dssim)
         return IterationOutput(cfg.loss.render * loss, {f"render_{self.color}": loss},
                                {"raster": out, "view": view, "deform_on": deform_on})

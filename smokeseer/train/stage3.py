@@ -28,10 +28,17 @@ from smokeseer.train.loop import IterationOutput, StageProblem, StageSchedule, r
 from smokeseer.train.losses import (depth_consistency, mask_alignment, monochromaticity, render_loss,
                                     smoke_alpha_variance, smoke_color_variance)
 from smokeseer.train.plan import Stage3Plan
-from smokeseer.train.stage2 import Stage2Result, draw_index, make_background, views_of
+from smokeseer.train.stage2 import Stage2Result, clear_pixel_weights, draw_index, make_background, views_of
+from smokeseer.train.surface_union import smoky_share
 from smokeseer.train.util import RunContext, grads_of, state_or_none, step_optimizers
 
 HeldoutPsnr = Callable[[SceneModel, int], dict[str, float | None] | None]
+
+SHARE_REFRESH = 100
+"""With ``stage3.thermal_surface_grad=smoky-views`` each surface Gaussian's smoky-view share is
+recomputed at the start of every block of this many iterations, and whenever densification has
+changed the surface's count (it acts at most once a block): its position moves far less than a
+pixel between."""
 
 
 def build_scene_model(ctx: RunContext, s2: Stage2Result, plan: Stage3Plan,
@@ -88,9 +95,11 @@ def _backgrounds(model: SceneModel) -> dict[str, torch.nn.Module]:
 
 
 def _surface_lrs(cfg: TrainConfig, g: GaussianSet, extent: float) -> dict[str, float]:
+    """The surface's rates; with ``stage3.surface_continues`` its position's is Stage 2's last."""
     lr = cfg.lr
     geo = 1.0 if cfg.stage3.train_surface_geometry else 0.0
-    table = {"means": lr.means_init * extent * geo, "quats": lr.quats * geo,
+    means = lr.means_final if cfg.stage3.surface_continues else lr.means_init
+    table = {"means": means * extent * geo, "quats": lr.quats * geo,
              "log_scales": lr.scales * geo, "opacity": lr.opacity * geo,
              "thermal": lr.thermal, "sh_dc": lr.sh_dc, "sh_rest": lr.sh_rest}
     return {k: table[k] for k in g.params}
@@ -130,6 +139,8 @@ class Stage3Problem(StageProblem):
         rgb_idx = rgb.indices("train")
         self.rgb_views = views_of(rgb, rgb_idx, dev)
         self.rgb_imgs = torch.as_tensor(rgb.images[rgb_idx], device=dev)
+        self.background_grad = (clear_pixel_weights(cfg, rgb, rgb_idx, dev) if model.background_rgb is not None
+                                else None)
         self.masks = (torch.as_tensor(rgb.masks[rgb_idx], device=dev)
                       if plan.use_masks and rgb.masks is not None and model.smoke is not None else None)
         self.mask_floor = (torch.as_tensor(plan.floor_pixels, device=dev)
@@ -142,6 +153,23 @@ class Stage3Problem(StageProblem):
             th_idx = thermal.indices("train")
             self.th_views = views_of(thermal, th_idx, dev)
             self.th_imgs = torch.as_tensor(thermal.images[th_idx], device=dev)
+        self.gate_thermal = self.th_imgs is not None and cfg.stage3.thermal_surface_grad == "smoky-views"
+        if self.gate_thermal and model.smoke is not None and rgb.masks is None:
+            raise ValueError("stage3.thermal_surface_grad: smoky-views reads Stage 1's smoke masks, "
+                             "and this run's RGB frames have none")
+        self.rgb_cameras = rgb.cameras("train")
+        self.rgb_masks = (rgb.masks[rgb_idx] if model.smoke is not None and rgb.masks is not None
+                          else np.zeros((len(rgb_idx), *rgb.images.shape[1:3]), dtype=np.float32))
+        self.thermal_share: torch.Tensor | None = None
+        if self.gate_thermal:
+            share = self._thermal_share(1)
+            note = (f"the thermal term moves each surface Gaussian by the share of the RGB training views whose "
+                    f"smoke mask covers it: mean {float(share.mean()):.3f} at the start, "
+                    f"{100 * float((share == 0).float().mean()):.0f} % not at all"
+                    + ("" if model.smoke is not None else " (no smoke: only what no RGB view sees)")
+                    + " (stage3.thermal_surface_grad=smoky-views)")
+            plan.notes.append(note)
+            ctx.log_line(f"stage 3: {note}")
         self.depth_on = prior is not None and self.weights["depth"] > 0
         self.depth_on_thermal = self.depth_on and prior.camera == "thermal"
         if self.depth_on_thermal and self.th_imgs is None:
@@ -161,19 +189,22 @@ class Stage3Problem(StageProblem):
     def forward(self, it: int) -> IterationOutput:
         cfg, model, weights = self.cfg, self.model, self.weights
         deform_on = it > self.deform_warmup
-        degree = min(cfg.sh_degree, (it - 1) // max(cfg.sh_increase_every, 1))
+        degree = (cfg.sh_degree if cfg.stage3.surface_continues
+                  else min(cfg.sh_degree, (it - 1) // max(cfg.sh_increase_every, 1)))
         k = draw_index(self.streams["stage3.views.rgb"], len(self.rgb_views))
         view = self.rgb_views[k]
         motion = model.smoke_motion(deform_on, cfg.deform.shared_position,
                                     cfg.deform.view_cull_margin * self.ctx.extent if cfg.deform.view_cull else None)
         out = model.render_rgb(view, degree=degree, deform_active=deform_on,
-                               surface_depth=self.depth_on and not self.depth_on_thermal, depth=False, motion=motion)
+                               surface_depth=self.depth_on and not self.depth_on_thermal, depth=False, motion=motion,
+                               background_grad=None if self.background_grad is None else self.background_grad[k])
         terms: dict[str, torch.Tensor] = {"render_rgb": render_loss(out.colors[0], self.rgb_imgs[k], cfg.loss.dssim)}
         depth_source = (out, k)
         if self.th_imgs is not None:
             j = draw_index(self.streams["stage3.views.thermal"], len(self.th_views))
             tout = model.render_thermal(self.th_views[j], deform_active=deform_on,
-                                        surface_depth=self.depth_on_thermal, depth=False, motion=motion)
+                                        surface_depth=self.depth_on_thermal, depth=False, motion=motion,
+                                        surface_grad_share=self._thermal_share(it) if self.gate_thermal else None)
             terms["render_thermal"] = render_loss(tout.colors[0], self.th_imgs[j], cfg.loss.dssim)
             if self.depth_on_thermal:
                 depth_source = (tout, j)
@@ -201,6 +232,16 @@ class Stage3Problem(StageProblem):
         loss = sum(weights["render"] * share[n] * v if n in share else weights[n] * v for n, v in terms.items())
         return IterationOutput(loss, terms, {"raster": out, "view": view, "index": k, "deform_on": deform_on})
 
+    def _thermal_share(self, it: int) -> torch.Tensor:
+        """Each surface Gaussian's smoky-view share (``smoky_share`` over the RGB training views;
+        without smoke Gaussians every mask is empty), refreshed as ``SHARE_REFRESH`` says."""
+        surface = self.model.surface
+        if self.thermal_share is None or (it - 1) % SHARE_REFRESH == 0 or len(self.thermal_share) != surface.n:
+            means = surface["means"].detach().cpu().numpy().astype(np.float64)
+            share = smoky_share(means, self.rgb_masks, *self.rgb_cameras)
+            self.thermal_share = torch.as_tensor(share, dtype=torch.float32, device=surface["means"].device)
+        return self.thermal_share
+
     def _depth_term(self, raster: RasterOutput, k: int) -> torch.Tensor:
         """The surface's own depth (from the same pass, see ``model.render``) against
         the prior of view ``k`` of the prior's camera."""
@@ -227,8 +268,12 @@ class Stage3Problem(StageProblem):
         return named
 
     def optimizer_step(self, it: int) -> None:
+        """The position rates decay over Stage 3, the surface's only where it does not continue
+        Stage 2's (``stage3.surface_continues``: held at its start)."""
+        held = self.cfg.stage3.surface_continues
         step_optimizers(it, self.cfg.stage3.iterations, self.cfg, self.ctx.extent,
-                        [self.surface_optimizer, self.smoke_optimizer], [self.background_optimizer],
+                        [self.smoke_optimizer] if held else [self.surface_optimizer, self.smoke_optimizer],
+                        [self.background_optimizer, self.surface_optimizer] if held else [self.background_optimizer],
                         self.deform_optimizer, self.deform_warmup)
 
     def after_step(self, it: int, out: IterationOutput) -> None:
@@ -269,6 +314,7 @@ class Stage3Problem(StageProblem):
                 "smoke": state_or_none(model.smoke), "smoke_optimizer": state_or_none(self.smoke_optimizer),
                 "deform": state_or_none(model.deform), "deform_optimizer": state_or_none(self.deform_optimizer),
                 "background_optimizer": state_or_none(self.background_optimizer),
+                "thermal_share": self.thermal_share if self.gate_thermal else None,
                 **{name: bg.state_dict() for name, bg in _backgrounds(model).items()}}
 
     def load_state(self, payload: dict[str, Any]) -> None:
@@ -281,6 +327,8 @@ class Stage3Problem(StageProblem):
         for name, bg in _backgrounds(model).items():
             if payload.get(name) is not None:
                 bg.load_state_dict(payload[name])
+        share = payload.get("thermal_share")
+        self.thermal_share = share.to(dev) if share is not None and self.gate_thermal else None
         self._make_optimizers()
         self.surface_optimizer.load_state_dict(payload["surface_optimizer"])
         for opt, key in ((self.smoke_optimizer, "smoke_optimizer"), (self.deform_optimizer, "deform_optimizer"),

@@ -118,19 +118,41 @@ def carve_in_front(means: np.ndarray, depths: np.ndarray, valid: np.ndarray, vie
     return CarveResult(~(2 * in_front > seen), seen, in_front)
 
 
+def _masked_views(means: np.ndarray, masks: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray,
+                  surface: tuple[np.ndarray, np.ndarray, float] | None) -> tuple[np.ndarray, np.ndarray]:
+    """Per point, how many of the training views (``masks``: Stage 1's smoke masks at the cameras
+    ``viewmats``, ``Ks``) see its centre, and the sum of the clipped mask over them. A view sees a
+    point whose centre lands in its image and, with ``surface`` (depths, valid, tolerance: the
+    surface rendered at those cameras), on an invalid pixel or not behind that surface by more
+    than the tolerance of its depth."""
+    seen = np.zeros(len(means))
+    masked = np.zeros(len(means))
+    for f, idx, iu, iv, z in _landings(means, viewmats, Ks, masks.shape):
+        if surface is None:
+            sees = np.ones(len(idx), dtype=bool)
+        else:
+            depths, valid, tolerance = surface
+            sees = ~valid[f, iv, iu] | (z <= (1.0 + tolerance) * depths[f, iv, iu])
+        seen[idx[sees]] += 1.0
+        masked[idx[sees]] += np.clip(masks[f, iv[sees], iu[sees]], 0.0, 1.0)
+    return seen, masked
+
+
 def clear_share(means: np.ndarray, masks: np.ndarray, depths: np.ndarray, valid: np.ndarray,
                 viewmats: np.ndarray, Ks: np.ndarray, tolerance: float) -> np.ndarray:
-    """Per point, the mean of 1 − ``masks`` (Stage 1's smoke masks at the training cameras
-    ``viewmats``, ``Ks``) over the views that see its centre: it lands on a valid pixel of the
-    surface rendered at that camera (``depths``/``valid``) and not behind it by more than
-    ``tolerance`` of its depth. Points no view sees get 1: nothing says smoke hides them."""
-    seen = np.zeros(len(means))
-    clear = np.zeros(len(means))
-    for f, idx, iu, iv, z in _landings(means, viewmats, Ks, depths.shape):
-        sees = ~valid[f, iv, iu] | (z <= (1.0 + tolerance) * depths[f, iv, iu])
-        seen[idx[sees]] += 1.0
-        clear[idx[sees]] += 1.0 - np.clip(masks[f, iv[sees], iu[sees]], 0.0, 1.0)
-    return np.where(seen > 0, clear / np.maximum(seen, 1.0), 1.0)
+    """Per point, the mean of 1 − ``masks`` over the views that see it, not hidden behind the
+    surface rendered at those cameras (``depths``/``valid``; ``_masked_views``). Points no view
+    sees get 1: nothing says smoke hides them."""
+    seen, masked = _masked_views(means, masks, viewmats, Ks, (depths, valid, tolerance))
+    return np.where(seen > 0, 1.0 - masked / np.maximum(seen, 1.0), 1.0)
+
+
+def smoky_share(means: np.ndarray, masks: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray) -> np.ndarray:
+    """Per point, the mean mask over the views whose image its centre lands in (no occlusion test:
+    a point behind a nearer surface is taken to lie under the same smoke as that surface). Points
+    no view sees get 1: only the thermal frames can tell anything about them."""
+    seen, masked = _masked_views(means, masks, viewmats, Ks, None)
+    return np.where(seen > 0, masked / np.maximum(seen, 1.0), 1.0)
 
 
 def in_holes(means: np.ndarray, opaque: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray,
