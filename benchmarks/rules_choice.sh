@@ -8,8 +8,10 @@
 #                                               (into data/tables_standard, beside Table 1's runs)
 #   bash benchmarks/rules_choice.sh standard    the ten standard scenes: Full, RGB-only and the
 #                                               rule candidates (into data/tables_standard)
-#   bash benchmarks/rules_choice.sh dev [--first N]   random-dev: the same (into data/tables_random_dev),
-#                                               the first N scenes only with --first
+#   bash benchmarks/rules_choice.sh dev [--first N] [--methods full]   random-dev: the same (into
+#                                               data/tables_random_dev), the first N scenes only
+#                                               with --first; --methods full leaves RGB-only out
+#                                               (the choice reads Full and the candidates)
 #   bash benchmarks/rules_choice.sh report DIGEST   the per-scene comparisons, validation views
 #
 # A shorter Stage 3 does not stand in for the standard profile: at 1000 + 1000 iterations and 80 px
