@@ -61,78 +61,84 @@ ABLATIONS: dict[str, Variant] = {
         Variant("no-depth", "w/o depth", "no-depth", "ablations", {"psnr": 19.88}),
         Variant("no-mask", "w/o mask", "no-mask", "ablations", {"psnr": 19.82}),
         Variant("stage2-depth", "with depth (Stage-2 prior)", "full", "ablations", {},
-                note="Full plus the paper's depth term against Stage 2's thermal depth render (the weight-free "
-                     "prior we have); Table 2's depth row where the profile's Full has no depth term",
+                note="Full plus the paper's depth term against Stage 2's thermal depth render (the weight-free prior "
+                     "we have); Table 2's depth row where the profile's Full has no depth term",
                 overrides={"depth_prior": "thermal-render"}),
     )
 }
 
+def _candidate(key: str, label: str, note: str, overrides: dict[str, Any]) -> Variant:
+    """A Full run with the ``overrides`` of one rule or setting in question."""
+    return Variant(key, label, "full", "candidates", {}, note=note, overrides=overrides)
+
+
 CANDIDATES: dict[str, Variant] = {
     v.key: v
     for v in (
-        Variant("start-thermal", "Full, Stage 3 from the thermal Stage 2", "full", "candidates", {},
-                note="the route's candidate with no RGB Stage 2: Stage 3 starts from the thermal Stage 2 alone, "
-                     "as the paper's does (docs/method.md, Decisions, row 13)",
-                overrides={"stage3.surface_init": "thermal"}),
-        Variant("start-clear-views", "Full, Stage 3 from both Stage 2s by clear views", "full", "candidates", {},
-                note="the route's per-Gaussian candidate: each RGB Stage-2 Gaussian keeps the share of its opacity "
-                     "that its training views see it clear of smoke, with no scene-wide trust "
-                     "(docs/method.md, Decisions, row 13)",
-                overrides={"stage3.surface_init": "by-clear-views"}),
-        Variant("mask-bound", "Full, the mask term pushes to what the images prove", "full", "candidates", {},
-                note="the mask term pushes each masked pixel's smoke alpha up to the alpha the smoky frames prove "
-                     "there (a clear view's reading, else the lower bound where the haze lines meet), in place of "
-                     "the floor at 0.4 where the estimate reaches it (loss.mask_floor_where=estimated-bound; "
-                     "docs/method.md, Decisions, rows 16-17)",
-                overrides={"loss.mask_floor_where": "estimated-bound"}),
-        Variant("thermal-where-smoky", "Full, the thermal term shapes the surface only under smoke", "full",
-                "candidates", {},
-                note="the thermal render term moves each surface Gaussian's position, shape and opacity by the share "
-                     "of the RGB training views whose smoke mask covers it, so the coarse thermal frames cost nothing "
-                     "where the RGB sees the surface clear (stage3.thermal_surface_grad=smoky-views; the surface "
-                     "issue: Full's clean ceiling is 1.2 dB under RGB-only's)",
-                overrides={"stage3.thermal_surface_grad": "smoky-views"}),
-        Variant("surface-continues", "Full, Stage 3 carries on Stage 2's surface schedules", "full", "candidates", {},
-                note="the surface keeps every SH degree and Stage 2's last position rate into Stage 3 instead of "
-                     "restarting both, as the official code continues its schedules "
-                     "(stage3.surface_continues=true; the surface issue's continuity)",
-                overrides={"stage3.surface_continues": True}),
-        Variant("background-clear", "Full, the environment learns from clear pixels only", "full", "candidates", {},
-                note="each training pixel's gradient into the RGB environment is weighted by 1 - Stage 1's smoke mask, "
-                     "in the RGB Stage 2 and in Stage 3, so the environment cannot learn the smoke's colour and "
-                     "show it behind the de-smoked surface (background_from=clear-pixels; the surface issue); its "
-                     "RGB Stage 2 is its own",
-                overrides={"background_from": "clear-pixels"}),
-        Variant("background-black", "Full, no environment behind the surface", "full", "candidates", {},
-                note="no learned environment behind any render (background=black, as the official code): a "
-                     "surface that is not opaque can no longer show an environment that fits the smoke through "
-                     "it (the surface issue; surface_diagnostics' surface-pixel PSNRs, with the environment "
-                     "and on black, measure the leak)",
-                overrides={"background": "black"}),
-        *(Variant(f"priors-{name}", f"Full, smoke priors at {share} of the official strength", "full", "candidates", {},
-                  note="the smoke priors at a share of the official code's synthetic weights, in this trainer's units "
-                       "(smoke_alpha 1.2; smoke_color 1.5 and mono 2.9 on raw SH values, 19 and 37 on colours; ours "
-                       "are 0.1, 0.05, 0.1), so that the smoke cannot carry the scene's chroma and texture (the "
-                       "surface issue, three points)",
-                  overrides={"loss.smoke_alpha": round(1.2 * k, 4), "loss.smoke_color": round(19.0 * k, 4),
-                             "loss.mono": round(37.0 * k, 4)})
+        _candidate("start-thermal", "Full, Stage 3 from the thermal Stage 2",
+                   note="the route's candidate with no RGB Stage 2: Stage 3 starts from the thermal Stage 2 alone, "
+                        "as the paper's does (docs/method.md, Decisions, row 13)",
+                   overrides={"stage3.surface_init": "thermal"}),
+        _candidate("start-clear-views", "Full, Stage 3 from both Stage 2s by clear views",
+                   note="the route's per-Gaussian candidate: each RGB Stage-2 Gaussian keeps the share of its "
+                        "opacity that its training views see it clear of smoke, with no scene-wide trust "
+                        "(docs/method.md, Decisions, row 13)",
+                   overrides={"stage3.surface_init": "by-clear-views"}),
+        _candidate("mask-bound", "Full, the mask term pushes to what the images prove",
+                   note="the mask term pushes each masked pixel's smoke alpha up to the alpha the smoky frames prove "
+                        "there (a clear view's reading, else the lower bound where the haze lines meet), in place of "
+                        "the floor at 0.4 where the estimate reaches it (loss.mask_floor_where=estimated-bound; "
+                        "docs/method.md, Decisions, rows 16-17)",
+                   overrides={"loss.mask_floor_where": "estimated-bound"}),
+        _candidate("thermal-where-smoky", "Full, the thermal term shapes the surface only under smoke",
+                   note="the thermal render term moves each surface Gaussian's position, shape and opacity by the "
+                        "share of the RGB training views whose smoke mask covers it, so the coarse thermal frames "
+                        "cost nothing where the RGB sees the surface clear (stage3.thermal_surface_grad=smoky-views; "
+                        "the surface issue: Full's clean ceiling is 1.2 dB under RGB-only's)",
+                   overrides={"stage3.thermal_surface_grad": "smoky-views"}),
+        _candidate("surface-continues", "Full, Stage 3 carries on Stage 2's surface schedules",
+                   note="the surface keeps every SH degree and Stage 2's last position rate into Stage 3 instead of "
+                        "restarting both, as the official code continues its schedules "
+                        "(stage3.surface_continues=true; the surface issue's continuity)",
+                   overrides={"stage3.surface_continues": True}),
+        _candidate("background-clear", "Full, the environment learns from clear pixels only",
+                   note="each training pixel's gradient into the RGB environment is weighted by 1 - Stage 1's smoke "
+                        "mask, in the RGB Stage 2 and in Stage 3, so the environment cannot learn the smoke's colour "
+                        "and show it behind the de-smoked surface (background_from=clear-pixels; the surface issue); "
+                        "its RGB Stage 2 is its own",
+                   overrides={"background_from": "clear-pixels"}),
+        _candidate("background-black", "Full, no environment behind the surface",
+                   note="no learned environment behind any render (background=black, as the official code): a "
+                        "surface that is not opaque can no longer show an environment that fits the smoke through it "
+                        "(the surface issue; surface_diagnostics' surface-pixel PSNRs, with the environment and on "
+                        "black, measure the leak)",
+                   overrides={"background": "black"}),
+        *(_candidate(f"priors-{name}", f"Full, smoke priors at {share} of the official strength",
+                     note="the smoke priors at a share of the official code's synthetic weights, in this trainer's "
+                          "units (smoke_alpha 1.2; smoke_color 1.5 and mono 2.9 on raw SH values, 19 and 37 on "
+                          "colours; ours are 0.1, 0.05, 0.1), so that the smoke cannot carry the scene's chroma and "
+                          "texture (the surface issue, three points)",
+                     overrides={"loss.smoke_alpha": round(1.2 * k, 4), "loss.smoke_color": round(19.0 * k, 4),
+                                "loss.mono": round(37.0 * k, 4)})
           for name, share, k in (("official", "all", 1.0), ("quarter", "a quarter", 0.25),
                                  ("sixteenth", "a sixteenth", 1 / 16))),
-        Variant("densify-by-gradient", "Full, a full cap grows the largest gradients", "full", "candidates", {},
-                note="every densification (Stage 2, the smoke, the surface refinement) takes the candidates with the "
-                     "largest mean gradient when they outnumber the room under its cap, in place of clones first in "
-                     "index order (docs/method.md, Decisions, row 7); it changes Stage 2, so it trains its own",
-                overrides={"stage2.densify.under_cap": "gradient", "stage3.smoke_densify.under_cap": "gradient",
-                           "stage3.surface_densify.under_cap": "gradient"}),
-        Variant("caps-doubled", "Full, twice the surface's Gaussian caps", "full", "candidates", {},
-                note="Stage 2 and the surface refinement may grow to twice the standard profile's caps (80k, 160k): at "
-                     "k = 0 chair fills both before half its stages and stays far under its smoke-free input (the "
-                     "surface issue's capacity); it changes Stage 2, so it trains its own, and costs time",
-                overrides={"stage2.densify.max_gaussians": 80_000, "stage3.surface_densify.max_gaussians": 160_000}),
-        Variant("motion-planes", "Full, the smoke moved by the plane field", "full", "candidates", {},
-                note="the smoke's motion by the factorised space-time plane field in place of the deformation "
-                     "network (deform.kind=planes, docs/method.md, Plane field); Stage 3 only",
-                overrides={"deform.kind": "planes"}),
+        _candidate("densify-by-gradient", "Full, a full cap grows the largest gradients",
+                   note="every densification (Stage 2, the smoke, the surface refinement) takes the candidates with "
+                        "the largest mean gradient when they outnumber the room under its cap, in place of clones "
+                        "first in index order (docs/method.md, Decisions, row 7); it changes Stage 2, so it trains "
+                        "its own",
+                   overrides={"stage2.densify.under_cap": "gradient", "stage3.smoke_densify.under_cap": "gradient",
+                              "stage3.surface_densify.under_cap": "gradient"}),
+        _candidate("caps-doubled", "Full, twice the surface's Gaussian caps",
+                   note="Stage 2 and the surface refinement may grow to twice the standard profile's caps (80k, "
+                        "160k): at k = 0 chair fills both before half its stages and stays far under its smoke-free "
+                        "input (the surface issue's capacity); it changes Stage 2, so it trains its own, and costs "
+                        "time",
+                   overrides={"stage2.densify.max_gaussians": 80_000, "stage3.surface_densify.max_gaussians": 160_000}),
+        _candidate("motion-planes", "Full, the smoke moved by the plane field",
+                   note="the smoke's motion by the factorised space-time plane field in place of the deformation "
+                        "network (deform.kind=planes, docs/method.md, Plane field); Stage 3 only",
+                   overrides={"deform.kind": "planes"}),
     )
 }
 """Rules and settings in question, run beside Full on a drawn set (`regenerate-tables --candidates`) and chosen
