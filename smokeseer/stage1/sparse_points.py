@@ -23,6 +23,7 @@ from scenes.scene import SceneData
 from scenes.sfm import SfmSettings, cache_dir
 from scenes.triangulation import triangulate_known
 
+
 @dataclass
 class SparsePoints:
     """The points in the dataset's world (None when none were found), what happened, in one line,
