@@ -139,13 +139,23 @@ def visible_fraction(points: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray,
     return hits / max(len(viewmats), 1)
 
 
+@dataclass(frozen=True)
+class InViewPoints:
+    """Random starting points, and how many of them no ``min_fraction`` of the cameras sees."""
+
+    points: np.ndarray
+    unseen: int
+
+
 def sample_in_view(bounds: SceneBounds, n: int, viewmats: np.ndarray, Ks: np.ndarray,
                    widths: np.ndarray, heights: np.ndarray, rng: np.random.Generator,
-                   min_fraction: float = 0.3) -> np.ndarray:
+                   min_fraction: float = 0.3) -> InViewPoints:
     """Uniform points in the bounds box that at least ``min_fraction`` of the cameras see.
 
     Rejection sampling keeps random initialisation (3DGS's synthetic-scene default) from
-    wasting Gaussians where no camera can constrain them.
+    wasting Gaussians where no camera can constrain them. When 50 rounds find too few (cameras
+    that barely overlap the box), the rest are uniform in the box, and ``unseen`` counts them so
+    the caller can say so.
     """
     out: list[np.ndarray] = []
     total = 0
@@ -157,7 +167,7 @@ def sample_in_view(bounds: SceneBounds, n: int, viewmats: np.ndarray, Ks: np.nda
         if total >= n:
             break
     pts = np.concatenate(out) if out else np.zeros((0, 3))
-    if len(pts) < n:
-        extra = bounds.center + rng.uniform(-1.0, 1.0, size=(n - len(pts), 3)) * bounds.half_size
-        pts = np.concatenate([pts, extra])
-    return pts[:n]
+    unseen = max(n - len(pts), 0)
+    if unseen:
+        pts = np.concatenate([pts, bounds.center + rng.uniform(-1.0, 1.0, size=(unseen, 3)) * bounds.half_size])
+    return InViewPoints(pts[:n], unseen)

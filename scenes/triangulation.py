@@ -35,13 +35,18 @@ class Triangulated:
     stats: dict[str, Any] = field(default_factory=dict)
 
 
+def one_camera(Ks: np.ndarray) -> bool:
+    """Whether every frame has the same intrinsics: the matcher and the cache key assume one camera."""
+    return all(np.allclose(k, Ks[0]) for k in Ks)
+
+
 def triangulate_known(names: list[str], images: list[np.ndarray], viewmats: np.ndarray, Ks: np.ndarray,
                       settings: SfmSettings = SfmSettings(), cache: Path | None = None) -> Triangulated:
     """Points seen in ``images`` (one camera: every ``Ks`` equal) at the OpenCV world-to-camera
     ``viewmats``, cached in ``cache`` by the frames, poses, intrinsics and settings."""
     if not len(names) == len(images) == len(viewmats) == len(Ks):
         raise ValueError("triangulate_known: names, images, viewmats and Ks must have one entry per frame")
-    if not all(np.allclose(k, Ks[0]) for k in Ks):
+    if not one_camera(Ks):
         raise ValueError("triangulate_known: the frames must share one camera (intrinsics)")
     images = [to_uint8(a) for a in images]
     h = hashlib.sha256(digest(names, images, None, Ks[0], settings).encode())

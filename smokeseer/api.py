@@ -10,7 +10,7 @@ import platform
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import torch
@@ -20,7 +20,7 @@ from contracts.folder_lock import folder_lock, refuse_if_busy
 from contracts.provenance import provenance
 from contracts.recorded_paths import recorded_path
 from contracts.results_format import RESULTS_FORMAT, RESULTS_FORMAT_VERSION, RunWarning
-from scenes.cameras import sample_in_view
+from scenes.cameras import InViewPoints, sample_in_view
 from scenes.load import load_scene
 from scenes.scene import ModalityData, SceneData
 from scenes.thermal_scale import ThermalScaleSpec
@@ -47,24 +47,29 @@ def _versions() -> dict[str, str]:
     return {"torch": torch.__version__, "numpy": np.__version__, "python": platform.python_version()}
 
 
-def _sample(mod: ModalityData, n: int, bounds: Any, rng: np.random.Generator) -> np.ndarray:
+def _sample(mod: ModalityData, n: int, bounds: Any, rng: np.random.Generator) -> InViewPoints:
     f = [mod.frames[i] for i in mod.indices("train")]
     return sample_in_view(bounds, n, *mod.cameras("train"), np.array([x.width for x in f]),
                           np.array([x.height for x in f]), rng)
 
 
 def _init_points(scene: SceneData, report: Stage1Report, mod: ModalityData, n: int, bounds: Any,
-                 rng: np.random.Generator) -> np.ndarray:
+                 rng: np.random.Generator, note: Callable[[str], None]) -> np.ndarray:
     """Stage 2's starting points: the capture's SfM points when it has some; else Stage 1's from
     the training frames (``stage2.init_from=images``) filled up to ``n`` with random ones in their
-    box; else ``n`` random ones. Random points are ones ``mod``'s training cameras see."""
+    box; else ``n`` random ones. Random points are ones ``mod``'s training cameras see; those that
+    had to be drawn without that check get a ``note``."""
     if scene.init_points is not None and len(scene.init_points) >= 4:
         return scene.init_points
     given = report.start_points.points if report.start_points is not None else None
-    if given is None:
-        return _sample(mod, n, bounds, rng)
-    fill = n - len(given)
-    return np.concatenate([given, _sample(mod, fill, bounds, rng)]) if fill > 0 else given
+    fill = n if given is None else n - len(given)
+    if fill <= 0:
+        return given
+    drawn = _sample(mod, fill, bounds, rng)
+    if drawn.unseen:
+        note(f"stage 2 ({mod.name}): {drawn.unseen} of {fill} random starting points lie where fewer than "
+                     "30 % of the training cameras look (the box barely overlaps their views)")
+    return drawn.points if given is None else np.concatenate([given, drawn.points])
 
 
 def _metrics_doc(prep: PreparedRun, status: str) -> dict[str, Any]:
@@ -214,8 +219,14 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
         ctx.log_line(f"stage 3: {note}")
     for warning in prep.warnings:
         ctx.log_line(warning.line())
+    start_notes: list[str] = []
+
+    def start_note(line: str) -> None:
+        start_notes.append(line)
+        ctx.log_line(line)
+
     init = _init_points(scene, report, geo, cfg.stage2.init_points, b,
-                        numpy_stream(cfg.seed, f"init.points.{geo.name}"))
+                        numpy_stream(cfg.seed, f"init.points.{geo.name}"), start_note)
     deformable = cfg.mode == "deformable-3dgs"
     estimate = None
     smoke_colour: SmokeColourEstimate | None = None
@@ -270,7 +281,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
         if rgb_share > 0.0:
             t_rgb = time.perf_counter()
             rgb_init = _init_points(scene, report, scene.rgb, cfg.stage2.init_points, b,
-                                    numpy_stream(cfg.seed, "init.points.rgb"))
+                                    numpy_stream(cfg.seed, "init.points.rgb"), start_note)
             joined = join_surfaces(ctx, scene.rgb, rgb_init, s2, rgb_depth, rgb_share,
                                    by_clear_views=cfg.stage3.surface_init == "by-clear-views" and plan.use_smoke)
             wall["stage2_rgb"] = time.perf_counter() - t_rgb
@@ -348,7 +359,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
                      "thermal_used": plan.use_thermal, "thermal_dropped": plan.thermal_dropped,
                      "loss_rise": {name: round(rise, 4) for name, rise in ctx.loss_rise.items()},
                      "stage3_plan": None if deformable else plan.record(),
-                     "notes": list(report.notes) + list(plan.notes)}
+                     "notes": list(report.notes) + start_notes + list(plan.notes)}
     write_json(out / "metrics.json", doc)
     return doc
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from scenes.cameras import c2w_gl_to_viewmat, scene_bounds
+from scenes.cameras import SceneBounds, c2w_gl_to_viewmat, sample_in_view, scene_bounds, visible_fraction
 from smokeseer.config import DensifyConfig, make_config
 from smokeseer.model.gaussians import DensifyStrategy, GaussianSet, knn_log_scales, logit, make_optimizer
 from smokeseer.model.optim import Adam
@@ -149,6 +149,27 @@ def test_gl_to_cv_conversion_and_bounds() -> None:
     np.testing.assert_allclose(b.center, 0.0, atol=1e-9)
     assert b.half_size == pytest.approx(5 * 32 / 50)
     assert b.extent == pytest.approx(1.1 * 5)
+
+
+def _one_camera_at(z: float) -> tuple[np.ndarray, np.ndarray]:
+    """An OpenGL camera at (0, 0, z) looking down −z, 64×48 px, focal 50 px."""
+    c2w = np.eye(4)
+    c2w[:3, 3] = [0.0, 0.0, z]
+    return c2w_gl_to_viewmat(c2w)[None], np.array([[[50.0, 0, 32], [0, 50, 24], [0, 0, 1]]])
+
+
+def test_random_start_points_are_seen_and_the_ones_that_cannot_be_are_counted() -> None:
+    vm, k = _one_camera_at(5.0)
+    w, h = np.array([64]), np.array([48])
+    # A box the camera sees a part of: every point kept is in its image, none unseen.
+    seen = sample_in_view(SceneBounds(np.zeros(3), 2.0, 2.0), 500, vm, k, w, h, np.random.default_rng(0))
+    assert seen.points.shape == (500, 3) and seen.unseen == 0
+    assert (visible_fraction(seen.points, vm, k, w, h) == 1.0).all()
+    # A box behind the camera: no candidate can be seen, so all are drawn unchecked and counted.
+    behind = sample_in_view(SceneBounds(np.array([0.0, 0.0, 20.0]), 1.0, 1.0), 50, vm, k, w, h,
+                            np.random.default_rng(0))
+    assert behind.points.shape == (50, 3) and behind.unseen == 50
+    assert (np.abs(behind.points - [0.0, 0.0, 20.0]) <= 1.0).all()
 
 
 def test_config_profiles_overrides_and_errors() -> None:

@@ -229,11 +229,11 @@ class Stage2Config:
     init_points: int = 100_000
     init_from: str = "random"
     """Where Stage 2 starts when the dataset brings no points of its own. "random": ``init_points``
-    random points in the box the training cameras look at. "images": SfM on the training RGB
-    frames, moved onto their given poses (``smokeseer.stage1.sparse_points``), filled up with
-    random points to ``init_points`` in the box those points span; no SfM model, random alone,
-    and the notes say so. A flyover's optical axes do not meet near the scene, so its cameras'
-    box can miss it."""
+    random points in the box the training cameras look at. "images": the training RGB frames'
+    feature tracks triangulated at their given poses (``smokeseer.stage1.sparse_points``), filled
+    up with random points to ``init_points`` in the box those points span; with no such points,
+    random alone, and the notes say so. A flyover's optical axes do not meet near the scene, so
+    its cameras' box can miss it."""
     init_opacity: float = 0.1
     init_scale_max: float = 0.02
     densify: DensifyConfig = field(default_factory=DensifyConfig)

@@ -21,7 +21,7 @@ import numpy as np
 
 from scenes.scene import SceneData
 from scenes.sfm import SfmSettings, cache_dir
-from scenes.triangulation import triangulate_known
+from scenes.triangulation import one_camera, triangulate_known
 
 
 @dataclass
@@ -43,7 +43,7 @@ def sparse_points(scene: SceneData, settings: SfmSettings = SfmSettings()) -> Sp
         return SparsePoints(None, "no points from the images (fewer than 2 training RGB frames); Stage 2 starts "
                                   "from random points", {"source": "random", "why": "fewer than 2 training frames"})
     viewmats, Ks = rgb.cameras("train")
-    if not all(np.allclose(k, Ks[0]) for k in Ks):
+    if not one_camera(Ks):
         return SparsePoints(None, "no points from the images (the training RGB frames differ in intrinsics); Stage 2 "
                                   "starts from random points", {"source": "random", "why": "intrinsics differ"})
     tri = triangulate_known([rgb.frames[i].file_stem for i in idx], [rgb.images[i] for i in idx], viewmats, Ks,

@@ -157,11 +157,12 @@ class Stage3Problem(StageProblem):
         if self.gate_thermal and model.smoke is not None and rgb.masks is None:
             raise ValueError("stage3.thermal_surface_grad: smoky-views reads Stage 1's smoke masks, "
                              "and this run's RGB frames have none")
-        self.rgb_cameras = rgb.cameras("train")
-        self.rgb_masks = (rgb.masks[rgb_idx] if model.smoke is not None and rgb.masks is not None
-                          else np.zeros((len(rgb_idx), *rgb.images.shape[1:3]), dtype=np.float32))
+        self.share_inputs: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self.thermal_share: torch.Tensor | None = None
         if self.gate_thermal:
+            masks = (rgb.masks[rgb_idx] if model.smoke is not None
+                     else np.zeros((len(rgb_idx), *rgb.images.shape[1:3]), dtype=np.float32))
+            self.share_inputs = (masks, *rgb.cameras("train"))
             share = self._thermal_share(1)
             note = (f"the thermal term moves each surface Gaussian by the share of the RGB training views whose "
                     f"smoke mask covers it: mean {float(share.mean()):.3f} at the start, "
@@ -238,7 +239,8 @@ class Stage3Problem(StageProblem):
         surface = self.model.surface
         if self.thermal_share is None or (it - 1) % SHARE_REFRESH == 0 or len(self.thermal_share) != surface.n:
             means = surface["means"].detach().cpu().numpy().astype(np.float64)
-            share = smoky_share(means, self.rgb_masks, *self.rgb_cameras)
+            assert self.share_inputs is not None
+            share = smoky_share(means, *self.share_inputs)
             self.thermal_share = torch.as_tensor(share, dtype=torch.float32, device=surface["means"].device)
         return self.thermal_share
 
