@@ -101,6 +101,12 @@ CANDIDATES: dict[str, Variant] = {
                         "restarting both, as the official code continues its schedules "
                         "(stage3.surface_continues=true; the surface issue's continuity)",
                    overrides={"stage3.surface_continues": True}),
+        _candidate("surface-clear-pixels", "Full, the surface learns from clear pixels only",
+                   note="in Stage 3 each RGB pixel's gradient into the surface and its environment is weighted by "
+                        "1 - Stage 1's smoke mask, the smoke Gaussians learning from every pixel, so a thin veil "
+                        "cannot ride on the surface's view-dependent colour (stage3.surface_learns_from=clear-pixels; "
+                        "the surface issue; costs a second RGB render an iteration)",
+                   overrides={"stage3.surface_learns_from": "clear-pixels"}),
         _candidate("background-clear", "Full, the environment learns from clear pixels only",
                    note="each training pixel's gradient into the RGB environment is weighted by 1 - Stage 1's smoke "
                         "mask, in the RGB Stage 2 and in Stage 3, so the environment cannot learn the smoke's colour "

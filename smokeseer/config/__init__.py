@@ -29,6 +29,7 @@ SMOKE_COLOR_SOURCES: tuple[str, ...] = ("learned", "haze-lines")
 DENSIFY_UNDER_CAP: tuple[str, ...] = ("index", "gradient")
 SURFACE_INITS: tuple[str, ...] = ("thermal", "by-smoke-colour", "by-clear-views")
 THERMAL_SURFACE_GRAD: tuple[str, ...] = ("all", "smoky-views")
+SURFACE_LEARNS_FROM: tuple[str, ...] = ("all-pixels", "clear-pixels")
 BACKGROUND_FROM: tuple[str, ...] = ("all", "clear-pixels")
 INIT_FROM: tuple[str, ...] = ("random", "images")
 POSE_SOURCES: tuple[str, ...] = ("given", "sfm")
@@ -321,6 +322,13 @@ class Stage3Config:
     (1 where no RGB view sees it), so that the low-resolution thermal frames shape the surface only
     where the RGB cannot see it, and a scene without smoke trains its surface as RGB-only does
     (``smokeseer.train.surface_union.smoky_share``)."""
+    surface_learns_from: str = "all-pixels"
+    """Which RGB pixels the surface (and the environment behind it) learns from in Stage 3.
+    "all-pixels": every one (the paper). "clear-pixels": each pixel's gradient into the surface
+    weighted by 1 − Stage 1's smoke mask, the smoke Gaussians learning from every pixel, so a
+    veil of thin smoke cannot be carried by the surface's view-dependent colour: only the smoke
+    set can explain it. The RGB frame is drawn a second time with the surface held, which the
+    masked pixels take their gradient from."""
     carve_tolerance: float = 0.05
     """With two surfaces: an RGB Gaussian nearer than (1 − this) × the thermal
     surface's depth in most views that see it is smoke taken for surface, and is dropped."""
@@ -441,6 +449,9 @@ class TrainConfig:
         if self.stage3.thermal_surface_grad not in THERMAL_SURFACE_GRAD:
             raise ValueError(f"stage3.thermal_surface_grad: {self.stage3.thermal_surface_grad!r} is not one of "
                              f"{', '.join(THERMAL_SURFACE_GRAD)}")
+        if self.stage3.surface_learns_from not in SURFACE_LEARNS_FROM:
+            raise ValueError(f"stage3.surface_learns_from: {self.stage3.surface_learns_from!r} is not one of "
+                             f"{', '.join(SURFACE_LEARNS_FROM)}")
         if not 0.0 <= self.stage3.carve_tolerance < 1.0:
             raise ValueError(f"stage3.carve_tolerance: must be in [0, 1), got {self.stage3.carve_tolerance}")
         if not 0.0 < self.stage3.surface_densify_max_smoke <= 1.0:

@@ -147,6 +147,22 @@ class Stage3Problem(StageProblem):
                            if self.masks is not None and plan.floor_pixels is not None else None)
         self.alpha_targets = (torch.as_tensor(plan.alpha_targets, dtype=self.masks.dtype, device=dev)
                               if self.masks is not None and plan.alpha_targets is not None else None)
+        self.surface_masks: torch.Tensor | None = None
+        if cfg.stage3.surface_learns_from == "clear-pixels" and model.smoke is not None:
+            if rgb.masks is None:
+                raise ValueError("stage3.surface_learns_from: clear-pixels reads Stage 1's smoke masks, "
+                                 "and this run's RGB frames have none")
+            self.surface_masks = torch.as_tensor(np.clip(rgb.masks[rgb_idx], 0.0, 1.0), dtype=torch.float32,
+                                                 device=dev)
+            clear = 100 * (1 - float(self.surface_masks.mean()))
+            note = (f"the surface learns from the pixels Stage 1 marks clear ({clear:.0f} % of the training pixels), "
+                    "the smoke from all (stage3.surface_learns_from=clear-pixels)")
+            plan.notes.append(note)
+            ctx.log_line(f"stage 3: {note}")
+        elif cfg.stage3.surface_learns_from == "clear-pixels":
+            note = "no smoke Gaussians, so every pixel is clear (stage3.surface_learns_from=clear-pixels changes nothing)"
+            plan.notes.append(note)
+            ctx.log_line(f"stage 3: {note}")
         self.th_views: list = []
         self.th_imgs = None
         if plan.use_thermal and thermal is not None:
@@ -199,7 +215,15 @@ class Stage3Problem(StageProblem):
         out = model.render_rgb(view, degree=degree, deform_active=deform_on,
                                surface_depth=self.depth_on and not self.depth_on_thermal, depth=False, motion=motion,
                                background_grad=None if self.background_grad is None else self.background_grad[k])
-        terms: dict[str, torch.Tensor] = {"render_rgb": render_loss(out.colors[0], self.rgb_imgs[k], cfg.loss.dssim)}
+        image = out.colors[0]
+        if self.surface_masks is not None:
+            # The same image; its masked pixels take their gradient from a render with the surface
+            # held, so only the smoke (and its motion) learns there.
+            held = model.render_rgb(view, degree=degree, deform_active=deform_on, depth=False, motion=motion,
+                                    surface_held=True, background_grad=torch.zeros_like(self.surface_masks[k]))
+            m = self.surface_masks[k][..., None]
+            image = image + m * (held.colors[0] - image)  # the same bytes: held and live are one image
+        terms: dict[str, torch.Tensor] = {"render_rgb": render_loss(image, self.rgb_imgs[k], cfg.loss.dssim)}
         depth_source = (out, k)
         if self.th_imgs is not None:
             j = draw_index(self.streams["stage3.views.thermal"], len(self.th_views))
