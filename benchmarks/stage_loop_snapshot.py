@@ -42,7 +42,7 @@ def stage2_seconds(dataset: Path, out: Path, iterations: int, snapshot: bool) ->
     geo = prep.scene.thermal or prep.scene.rgb
     import numpy as np
 
-    init = _sample(geo, cfg.stage2.init_points, b, np.random.default_rng(0))
+    init = _sample(geo, cfg.stage2.init_points, b, np.random.default_rng(0), print, "stage 2 start")
     problem = Stage2Problem(ctx, geo, init, False, None)
     real = trainloop.detached_copy
     trainloop.detached_copy = real if snapshot else (lambda obj: obj)

@@ -20,7 +20,7 @@ from contracts.folder_lock import folder_lock, refuse_if_busy
 from contracts.provenance import provenance
 from contracts.recorded_paths import recorded_path
 from contracts.results_format import RESULTS_FORMAT, RESULTS_FORMAT_VERSION, RunWarning
-from scenes.cameras import InViewPoints, sample_in_view
+from scenes.cameras import sample_in_view
 from scenes.load import load_scene
 from scenes.scene import ModalityData, SceneData
 from scenes.thermal_scale import ThermalScaleSpec
@@ -47,29 +47,32 @@ def _versions() -> dict[str, str]:
     return {"torch": torch.__version__, "numpy": np.__version__, "python": platform.python_version()}
 
 
-def _sample(mod: ModalityData, n: int, bounds: Any, rng: np.random.Generator) -> InViewPoints:
+def _sample(mod: ModalityData, n: int, bounds: Any, rng: np.random.Generator, note: Callable[[str], None],
+            what: str) -> np.ndarray:
+    """``n`` random points in ``bounds`` that ``mod``'s training cameras see; those that had to be
+    drawn without that check get a ``note`` naming ``what`` they are for."""
     f = [mod.frames[i] for i in mod.indices("train")]
-    return sample_in_view(bounds, n, *mod.cameras("train"), np.array([x.width for x in f]),
-                          np.array([x.height for x in f]), rng)
+    drawn = sample_in_view(bounds, n, *mod.cameras("train"), np.array([x.width for x in f]),
+                           np.array([x.height for x in f]), rng)
+    if drawn.unseen:
+        note(f"{what} ({mod.name}): {drawn.unseen} of {n} random points lie where fewer than 30 % of the training "
+             "cameras look (the box barely overlaps their views)")
+    return drawn.points
 
 
 def _init_points(scene: SceneData, report: Stage1Report, mod: ModalityData, n: int, bounds: Any,
                  rng: np.random.Generator, note: Callable[[str], None]) -> np.ndarray:
     """Stage 2's starting points: the capture's SfM points when it has some; else Stage 1's from
     the training frames (``stage2.init_from=images``) filled up to ``n`` with random ones in their
-    box; else ``n`` random ones. Random points are ones ``mod``'s training cameras see; those that
-    had to be drawn without that check get a ``note``."""
+    box; else ``n`` random ones (``_sample``)."""
     if scene.init_points is not None and len(scene.init_points) >= 4:
         return scene.init_points
     given = report.start_points.points if report.start_points is not None else None
     fill = n if given is None else n - len(given)
     if fill <= 0:
         return given
-    drawn = _sample(mod, fill, bounds, rng)
-    if drawn.unseen:
-        note(f"stage 2 ({mod.name}): {drawn.unseen} of {fill} random starting points lie where fewer than "
-                     "30 % of the training cameras look (the box barely overlaps their views)")
-    return drawn.points if given is None else np.concatenate([given, drawn.points])
+    drawn = _sample(mod, fill, bounds, rng, note, "stage 2 start")
+    return drawn if given is None else np.concatenate([given, drawn])
 
 
 def _metrics_doc(prep: PreparedRun, status: str) -> dict[str, Any]:
@@ -257,8 +260,8 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
         wall["stage3"] = 0.0
         ctx.log_line("stage 3: skipped (deformable-3dgs baseline has one deformable set)")
     else:
-        smoke_pts = (_sample(scene.rgb, cfg.stage3.smoke_points, b, numpy_stream(cfg.seed, "init.smoke"))
-                     if plan.use_smoke else None)
+        smoke_pts = (_sample(scene.rgb, cfg.stage3.smoke_points, b, numpy_stream(cfg.seed, "init.smoke"), start_note,
+                             "stage 3 smoke start") if plan.use_smoke else None)
         joins = cfg.stage3.surface_init in ("by-smoke-colour", "by-clear-views") and plan.use_thermal
         by_colour = joins and cfg.stage3.surface_init == "by-smoke-colour"
         rgb_views = views_of(scene.rgb, scene.rgb.indices("train"), dev)
