@@ -139,6 +139,10 @@ def visible_fraction(points: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray,
     return hits / max(len(viewmats), 1)
 
 
+IN_VIEW_FRACTION = 0.3
+"""The share of the cameras a random starting point must be seen by (``sample_in_view``)."""
+
+
 @dataclass(frozen=True)
 class InViewPoints:
     """Random starting points, and how many of them no ``min_fraction`` of the cameras sees."""
@@ -149,7 +153,7 @@ class InViewPoints:
 
 def sample_in_view(bounds: SceneBounds, n: int, viewmats: np.ndarray, Ks: np.ndarray,
                    widths: np.ndarray, heights: np.ndarray, rng: np.random.Generator,
-                   min_fraction: float = 0.3) -> InViewPoints:
+                   min_fraction: float = IN_VIEW_FRACTION) -> InViewPoints:
     """Uniform points in the bounds box that at least ``min_fraction`` of the cameras see.
 
     Rejection sampling keeps random initialisation (3DGS's synthetic-scene default) from

@@ -20,7 +20,7 @@ from contracts.folder_lock import folder_lock, refuse_if_busy
 from contracts.provenance import provenance
 from contracts.recorded_paths import recorded_path
 from contracts.results_format import RESULTS_FORMAT, RESULTS_FORMAT_VERSION, RunWarning
-from scenes.cameras import sample_in_view
+from scenes.cameras import IN_VIEW_FRACTION, sample_in_view
 from scenes.load import load_scene
 from scenes.scene import ModalityData, SceneData
 from scenes.thermal_scale import ThermalScaleSpec
@@ -55,8 +55,8 @@ def _sample(mod: ModalityData, n: int, bounds: Any, rng: np.random.Generator, no
     drawn = sample_in_view(bounds, n, *mod.cameras("train"), np.array([x.width for x in f]),
                            np.array([x.height for x in f]), rng)
     if drawn.unseen:
-        note(f"{what} ({mod.name}): {drawn.unseen} of {n} random points lie where fewer than 30 % of the training "
-             "cameras look (the box barely overlaps their views)")
+        note(f"{what} ({mod.name}): {drawn.unseen} of {n} random points lie where fewer than "
+             f"{100 * IN_VIEW_FRACTION:.0f} % of the training cameras look (the box barely overlaps their views)")
     return drawn.points
 
 

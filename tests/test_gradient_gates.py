@@ -17,6 +17,7 @@ from smokeseer.config import make_config
 from smokeseer.model.background import EnvironmentBackground
 from smokeseer.model.gaussians import GaussianSet
 from smokeseer.model.scene import SceneModel, add_rgb_sh, init_gaussians, make_smoke, make_view, scaled_gradient
+from smokeseer.train.stage3 import surface_by_clear_pixels
 
 GEOMETRY = ("means", "quats", "log_scales", "opacity")
 
@@ -144,7 +145,7 @@ def test_the_surface_learns_from_clear_pixels_and_the_smoke_from_all() -> None:
         if mask is not None:
             held = model.render_rgb(view, degree=1, depth=False, surface_held=True,
                                     background_grad=torch.zeros_like(mask)).colors[0]
-            image = image + mask[..., None] * (held - image)
+            image = surface_by_clear_pixels(image, held, 1.0 - mask)
         if by_hand is None:
             (image - target).abs().sum().backward()
         else:

@@ -65,7 +65,12 @@ def clear_pixel_weights(cfg: TrainConfig, mod: ModalityData, idx: list[int], dev
     mask (no smoke marked)."""
     if cfg.background_from != "clear-pixels" or mod.name == "thermal" or mod.masks is None:
         return None
-    return 1.0 - torch.as_tensor(np.clip(mod.masks[idx], 0.0, 1.0), dtype=torch.float32, device=device)
+    return clear_weights(mod.masks[idx], device)
+
+
+def clear_weights(masks: np.ndarray, device: torch.device) -> torch.Tensor:
+    """1 − Stage 1's smoke masks, clipped to [0, 1]: how clear of smoke each pixel is."""
+    return 1.0 - torch.as_tensor(np.clip(masks, 0.0, 1.0), dtype=torch.float32, device=device)
 
 
 def draw_index(generator: torch.Generator, n: int) -> int:

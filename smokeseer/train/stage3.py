@@ -28,7 +28,8 @@ from smokeseer.train.loop import IterationOutput, StageProblem, StageSchedule, r
 from smokeseer.train.losses import (depth_consistency, mask_alignment, monochromaticity, render_loss,
                                     smoke_alpha_variance, smoke_color_variance)
 from smokeseer.train.plan import Stage3Plan
-from smokeseer.train.stage2 import Stage2Result, clear_pixel_weights, draw_index, make_background, views_of
+from smokeseer.train.stage2 import (Stage2Result, clear_pixel_weights, clear_weights, draw_index, make_background,
+                                   views_of)
 from smokeseer.train.surface_union import smoky_share
 from smokeseer.train.util import RunContext, grads_of, state_or_none, step_optimizers
 
@@ -113,6 +114,13 @@ def _smoke_lrs(cfg: TrainConfig, extent: float) -> dict[str, float]:
     return {**table, **{f"motion_{k}": table[k] * cfg.deform.fourier_lr_scale for k in ("means", "quats", "log_scales")}}
 
 
+def surface_by_clear_pixels(live: torch.Tensor, held: torch.Tensor, clear: torch.Tensor) -> torch.Tensor:
+    """The image ``live`` (H, W, C), whose pixels send the surface their gradient times ``clear``
+    (H, W) and the rest through ``held``, the same frame drawn with the surface detached
+    (``stage3.surface_learns_from=clear-pixels``). Both are one image, so the result has its bytes."""
+    return held + clear[..., None] * (live - held)
+
+
 class Stage3Problem(StageProblem):
     """Joint optimisation of surface and smoke with the plan's loss terms."""
 
@@ -147,14 +155,13 @@ class Stage3Problem(StageProblem):
                            if self.masks is not None and plan.floor_pixels is not None else None)
         self.alpha_targets = (torch.as_tensor(plan.alpha_targets, dtype=self.masks.dtype, device=dev)
                               if self.masks is not None and plan.alpha_targets is not None else None)
-        self.surface_masks: torch.Tensor | None = None
+        self.surface_weights: torch.Tensor | None = None
         if cfg.stage3.surface_learns_from == "clear-pixels" and model.smoke is not None:
             if rgb.masks is None:
                 raise ValueError("stage3.surface_learns_from: clear-pixels reads Stage 1's smoke masks, "
                                  "and this run's RGB frames have none")
-            self.surface_masks = torch.as_tensor(np.clip(rgb.masks[rgb_idx], 0.0, 1.0), dtype=torch.float32,
-                                                 device=dev)
-            clear = 100 * (1 - float(self.surface_masks.mean()))
+            self.surface_weights = clear_weights(rgb.masks[rgb_idx], dev)
+            clear = 100 * float(self.surface_weights.mean())
             note = (f"the surface learns from the pixels Stage 1 marks clear ({clear:.0f} % of the training pixels), "
                     "the smoke from all (stage3.surface_learns_from=clear-pixels)")
             plan.notes.append(note)
@@ -216,13 +223,10 @@ class Stage3Problem(StageProblem):
                                surface_depth=self.depth_on and not self.depth_on_thermal, depth=False, motion=motion,
                                background_grad=None if self.background_grad is None else self.background_grad[k])
         image = out.colors[0]
-        if self.surface_masks is not None:
-            # The same image; its masked pixels take their gradient from a render with the surface
-            # held, so only the smoke (and its motion) learns there.
+        if self.surface_weights is not None:
             held = model.render_rgb(view, degree=degree, deform_active=deform_on, depth=False, motion=motion,
-                                    surface_held=True, background_grad=torch.zeros_like(self.surface_masks[k]))
-            m = self.surface_masks[k][..., None]
-            image = image + m * (held.colors[0] - image)  # the same bytes: held and live are one image
+                                    surface_held=True, background_grad=torch.zeros_like(self.surface_weights[k]))
+            image = surface_by_clear_pixels(image, held.colors[0], self.surface_weights[k])
         terms: dict[str, torch.Tensor] = {"render_rgb": render_loss(image, self.rgb_imgs[k], cfg.loss.dssim)}
         depth_source = (out, k)
         if self.th_imgs is not None:
