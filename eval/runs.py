@@ -107,6 +107,17 @@ CANDIDATES: dict[str, Variant] = {
                         "cannot ride on the surface's view-dependent colour (stage3.surface_learns_from=clear-pixels; "
                         "the surface issue; costs a second RGB render an iteration)",
                    overrides={"stage3.surface_learns_from": "clear-pixels"}),
+        _candidate("rgb-start-clear-pixels", "Full, the RGB start learns from clear pixels only",
+                   note="the RGB Stage 2 that Full's joined start carves learns each pixel by 1 - Stage 1's smoke "
+                        "mask, so no smoke is baked into its surface and what only smoky pixels see is left to the "
+                        "thermal Gaussians in its holes (stage2.rgb_learns_from=clear-pixels; the surface issue: "
+                        "Full leaves the smoky pixels where the input has them); its RGB Stage 2 is its own",
+                   overrides={"stage2.rgb_learns_from": "clear-pixels"}),
+        _candidate("clear-pixels-throughout", "Full, the surface learns from clear pixels in both stages",
+                   note="rgb-start-clear-pixels and surface-clear-pixels together: the RGB start bakes no smoke and "
+                        "Stage 3 cannot bake it back into the surface's view-dependent colour "
+                        "(stage2.rgb_learns_from and stage3.surface_learns_from=clear-pixels)",
+                   overrides={"stage2.rgb_learns_from": "clear-pixels", "stage3.surface_learns_from": "clear-pixels"}),
         _candidate("background-clear", "Full, the environment learns from clear pixels only",
                    note="each training pixel's gradient into the RGB environment is weighted by 1 - Stage 1's smoke "
                         "mask, in the RGB Stage 2 and in Stage 3, so the environment cannot learn the smoke's colour "

@@ -251,6 +251,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
     # Flat thermal frames: the Stage 2 is RGB-only's, keyed as its own is.
     s2_sha = replace(cfg, mode="rgb-only").stage2_sha256() if plan.thermal_warning is not None else None
     s2 = train_stage2(ctx, geo, init, deformable=deformable, heldout_psnr=s2_psnr, sha=s2_sha)
+    start_notes.extend(s2.notes)
     wall["stage2"] = time.perf_counter() - t
     ctx.log_line(f"stage 2: {s2.gaussians.n} Gaussians from {geo.name} in {wall['stage2']:.1f} s")
     t = time.perf_counter()
@@ -288,7 +289,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
             joined = join_surfaces(ctx, scene.rgb, rgb_init, s2, rgb_depth, rgb_share,
                                    by_clear_views=cfg.stage3.surface_init == "by-clear-views" and plan.use_smoke)
             wall["stage2_rgb"] = time.perf_counter() - t_rgb
-            plan.notes.append(joined.describe())
+            plan.notes.extend([*joined.rgb.notes, joined.describe()])
             ctx.log_line(f"stage 3: {joined.describe()} (RGB Stage 2 in {wall['stage2_rgb']:.1f} s)")
         if plan.mask_floor != "all":
             # The floor reads the geometry Stage 3 starts from: with two surfaces, the joined one.

@@ -28,8 +28,8 @@ from smokeseer.train.loop import IterationOutput, StageProblem, StageSchedule, r
 from smokeseer.train.losses import (depth_consistency, mask_alignment, monochromaticity, render_loss,
                                     smoke_alpha_variance, smoke_color_variance)
 from smokeseer.train.plan import Stage3Plan
-from smokeseer.train.stage2 import (Stage2Result, clear_pixel_weights, clear_weights, draw_index, make_background,
-                                   views_of)
+from smokeseer.train.stage2 import (Stage2Result, clear_pixel_weights, clear_weights, draw_index,
+                                    learn_by_clear_pixels, make_background, views_of)
 from smokeseer.train.surface_union import smoky_share
 from smokeseer.train.util import RunContext, grads_of, state_or_none, step_optimizers
 
@@ -112,13 +112,6 @@ def _smoke_lrs(cfg: TrainConfig, extent: float) -> dict[str, float]:
              "opacity_rgb": lr.opacity, "opacity_thermal": lr.opacity, "color": lr.sh_dc * 4,
              "thermal": lr.thermal, "t_lo": lr.temporal, "t_hi": lr.temporal, "t_log_sigma": lr.temporal}
     return {**table, **{f"motion_{k}": table[k] * cfg.deform.fourier_lr_scale for k in ("means", "quats", "log_scales")}}
-
-
-def surface_by_clear_pixels(live: torch.Tensor, held: torch.Tensor, clear: torch.Tensor) -> torch.Tensor:
-    """The image ``live`` (H, W, C), whose pixels send the surface their gradient times ``clear``
-    (H, W) and the rest through ``held``, the same frame drawn with the surface detached
-    (``stage3.surface_learns_from=clear-pixels``). Both are one image, so the result has its bytes."""
-    return held + clear[..., None] * (live - held)
 
 
 class Stage3Problem(StageProblem):
@@ -226,7 +219,7 @@ class Stage3Problem(StageProblem):
         if self.surface_weights is not None:
             held = model.render_rgb(view, degree=degree, deform_active=deform_on, depth=False, motion=motion,
                                     surface_held=True, background_grad=torch.zeros_like(self.surface_weights[k]))
-            image = surface_by_clear_pixels(image, held.colors[0], self.surface_weights[k])
+            image = learn_by_clear_pixels(image, held.colors[0], self.surface_weights[k])
         terms: dict[str, torch.Tensor] = {"render_rgb": render_loss(image, self.rgb_imgs[k], cfg.loss.dssim)}
         depth_source = (out, k)
         if self.th_imgs is not None:
