@@ -18,11 +18,12 @@ so (as `regenerate-tables --finished-only --digest`); a scene and method without
 the log and left out of the CSV.
 
 One CSV row per scene and method: ceiling test/validation PSNR, SSIM and LPIPS (with the record's
-``lpips_status``: how and with which weights it was scored) against the smoky input's PSNR; the
-same method's Table 1 run on the smoky scene (same seed and trainer digest, where the tables have
-it), its PSNR and LPIPS, and the share of the input-to-ceiling PSNR gap it closes; and the test
-views split by the original dataset's smoke mask (eval/regions.py), so the smoky pixels' ceiling
-can be set beside what the table methods reach there (per_scene_regions.md).
+``lpips_status``: how and with which weights it was scored, the home folder written ~/) against
+the smoky input's PSNR; the same method's Table 1 run on the smoky scene (same seed and trainer
+digest, where the tables have it), its PSNR and LPIPS, and the share of the input-to-ceiling PSNR
+gap it closes; and the test views split by the original dataset's smoke mask (eval/regions.py), so
+the smoky pixels' ceiling can be set beside what the table methods reach there
+(per_scene_regions.md).
 """
 from __future__ import annotations
 
@@ -39,6 +40,7 @@ from eval.clean_ceiling import (ceiling_digests, ceiling_run, derive_clean_datas
 from eval.finished_runs import pick_digest
 from eval.harness import TRAINER_ENTRY
 from eval.regions import score_run
+from eval.report import home_as_tilde
 from eval.runs import RunResult
 
 
@@ -131,7 +133,7 @@ def main() -> None:
                 "input_clear_psnr": round(regions["clear"].psnr_input, 2),
                 "wall_s": round(m["wall_time_s"]["total"], 1), "threads": m["provenance"]["threads"],
                 "commit": m["provenance"]["commit"], "source_digest": digest,
-                "lpips_status": m["metrics"].get("lpips_status")})
+                "lpips_status": home_as_tilde(m["metrics"].get("lpips_status") or "")})
             print({k: rows[-1][k] for k in ("scene", "mode", "ceiling_test_psnr", "headroom_recovered", "wall_s")},
                   flush=True)
     if missing:

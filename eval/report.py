@@ -34,10 +34,12 @@ def _shown(path: str | Path) -> str:
     try:
         return str(p.resolve().relative_to(Path.cwd().resolve()))
     except ValueError:
-        return _home_as_tilde(str(p))
+        return home_as_tilde(str(p))
 
 
-def _home_as_tilde(text: str) -> str:
+def home_as_tilde(text: str) -> str:
+    """The text with the home folder written ~/, so that committed reports and tables do not name
+    the account that made them."""
     home = str(Path.home()).rstrip("/") + "/"
     return text.replace(home, "~/") if home != "/" else text
 
@@ -89,7 +91,7 @@ def write_report(cfg: HarnessConfig, results: list[RunResult], datasets: list[Da
              + f"; {wall_s:.1f} s wall.", "",
              "## Settings", ""]
     lines += [f"- **{k}**: {v}" for k, v in _settings(cfg, backend)]
-    lines += [f"- **LPIPS**: {_home_as_tilde(lpips_status)}", ""]
+    lines += [f"- **LPIPS**: {home_as_tilde(lpips_status)}", ""]
     lines += ["## Datasets", "", "| scene | kind | status | cached | seconds | path |", "|---|---|---|---|---|---|"]
     lines += [f"| {d.scene} | {d.kind} | {d.status} | {d.cached} | {d.wall_time_s:.1f} | `{_shown(d.path)}` |"
               for d in datasets]
