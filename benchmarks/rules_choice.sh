@@ -12,7 +12,12 @@
 #                                               data/tables_random_dev), the first N scenes only
 #                                               with --first; --methods full leaves RGB-only out
 #                                               (the choice reads Full and the candidates)
-#   bash benchmarks/rules_choice.sh report DIGEST   the per-scene comparisons, validation views
+#   bash benchmarks/rules_choice.sh report DIGEST   the per-scene comparisons, validation views, into
+#                                               CSVs named by the first 8 digits of DIGEST
+#
+# RULES (the environment) names the candidates; by default the trainer's current wave. Trainer
+# ba3c3d79's wave was start-thermal,start-clear-views,mask-bound:
+#   RULES=start-thermal,start-clear-views,mask-bound bash benchmarks/rules_choice.sh report ba3c3d79
 #
 # A shorter Stage 3 does not stand in for the standard profile: at 1000 + 1000 iterations and 80 px
 # every route left food_plate 6-8 dB under its smoky input, where the standard Full ends 0.6 dB over
@@ -20,7 +25,7 @@
 # Extra arguments go to regenerate-tables (e.g. --dry-run).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-RULES=start-thermal,start-clear-views,mask-bound
+RULES=${RULES:-start-thermal,start-clear-views,mask-bound}
 RESULTS=benchmarks/results/rules
 step=${1:-}
 shift || true
@@ -43,10 +48,10 @@ case $step in
         [[ $# -ge 1 ]] || { echo "usage: bash benchmarks/rules_choice.sh report DIGEST" >&2; exit 2; }
         .venv/bin/python benchmarks/random_set_scores.py --tables data/tables_standard --datasets data/standard \
             --split val --digest "$1" --candidates "$RULES" \
-            --out "$RESULTS/standard_val.csv" --summary "$RESULTS/standard_rules_val.csv"
+            --out "$RESULTS/standard_val-${1:0:8}.csv" --summary "$RESULTS/standard_rules_val-${1:0:8}.csv"
         .venv/bin/python benchmarks/random_set_scores.py --tables data/tables_random_dev --datasets data/random_dev \
             --split val --digest "$1" --candidates "$RULES" \
-            --out "$RESULTS/random_dev_val.csv" --summary "$RESULTS/random_dev_rules_val.csv" ;;
+            --out "$RESULTS/random_dev_val-${1:0:8}.csv" --summary "$RESULTS/random_dev_rules_val-${1:0:8}.csv" ;;
     *) echo "usage: bash benchmarks/rules_choice.sh motion|standard|dev|report DIGEST [options]" >&2
        exit 2 ;;
 esac
