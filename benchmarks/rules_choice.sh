@@ -46,12 +46,16 @@ case $step in
     dev) bash benchmarks/random_set_tables.sh data/random_dev data/tables_random_dev "$@" --candidates "$RULES" ;;
     report)
         [[ $# -ge 1 ]] || { echo "usage: bash benchmarks/rules_choice.sh report DIGEST" >&2; exit 2; }
-        .venv/bin/python benchmarks/random_set_scores.py --tables data/tables_standard --datasets data/standard \
-            --split val --digest "$1" --candidates "$RULES" \
-            --out "$RESULTS/standard_val-${1:0:8}.csv" --summary "$RESULTS/standard_rules_val-${1:0:8}.csv"
-        .venv/bin/python benchmarks/random_set_scores.py --tables data/tables_random_dev --datasets data/random_dev \
-            --split val --digest "$1" --candidates "$RULES" \
-            --out "$RESULTS/random_dev_val-${1:0:8}.csv" --summary "$RESULTS/random_dev_rules_val-${1:0:8}.csv" ;;
+        for set in standard random_dev; do
+            tables=data/tables_$set
+            if ! grep -rqs --include=harness.json "\"code_digest\": \"$1" "$tables/runs"; then
+                echo "rules_choice: no run of trainer $1 in $tables/runs: $set left out" >&2
+                continue
+            fi
+            .venv/bin/python benchmarks/random_set_scores.py --tables "$tables" --datasets "data/$set" \
+                --split val --digest "$1" --candidates "$RULES" \
+                --out "$RESULTS/${set}_val-${1:0:8}.csv" --summary "$RESULTS/${set}_rules_val-${1:0:8}.csv"
+        done ;;
     *) echo "usage: bash benchmarks/rules_choice.sh motion|standard|dev|report DIGEST [options]" >&2
        exit 2 ;;
 esac
