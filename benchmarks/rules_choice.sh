@@ -25,7 +25,7 @@
 # Extra arguments go to regenerate-tables (e.g. --dry-run).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-RULES=${RULES:-rgb-start-clear-pixels}
+RULES=${RULES:-rgb-start-clear-pixels,rgb-start-clear-views}
 RESULTS=benchmarks/results/rules
 step=${1:-}
 shift || true

@@ -113,6 +113,13 @@ CANDIDATES: dict[str, Variant] = {
                         "thermal Gaussians in its holes (stage2.rgb_learns_from=clear-pixels; the surface issue: "
                         "Full leaves the smoky pixels where the input has them); its RGB Stage 2 is its own",
                    overrides={"stage2.rgb_learns_from": "clear-pixels"}),
+        _candidate("rgb-start-clear-views", "Full, the RGB start learns from clear pixels and keeps its clear views' share",
+                   note="rgb-start-clear-pixels with the per-Gaussian start of start-clear-views: each Gaussian of the "
+                        "RGB start keeps the share of its opacity that its training views see it clear of smoke, so the "
+                        "faint Gaussians no clear pixel taught give way to the thermal Gaussians "
+                        "(stage2.rgb_learns_from=clear-pixels, stage3.surface_init=by-clear-views); its RGB Stage 2 "
+                        "is rgb-start-clear-pixels'",
+                   overrides={"stage2.rgb_learns_from": "clear-pixels", "stage3.surface_init": "by-clear-views"}),
         _candidate("clear-pixels-throughout", "Full, the surface learns from clear pixels in both stages",
                    note="rgb-start-clear-pixels and surface-clear-pixels together: the RGB start bakes no smoke and "
                         "Stage 3 cannot bake it back into the surface's view-dependent colour "
