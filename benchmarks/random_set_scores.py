@@ -20,6 +20,12 @@ paired difference from Full (mean, std over scenes, scenes ahead). That is what 
 with `--split val` on random-dev; `--summary CSV` writes those counts, one row per rule. With
 candidates a scene needs Full and every candidate, not RGB-only: the counts against RGB-only read
 the scenes where it was trained, and say how many.
+
+Runs of one scene need not come from one machine: the harness takes a finished run of the same
+settings wherever it was trained. `machines` names each run's CPU and torch capability (harness.json
+`float_setup`), and the printout says how many scenes mix float setups, since a paired difference
+between machines carries their rounding too (up to a dB on one scene between an AVX-512 and an AVX2
+machine).
 """
 from __future__ import annotations
 
@@ -52,6 +58,17 @@ def _psnrs(run: Path, rec: dict[str, Any], split: str) -> tuple[float, float]:
     return float(validation["psnr"]), float(validation["psnr_input"])
 
 
+def machine(rec: dict[str, Any]) -> str:
+    """A run's CPU model and torch capability, from its ``float_setup`` line (contracts/float_setup.py:
+    ``cpu MODEL (flags); torch VERSION CAPABILITY; ...``), or "not recorded"."""
+    line = rec.get("float_setup") or ""
+    if not line.startswith("cpu "):
+        return "not recorded"
+    model = line[4:].split(" (", 1)[0]
+    torch_part = next((p.strip() for p in line.split(";") if p.strip().startswith("torch ")), "")
+    return f"{model} {torch_part.split()[-1]}" if torch_part else model
+
+
 def column(variant: str) -> str:
     return variant.replace("-", "_") + "_psnr"
 
@@ -73,11 +90,14 @@ def score_rows(tables: Path, datasets: Path, split: str, seed: int, digest: str 
         depth = (meta.get("smoke", {}).get("optical_depth") or {}).get("achieved")
         full, full_input = _psnrs(*by_scene[scene]["full"], split)
         rgb = _psnrs(*by_scene[scene]["rgb-only"], split)[0] if "rgb-only" in by_scene[scene] else None
+        setups = {rec.get("float_setup") or "" for run, rec in by_scene[scene].values()}
         rows.append({"scene": scene, "rgb_optical_depth": depth, "input_psnr": round(full_input, 4),
                      "full_psnr": round(full, 4), "rgb_only_psnr": None if rgb is None else round(rgb, 4),
                      "full_minus_rgb_only": None if rgb is None else round(full - rgb, 4),
                      "full_minus_input": round(full - full_input, 4),
-                     **{column(c): round(_psnrs(*by_scene[scene][c], split)[0], 4) for c in candidates}})
+                     **{column(c): round(_psnrs(*by_scene[scene][c], split)[0], 4) for c in candidates},
+                     "float_setups": len(setups),
+                     "machines": "; ".join(f"{v}: {machine(by_scene[scene][v][1])}" for v in sorted(by_scene[scene]))})
     return chosen, rows
 
 
@@ -139,7 +159,10 @@ def main(argv: list[str] | None = None) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     write_rows_csv(args.out, rows)
     summary = [counts(rows, v) for v in ("full", *candidates)]
-    print(f"trainer {digest[:8]}, {args.split} views, seed {args.seed}: {len(rows)} scenes; wrote {args.out}")
+    mixed = sum(r["float_setups"] > 1 for r in rows)
+    print(f"trainer {digest[:8]}, {args.split} views, seed {args.seed}: {len(rows)} scenes"
+          f"{f', {mixed} of them with runs from more than one float setup (column machines)' if mixed else ''}; "
+          f"wrote {args.out}")
     for c in summary:
         print("  " + describe(c))
     if args.summary:

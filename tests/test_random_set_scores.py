@@ -14,7 +14,7 @@ from benchmarks.random_set_scores import main
 
 
 def _run(tables: Path, scene: str, variant: str, psnr: float, val: float | None, psnr_input: float = 20.0,
-         seed: int = 0) -> None:
+         seed: int = 0, float_setup: str = "") -> None:
     run = tables / "runs" / scene / variant / f"seed{seed}-x"
     run.mkdir(parents=True)
     (run / "train_log.csv").write_text("iteration\n")
@@ -22,7 +22,7 @@ def _run(tables: Path, scene: str, variant: str, psnr: float, val: float | None,
     (run / "metrics.json").write_text(json.dumps({"validation": validation}))
     (run / "harness.json").write_text(json.dumps(
         {"scene": scene, "variant": variant, "seed": seed, "status": "ok", "code_digest": "c" * 64,
-         "metrics": {"psnr": psnr, "psnr_input": psnr_input}}))
+         "metrics": {"psnr": psnr, "psnr_input": psnr_input}, "float_setup": float_setup}))
 
 
 def _dataset(datasets: Path, scene: str, depth: float) -> None:
@@ -100,6 +100,30 @@ def test_candidates_are_counted_in_fulls_place_and_against_full(tmp_path: Path,
     assert main(["--tables", str(tables), "--datasets", str(datasets), "--out", str(out),
                  "--candidates", "start-thermal"]) == 0
     assert "start-thermal: mean 20.25 dB; RGB-only not trained; over the smoky input on" in capsys.readouterr().out
+
+
+INTEL = ("cpu Intel(R) Xeon(R) Processor (avx avx2 avx512f fma); torch 2.13.0+cpu AVX512; held none; "
+         "kernel -mavx2 -mfma; compiler c++ 12.2.0")
+AMD = "cpu AMD EPYC (avx avx2 fma); torch 2.13.0+cpu AVX2; held none; kernel -mavx2 -mfma; compiler c++ 12.2.0"
+
+
+def test_runs_from_two_machines_are_named_and_counted(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A scene whose Full and candidate ran on different CPUs says so: the pair's difference carries
+    their rounding too."""
+    tables, datasets = tmp_path / "tables", tmp_path / "sets"
+    for scene, cand_setup in (("random_1", INTEL), ("random_2", AMD)):
+        _dataset(datasets, scene, 0.5)
+        _run(tables, scene, "full", 21.0, 20.0, float_setup=INTEL)
+        _run(tables, scene, "start-thermal", 22.0, 21.0, float_setup=cand_setup)
+    out = tmp_path / "per_scene.csv"
+    assert main(["--tables", str(tables), "--datasets", str(datasets), "--out", str(out),
+                 "--candidates", "start-thermal"]) == 0
+    with open(out) as f:
+        rows = list(csv.DictReader(f))
+    assert [r["float_setups"] for r in rows] == ["1", "2"]
+    assert rows[1]["machines"] == ("full: Intel(R) Xeon(R) Processor AVX512; "
+                                   "start-thermal: AMD EPYC AVX2")
+    assert "2 scenes, 1 of them with runs from more than one float setup" in capsys.readouterr().out
 
 
 def test_runs_without_validation_views_or_pairs_are_one_line(tmp_path: Path,
