@@ -6,7 +6,9 @@ the same Stage 2 again.
 A run whose Stage 3 starts from two surfaces also trains an RGB Stage 2 after the thermal one
 (``stage2_rgb.pt``, ``stage3.surface_init=by-smoke-colour``); a taker gets that one too when the
 donor has finished it, or trains it itself (the same bytes: its random streams are seeded from
-the run seed, not left by the thermal Stage 2).
+the run seed, not left by the thermal Stage 2). Two candidates whose RGB Stage 2 differs from
+Full's but not from each other's take it from the first of them: the second starts last and
+prefers the donor that has it.
 
 The trainer keys its Stage-2 checkpoint by the settings Stage 2 depends on
 (``TrainConfig.stage2_sha256``), and every stage draws from its own streams, so a run that resumes
@@ -77,12 +79,29 @@ def stage2_leaders(groups: dict[str, list[str]]) -> dict[str, str]:
     return {d: group[0] for d, group in groups.items() if group[0] != d}
 
 
+def rgb_stage2_key(spec: RunSpec) -> tuple[str, ...]:
+    """Runs with equal keys train the same RGB Stage 2 (``stage2_rgb.pt``), whatever their thermal one."""
+    return (spec.scene, str(spec.seed), spec.dataset_hash, spec.code, rgb_stage2_sha(spec))
+
+
 def leaders_first(specs: list[RunSpec], out: Path, groups: dict[str, list[str]]) -> list[RunSpec]:
     """Plan order with every run that can take a Stage 2 moved behind all the runs that train
     one, so that with several workers a taker starts after its donor has (and, but for the last
-    few, has finished Stage 2): started side by side, both would train it."""
+    few, has finished Stage 2): started side by side, both would train it. Among the takers, one
+    whose RGB Stage 2 no group leader trains but an earlier taker does (two candidates that differ
+    in Stage 3 only) goes behind the others, so that it finds that RGB Stage 2 finished."""
     leaders = stage2_leaders(groups)
-    return sorted(specs, key=lambda s: str(s.run_dir(out).resolve()) in leaders)
+    taking = [str(s.run_dir(out).resolve()) in leaders for s in specs]
+    trained_first = {rgb_stage2_key(s) for s, takes in zip(specs, taking) if not takes}
+    seen: set[tuple[str, ...]] = set()
+    rgb_takers: set[str] = set()
+    for spec, takes in zip(specs, taking):
+        key = rgb_stage2_key(spec)
+        if takes and key in seen and key not in trained_first:
+            rgb_takers.add(str(spec.run_dir(out).resolve()))
+        seen.add(key)
+    return sorted(specs, key=lambda s: (str(s.run_dir(out).resolve()) in leaders,
+                                        str(s.run_dir(out).resolve()) in rgb_takers))
 
 
 def stage2_done(run_dir: Path, stage2_sha: str, checkpoint: str = "stage2") -> bool:
@@ -100,15 +119,17 @@ def stage2_done(run_dir: Path, stage2_sha: str, checkpoint: str = "stage2") -> b
 
 
 def take_finished_stage2(run_dir: Path, donors: list[str], stage2_sha: str, rgb_sha: str = "") -> str:
-    """Copy the first donor's finished Stage-2 checkpoint (and its Stage-2 log rows) into a run
-    folder that has not started, with the donor's finished RGB Stage 2 (``rgb_sha``) where it has
-    one (it writes no log rows); returns the donor's folder, or "" when none has one yet."""
+    """Copy a donor's finished Stage-2 checkpoint (and its Stage-2 log rows) into a run folder that
+    has not started, with the donor's finished RGB Stage 2 (``rgb_sha``) where it has one (it writes
+    no log rows); returns the donor's folder, or "" when none has one yet. The first donor in
+    ``donors`` order that has both is taken, else the first that has the thermal one."""
     checkpoint = run_dir / "checkpoints" / "stage2.pt"
     if checkpoint.exists() or (run_dir / "train_log.csv").exists():
         return ""
-    for donor in map(Path, donors):
-        if not (donor / "train_log.csv").is_file() or not stage2_done(donor, stage2_sha):
-            continue
+    ready = [d for d in map(Path, donors) if (d / "train_log.csv").is_file() and stage2_done(d, stage2_sha)]
+    if rgb_sha:
+        ready.sort(key=lambda d: not stage2_done(d, rgb_sha, "stage2_rgb"))
+    for donor in ready:
         try:
             rows = [r for r in read_train_log(donor / "train_log.csv") if r["stage"] == "2"]
         except Exception:  # damaged: this donor is skipped, the run trains its own Stage 2

@@ -588,6 +588,44 @@ def test_leaders_first_puts_every_stage2_taker_behind_every_group_leader(tmp_pat
         ["a/no-mask", "a/no-mono", "b/no-mask", "b/no-mono"]
 
 
+def test_a_taker_that_shares_an_earlier_takers_rgb_stage2_starts_behind_it(tmp_path: Path) -> None:
+    """Two candidates with one RGB Stage 2 (they differ in Stage 3 only) both take Full's thermal
+    Stage 2; the second of them starts behind every other taker, so that it finds the first one's
+    RGB Stage 2 finished instead of training it again. Full's ablations share Full's RGB Stage 2
+    and keep their places."""
+    from eval.shared_stage2 import leaders_first, stage2_groups
+
+    variants = ("full", "rgb-start-clear-pixels", "rgb-start-clear-views", "no-mask")
+    specs = [RunSpec(scene, variant, VARIANTS[variant].mode, 0, "standard", dict(VARIANTS[variant].overrides),
+                     f"/data/{scene}", "d" * 8, "c" * 8) for scene in ("a", "b") for variant in variants]
+    order = [(s.scene, s.variant) for s in leaders_first(specs, tmp_path, stage2_groups(specs, tmp_path))]
+    assert order == [("a", "full"), ("b", "full"),
+                     ("a", "rgb-start-clear-pixels"), ("a", "no-mask"), ("b", "rgb-start-clear-pixels"), ("b", "no-mask"),
+                     ("a", "rgb-start-clear-views"), ("b", "rgb-start-clear-views")]
+
+
+def test_a_taker_prefers_the_donor_that_has_its_rgb_stage2(tmp_path: Path) -> None:
+    """Of two donors with the thermal Stage 2 a taker needs, the one that also has its finished RGB
+    Stage 2 is taken, though it comes second; with neither, the first."""
+    import torch
+
+    from eval.shared_stage2 import take_finished_stage2
+
+    donors = []
+    for name, rgb_key in (("full", "rgb-all-pixels"), ("candidate", "rgb-clear-pixels")):
+        donor = tmp_path / name
+        (donor / "checkpoints").mkdir(parents=True)
+        (donor / "train_log.csv").write_text("stage,iteration,loss\n2,3,0.5\n")
+        torch.save({"done": True, "config_sha256": "thermal"}, donor / "checkpoints" / "stage2.pt")
+        torch.save({"done": True, "config_sha256": rgb_key}, donor / "checkpoints" / "stage2_rgb.pt")
+        donors.append(str(donor))
+    assert take_finished_stage2(tmp_path / "taker", donors, "thermal", "rgb-clear-pixels") == donors[1]
+    assert torch.load(tmp_path / "taker" / "checkpoints" / "stage2_rgb.pt", weights_only=False)["config_sha256"] \
+        == "rgb-clear-pixels"
+    assert take_finished_stage2(tmp_path / "other", donors, "thermal", "rgb-elsewhere") == donors[0]
+    assert not (tmp_path / "other" / "checkpoints" / "stage2_rgb.pt").exists()
+
+
 def heavy_identity_train(dataset: Path, out: Path, mode: str, profile: str = "quick", seed: int = 0,
                          overrides: dict[str, Any] | None = None) -> dict[str, Any]:
     """identity_train that also leaves what the real trainer leaves and no table reads."""
