@@ -90,7 +90,7 @@ def score_rows(tables: Path, datasets: Path, split: str, seed: int, digest: str 
         depth = (meta.get("smoke", {}).get("optical_depth") or {}).get("achieved")
         full, full_input = _psnrs(*by_scene[scene]["full"], split)
         rgb = _psnrs(*by_scene[scene]["rgb-only"], split)[0] if "rgb-only" in by_scene[scene] else None
-        setups = {rec.get("float_setup") or "" for run, rec in by_scene[scene].values()}
+        setups = {rec.get("float_setup") or "" for _, rec in by_scene[scene].values()}
         rows.append({"scene": scene, "rgb_optical_depth": depth, "input_psnr": round(full_input, 4),
                      "full_psnr": round(full, 4), "rgb_only_psnr": None if rgb is None else round(rgb, 4),
                      "full_minus_rgb_only": None if rgb is None else round(full - rgb, 4),

@@ -92,16 +92,14 @@ def leaders_first(specs: list[RunSpec], out: Path, groups: dict[str, list[str]])
     in Stage 3 only) goes behind the others, so that it finds that RGB Stage 2 finished."""
     leaders = stage2_leaders(groups)
     taking = [str(s.run_dir(out).resolve()) in leaders for s in specs]
-    trained_first = {rgb_stage2_key(s) for s, takes in zip(specs, taking) if not takes}
+    keys = [rgb_stage2_key(s) for s in specs]
+    trained_first = {key for key, takes in zip(keys, taking) if not takes}
     seen: set[tuple[str, ...]] = set()
-    rgb_takers: set[str] = set()
-    for spec, takes in zip(specs, taking):
-        key = rgb_stage2_key(spec)
-        if takes and key in seen and key not in trained_first:
-            rgb_takers.add(str(spec.run_dir(out).resolve()))
+    behind: list[bool] = []
+    for key, takes in zip(keys, taking):
+        behind.append(takes and key in seen and key not in trained_first)
         seen.add(key)
-    return sorted(specs, key=lambda s: (str(s.run_dir(out).resolve()) in leaders,
-                                        str(s.run_dir(out).resolve()) in rgb_takers))
+    return [specs[i] for i in sorted(range(len(specs)), key=lambda i: (taking[i], behind[i]))]
 
 
 def stage2_done(run_dir: Path, stage2_sha: str, checkpoint: str = "stage2") -> bool:
@@ -127,8 +125,8 @@ def take_finished_stage2(run_dir: Path, donors: list[str], stage2_sha: str, rgb_
     if checkpoint.exists() or (run_dir / "train_log.csv").exists():
         return ""
     ready = [d for d in map(Path, donors) if (d / "train_log.csv").is_file() and stage2_done(d, stage2_sha)]
-    if rgb_sha:
-        ready.sort(key=lambda d: not stage2_done(d, rgb_sha, "stage2_rgb"))
+    has_rgb = {d: bool(rgb_sha) and stage2_done(d, rgb_sha, "stage2_rgb") for d in ready}
+    ready.sort(key=lambda d: not has_rgb[d])
     for donor in ready:
         try:
             rows = [r for r in read_train_log(donor / "train_log.csv") if r["stage"] == "2"]
@@ -138,7 +136,7 @@ def take_finished_stage2(run_dir: Path, donors: list[str], stage2_sha: str, rgb_
             continue
         with atomic_path(checkpoint) as tmp:
             shutil.copyfile(donor / "checkpoints" / "stage2.pt", tmp)
-        if rgb_sha and stage2_done(donor, rgb_sha, "stage2_rgb"):
+        if has_rgb[donor]:
             with atomic_path(run_dir / "checkpoints" / "stage2_rgb.pt") as tmp:
                 shutil.copyfile(donor / "checkpoints" / "stage2_rgb.pt", tmp)
         write_rows_csv(run_dir / "train_log.csv", rows)
