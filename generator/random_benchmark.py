@@ -48,18 +48,21 @@ def random_scene_task(seed: int, pins: list[str], out_root: str, threads: int, f
     if not reused:
         generate_random(seed, out, pins=pins, force=True, show_progress=False, threads=threads)
     return scene_record(seed, spec, out, "reused" if reused else "generated",
-                        None if reused else time.perf_counter() - started, load_before)
+                        None if reused else time.perf_counter() - started, None if reused else load_before)
 
 
 def scene_record(seed: int, spec: SceneSpec, out: Path, status: str, seconds: float | None,
-                 load_before: list[float]) -> dict[str, Any]:
+                 load_before: list[float] | None) -> dict[str, Any]:
+    """A reused scene gets no load averages: today's load says nothing about its generation time
+    (``keep_generation_loads`` carries them over from the call that generated it)."""
     meta = json.loads((out / "dataset.json").read_text())
     depth = meta["smoke"].get("optical_depth") or {}
     wind = spec.sim.wind
     return {
         "scene": scene_name(seed), "seed": seed, "status": status,
         "seconds": seconds if seconds is not None else meta["timings_s"]["total"],
-        "timings_s": meta["timings_s"], "load_average_before": load_before, "load_average_after": _load(),
+        "timings_s": meta["timings_s"], "load_average_before": load_before,
+        "load_average_after": None if load_before is None else _load(),
         "objects": len(spec.objects) - 1, "sources": len(spec.sources), "fire": spec.has_fire,
         "particles": spec.smoke.particles, "trajectory": spec.rig.trajectory.kind,
         "wind": round(float(sum(v * v for v in wind)) ** 0.5, 3),
@@ -70,6 +73,31 @@ def scene_record(seed: int, spec: SceneSpec, out: Path, status: str, seconds: fl
     }
 
 
+def earlier_records(out: Path) -> dict[str, dict[str, Any]]:
+    """The scene records of OUT's last ``benchmark.json`` (none if it is missing or unreadable)."""
+    try:
+        return {r["scene"]: r for r in json.loads((out / "benchmark.json").read_text())["scenes"]}
+    except (OSError, ValueError, KeyError, TypeError):
+        return {}
+
+
+def keep_generation_loads(record: dict[str, Any], earlier: dict[str, Any] | None) -> dict[str, Any]:
+    """A reused scene's record with the load averages measured when it was generated, from an earlier
+    call's record of the same dataset (same generator code and optical depth) that measured them."""
+    same = (earlier is not None and earlier.get("code_sha256") == record["code_sha256"]
+            and earlier.get("optical_depth_achieved") == record["optical_depth_achieved"])
+    if record["status"] != "reused" or not same or earlier.get("load_average_before") is None:
+        return record
+    if earlier.get("status") == "reused" and not earlier.get("load_from_earlier_call"):
+        return record  # written before reused scenes kept their loads: that load was the reusing call's
+    return {**record, "load_average_before": earlier["load_average_before"],
+            "load_average_after": earlier.get("load_average_after"), "load_from_earlier_call": True}
+
+
+def _first(values: list[float] | None) -> float | None:
+    return values[0] if values else None
+
+
 def _fmt(value: Any, spec: str) -> str:
     return format(value, spec) if isinstance(value, (int, float)) else "n/a"
 
@@ -77,7 +105,7 @@ def _fmt(value: Any, spec: str) -> str:
 def markdown_table(records: list[dict[str, Any]], summary: dict[str, Any]) -> str:
     head = ("| scene | status | time (s) | load before | objects | sources | fire | particles | path | wind "
             "| thermal | optical depth target | achieved |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
-    rows = [f"| {r['scene']} | {r['status']} | {r['seconds']:.0f} | {r['load_average_before'][0]:.1f} "
+    rows = [f"| {r['scene']} | {r['status']} | {r['seconds']:.0f} | {_fmt(_first(r['load_average_before']), '.1f')} "
             f"| {r['objects']} | {r['sources']} | {'yes' if r['fire'] else 'no'} | {r['particles']} "
             f"| {r['trajectory']} | {r['wind']:.1f} | {r['thermal_size'][0]}x{r['thermal_size'][1]} "
             f"| {_fmt(r['optical_depth_target'], '.3f')} | {_fmt(r['optical_depth_achieved'], '.3f')} |"
@@ -86,6 +114,8 @@ def markdown_table(records: list[dict[str, Any]], summary: dict[str, Any]) -> st
     timing = (f"Generated {len(generated)} scene(s): median {statistics.median(generated):.0f} s per scene "
               f"({summary['workers']} worker(s), {summary['threads_per_worker']} thread(s) each)."
               if generated else "No scene was generated in this run (all reused).")
+    timing += (" A reused scene's time and load are those of the call that generated it; its load is n/a "
+               "where no record of that call survives.")
     return (f"Random set: seeds {summary['seed_base']}-{summary['seed_base'] + summary['count'] - 1}, "
             f"pins {', '.join(summary['pins']) or 'none'}, size `{RANDOM_PROFILE.name}` "
             f"({RANDOM_PROFILE.description}).\n\n" + head + "\n".join(rows)
@@ -128,7 +158,8 @@ def run_random_set(count: int, seed_base: int, pins: list[str], out: Path, worke
           tqdm(total=len(jobs), desc="scenes", unit="scene", disable=quiet) as bar):
         drain(ex, jobs, bar)
         where = ex.description
-    ordered = [records[s] for s in seeds if s in records]
+    earlier = earlier_records(out)
+    ordered = [keep_generation_loads(records[s], earlier.get(scene_name(s))) for s in seeds if s in records]
     summary = {"kind": "random", "seed_base": seed_base, "count": count, "pins": pins, "size": RANDOM_PROFILE.kwargs(),
                "workers": workers, "threads_per_worker": threads, "scheduler": where, "scenes": ordered,
                "failed": sorted(failed), "wall_seconds": time.perf_counter() - started,

@@ -343,4 +343,27 @@ def test_a_random_set_runs_on_dask_and_skips_finished_scenes(tmp_path: Path) -> 
     assert "dask scheduler" in summary["scheduler"] and summary["workers"] == 2
     assert summary["threads_per_worker"] == max(1, (os.cpu_count() or 1) // 2) and summary["provenance"]["commit"]
     table = (tmp_path / "benchmark.md").read_text()
-    assert "| random_40 | reused | 101 |" in table and "| random_41 | reused | 77 |" in table
+    assert "| random_40 | reused | 101 | n/a |" in table and "| random_41 | reused | 77 | n/a |" in table
+    assert all(r["load_average_before"] is None for r in summary["scenes"])  # today's load is not the scene's
+
+
+def test_a_reused_scene_keeps_the_load_of_the_call_that_generated_it(tmp_path: Path) -> None:
+    for seed in (40, 41):
+        spec, _ = random_spec(seed)
+        (tmp_path / f"random_{seed}").mkdir()
+        (tmp_path / f"random_{seed}" / "dataset.json").write_text(json.dumps({
+            "spec_sha256": spec.sha256(), "timings_s": {"total": 60.0}, "stats": {}, "code_sha256": "c0de",
+            "smoke": {"optical_depth": {"target": spec.smoke.optical_depth, "achieved": 0.9}}}))
+    earlier = {"random_40": {"status": "generated", "load_average_before": [3.3, 2.0, 1.0]},
+               "random_41": {"status": "reused", "load_average_before": [0.6, 0.5, 0.4]}}  # an older file's guess
+    (tmp_path / "benchmark.json").write_text(json.dumps({"scenes": [
+        {"scene": k, "code_sha256": "c0de", "optical_depth_achieved": 0.9, **v} for k, v in earlier.items()]}))
+    args = ["--random", "2", "--seed-base", "40", "--out", str(tmp_path), "--workers", "1"]
+    for _ in range(2):  # the second call reads the first's records: the load survives being reused twice
+        assert benchmark_cli.main(args) == 0
+        scenes = {r["scene"]: r for r in json.loads((tmp_path / "benchmark.json").read_text())["scenes"]}
+        assert scenes["random_40"]["load_average_before"] == [3.3, 2.0, 1.0]
+        assert scenes["random_40"]["load_from_earlier_call"] is True
+        assert scenes["random_41"]["load_average_before"] is None
+        table = (tmp_path / "benchmark.md").read_text()
+        assert "| random_40 | reused | 60 | 3.3 |" in table and "| random_41 | reused | 60 | n/a |" in table
