@@ -6,8 +6,9 @@
 #
 #   bash benchmarks/rules_choice.sh motion      the ten standard scenes: Full and the plane field
 #                                               (into data/tables_standard, beside Table 1's runs)
-#   bash benchmarks/rules_choice.sh standard    the ten standard scenes: Full, RGB-only and the
-#                                               rule candidates (into data/tables_standard)
+#   bash benchmarks/rules_choice.sh standard [--methods full]   the ten standard scenes: Full,
+#                                               RGB-only and the rule candidates (into
+#                                               data/tables_standard); --methods full as below
 #   bash benchmarks/rules_choice.sh dev [--first N] [--methods full]   random-dev: the same (into
 #                                               data/tables_random_dev), the first N scenes only
 #                                               with --first; --methods full leaves RGB-only out
