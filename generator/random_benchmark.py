@@ -42,13 +42,12 @@ def random_scene_task(seed: int, pins: list[str], out_root: str, threads: int, f
     """Generate (or reuse) the scene of `seed`; its record. Runs in a scheduler's worker."""
     spec, _ = random_spec(seed, pins)
     out = Path(out_root) / scene_name(seed)
-    reused = not force and made_from(out, spec)
+    if not force and made_from(out, spec):
+        return scene_record(seed, spec, out, "reused", None, None)
     load_before = _load()
     started = time.perf_counter()
-    if not reused:
-        generate_random(seed, out, pins=pins, force=True, show_progress=False, threads=threads)
-    return scene_record(seed, spec, out, "reused" if reused else "generated",
-                        None if reused else time.perf_counter() - started, None if reused else load_before)
+    generate_random(seed, out, pins=pins, force=True, show_progress=False, threads=threads)
+    return scene_record(seed, spec, out, "generated", time.perf_counter() - started, load_before)
 
 
 def scene_record(seed: int, spec: SceneSpec, out: Path, status: str, seconds: float | None,
@@ -105,8 +104,9 @@ def _fmt(value: Any, spec: str) -> str:
 def markdown_table(records: list[dict[str, Any]], summary: dict[str, Any]) -> str:
     head = ("| scene | status | time (s) | load before | objects | sources | fire | particles | path | wind "
             "| thermal | optical depth target | achieved |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
-    rows = [f"| {r['scene']} | {r['status']} | {r['seconds']:.0f} | {_fmt(_first(r['load_average_before']), '.1f')} "
-            f"| {r['objects']} | {r['sources']} | {'yes' if r['fire'] else 'no'} | {r['particles']} "
+    rows = [f"| {r['scene']} | {r['status']} | {r['seconds']:.0f} "
+            f"| {_fmt(_first(r['load_average_before']), '.1f')} | {r['objects']} | {r['sources']} "
+            f"| {'yes' if r['fire'] else 'no'} | {r['particles']} "
             f"| {r['trajectory']} | {r['wind']:.1f} | {r['thermal_size'][0]}x{r['thermal_size'][1]} "
             f"| {_fmt(r['optical_depth_target'], '.3f')} | {_fmt(r['optical_depth_achieved'], '.3f')} |"
             for r in records]
