@@ -42,6 +42,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from contracts.atomic import write_rows_csv  # noqa: E402
+from contracts.float_setup import machine_of  # noqa: E402
 from eval.finished_runs import finished_runs  # noqa: E402
 
 DENSE = 1.0
@@ -56,17 +57,6 @@ def _psnrs(run: Path, rec: dict[str, Any], split: str) -> tuple[float, float]:
     if validation.get("psnr") is None:
         raise ValueError(f"{run / 'metrics.json'}: validation: no validation views (a profile with validation_every)")
     return float(validation["psnr"]), float(validation["psnr_input"])
-
-
-def machine(rec: dict[str, Any]) -> str:
-    """A run's CPU model and torch capability, from its ``float_setup`` line (contracts/float_setup.py:
-    ``cpu MODEL (flags); torch VERSION CAPABILITY; ...``), or "not recorded"."""
-    line = rec.get("float_setup") or ""
-    if not line.startswith("cpu "):
-        return "not recorded"
-    model = line[4:].split(" (", 1)[0]
-    torch_part = next((p.strip() for p in line.split(";") if p.strip().startswith("torch ")), "")
-    return f"{model} {torch_part.split()[-1]}" if torch_part else model
 
 
 def column(variant: str) -> str:
@@ -97,7 +87,7 @@ def score_rows(tables: Path, datasets: Path, split: str, seed: int, digest: str 
                      "full_minus_input": round(full - full_input, 4),
                      **{column(c): round(_psnrs(*by_scene[scene][c], split)[0], 4) for c in candidates},
                      "float_setups": len(setups),
-                     "machines": "; ".join(f"{v}: {machine(by_scene[scene][v][1])}" for v in sorted(by_scene[scene]))})
+                     "machines": "; ".join(f"{v}: {machine_of(by_scene[scene][v][1].get('float_setup') or '')}" for v in sorted(by_scene[scene]))})
     return chosen, rows
 
 

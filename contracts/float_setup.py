@@ -86,3 +86,13 @@ def float_setup() -> str:
             f"torch {torch.__version__} {torch.backends.cpu.get_cpu_capability()}; held {held_isa()}; "
             f"kernel {' '.join(kernel_vector_flags(flags)) or 'scalar'}; "
             f"compiler {compiler_version(os.environ.get('CXX', 'c++'))}")
+
+
+def machine_of(line: str) -> str:
+    """The CPU model and torch capability of a ``float_setup()`` line (``cpu MODEL (flags); torch
+    VERSION CAPABILITY; ...``), or "not recorded" for an empty line or one of another shape."""
+    if not line.startswith("cpu "):
+        return "not recorded"
+    model = line[4:].split(" (", 1)[0]
+    torch_part = next((p.strip() for p in line.split(";") if p.strip().startswith("torch ")), "")
+    return f"{model} {torch_part.split()[-1]}" if torch_part else model

@@ -96,6 +96,13 @@ CANDIDATES: dict[str, Variant] = {
                         "cost nothing where the RGB sees the surface clear (stage3.thermal_surface_grad=smoky-views; "
                         "the surface issue: Full's clean ceiling is 1.2 dB under RGB-only's)",
                    overrides={"stage3.thermal_surface_grad": "smoky-views"}),
+        _candidate("thermal-box-filtered", "Full, each thermal pixel integrates its area",
+                   note="the Stage-3 thermal term renders each thermal pixel as 3x3 sub-pixels and averages them, as "
+                        "the sensor integrates its pixel, so a surface Gaussian sized for the RGB pixels (1.6-3 times "
+                        "finer than the thermal's on the committed sets) is no longer dilated to a whole thermal pixel at its full "
+                        "opacity (stage3.thermal_supersample=3; the surface issue: Full's clean ceiling is 1.2 dB "
+                        "under RGB-only's); Stage 3 only, and its thermal render costs nine times the work",
+                   overrides={"stage3.thermal_supersample": 3}),
         _candidate("surface-continues", "Full, Stage 3 carries on Stage 2's surface schedules",
                    note="the surface keeps every SH degree and Stage 2's last position rate into Stage 3 instead of "
                         "restarting both, as the official code continues its schedules "

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from benchmarks.float_setup import compare, main, setup_environment, tables_command
-from contracts.float_setup import HELD_TO, cpu_facts, kernel_vector_flags
+from contracts.float_setup import HELD_TO, cpu_facts, float_setup, kernel_vector_flags, machine_of
 from eval.harness_cli import build_parser
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -34,6 +34,14 @@ def test_the_avx2_setup_holds_torch_to_avx2_and_the_run_record_says_so() -> None
     assert "; held none;" in default_line
     if "avx512f" in cpu_facts()[1]:
         assert default_capability == "AVX512" and " AVX512; " in default_line
+
+
+def test_a_float_setup_line_gives_back_its_cpu_and_torch_capability() -> None:
+    """machine_of reads what float_setup writes (the tables name each run's machine by it)."""
+    import torch
+
+    assert machine_of(float_setup()) == f"{cpu_facts()[0]} {torch.backends.cpu.get_cpu_capability()}"
+    assert machine_of("") == machine_of("an older record's line") == "not recorded"
 
 
 def test_the_setup_environment_replaces_inherited_isa_variables() -> None:

@@ -185,9 +185,11 @@ def test_the_surface_learns_from_clear_pixels_and_the_smoke_from_all() -> None:
 
 
 
-def _stage2(tmp_path: Path, learns_from: str, mask: np.ndarray) -> Stage2Problem:
-    """An RGB Stage 2 on one 64×48 training frame (a gradient target, not a scene) with ``mask``."""
-    cfg = make_config("rgb-only", "quick", 0, {"stage2.rgb_learns_from": learns_from, "background": "black"})
+def _stage2(tmp_path: Path, learns_from: str, mask: np.ndarray, **overrides: str) -> Stage2Problem:
+    """An RGB Stage 2 on one 64×48 training frame (a gradient target, not a scene) with ``mask``,
+    on black unless ``overrides`` say otherwise."""
+    cfg = make_config("rgb-only", "quick", 0, {"stage2.rgb_learns_from": learns_from, "background": "black",
+                                              **overrides})
     frame = Frame("0000", np.eye(4), K, 64, 48, 0.0, 0.0, "train")
     image = np.random.default_rng(7).uniform(0, 1, (1, 48, 64, 3)).astype(np.float32)
     rgb = ModalityData("rgb", [frame], image, masks=mask[None].astype(np.float32))
@@ -223,6 +225,26 @@ def test_an_rgb_stage2_learns_from_clear_pixels_only(tmp_path: Path) -> None:
     blind = _stage2(tmp_path, "clear-pixels", np.ones((48, 64)))
     blind.forward(1).loss.backward()
     assert all(torch.count_nonzero(p.grad) == 0 for p in blind.g.params.values())
+
+
+def test_the_environment_learns_by_the_clear_share_once(tmp_path: Path) -> None:
+    """An RGB Stage 2 with a learned environment: background_from=clear-pixels alone,
+    stage2.rgb_learns_from=clear-pixels alone, and both together send the environment the same
+    gradient, each pixel's times 1 − mask; together not its square."""
+    mask = np.zeros((48, 64))
+    mask[:, 30:] = 1.0
+    mask[:12, :10] = 0.5
+
+    def env_grad(learns_from: str, background_from: str) -> torch.Tensor:
+        problem = _stage2(tmp_path, learns_from, mask, background="environment", background_from=background_from)
+        problem.forward(1).loss.backward()
+        return problem.background.coeffs.grad
+
+    by_background = env_grad("all-pixels", "clear-pixels")
+    both = env_grad("clear-pixels", "clear-pixels")
+    torch.testing.assert_close(env_grad("clear-pixels", "all"), by_background, rtol=1e-4, atol=1e-7)
+    torch.testing.assert_close(both, by_background, rtol=1e-4, atol=1e-7)
+    assert not torch.allclose(env_grad("all-pixels", "all"), by_background)
 
 
 def test_only_the_rgb_stage2_key_takes_the_rgb_start_option() -> None:

@@ -201,6 +201,17 @@ def test_the_thermal_gate_trains_and_says_how_much_thermal_shapes_the_surface(sp
     assert 0.0 < float(note.split("mean ")[1].split(" ")[0]) < 1.0
 
 
+def test_the_thermal_term_renders_sub_pixels_and_says_so(splat: Path, tmp_path: Path) -> None:
+    """stage3.thermal_supersample=2 (the averaging itself: tests/test_thermal_supersample.py): the
+    run ends ok, and its notes give the size the thermal term renders at, twice the frames'."""
+    run = tmp_path / "run"
+    assert main([str(splat), "--out", str(run)] + TINY + ["--set", "stage3.thermal_supersample=2"]) == 0
+    notes = _assert_complete(run)["stages"]["notes"]
+    note = next(n for n in notes if n.startswith("the thermal term averages 2x2 sub-pixels"))
+    rendered, frames = re.search(r"\((\d+x\d+) rendered for (\d+x\d+);", note).groups()
+    assert [int(v) for v in rendered.split("x")] == [2 * int(v) for v in frames.split("x")]
+
+
 def test_stage2_starts_from_points_triangulated_in_the_training_frames(splat: Path, tmp_path: Path,
                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
     """stage2.init_from=images (the triangulation itself: tests/test_triangulation.py): Stage 2

@@ -31,6 +31,9 @@ SURFACE_INITS: tuple[str, ...] = ("thermal", "by-smoke-colour", "by-clear-views"
 THERMAL_SURFACE_GRAD: tuple[str, ...] = ("all", "smoky-views")
 SURFACE_LEARNS_FROM: tuple[str, ...] = ("all-pixels", "clear-pixels")
 BACKGROUND_FROM: tuple[str, ...] = ("all", "clear-pixels")
+MAX_THERMAL_SUPERSAMPLE = 4
+"""Sub-pixels a side of a thermal pixel (``stage3.thermal_supersample``): at 4 the thermal render is
+16 times the work, past which a pixel's Gaussians are already resolved at the RGB's scale."""
 INIT_FROM: tuple[str, ...] = ("random", "images")
 POSE_SOURCES: tuple[str, ...] = ("given", "sfm")
 MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "estimated-meeting", "estimated-bound")
@@ -337,6 +340,13 @@ class Stage3Config:
     veil of thin smoke cannot be carried by the surface's view-dependent colour: only the smoke
     set can explain it. The RGB frame is drawn a second time with the surface held, which the
     masked pixels take their gradient from."""
+    thermal_supersample: int = 1
+    """The thermal render term draws each thermal pixel as this many × this many sub-pixels and
+    averages them (``View.supersampled``, ``box_filtered``), as a sensor pixel integrates its area.
+    1: one sample at the pixel centre (the paper), where a surface Gaussian sized for the finer RGB
+    pixels is dilated to the coarse thermal pixel's size at its full opacity, and the thermal term
+    then pulls the shared surface away from what the RGB frames show. Costs the thermal render's
+    work times this squared."""
     carve_tolerance: float = 0.05
     """With two surfaces: an RGB Gaussian nearer than (1 − this) × the thermal
     surface's depth in most views that see it is smoke taken for surface, and is dropped."""
@@ -463,6 +473,9 @@ class TrainConfig:
         if self.stage2.rgb_learns_from not in SURFACE_LEARNS_FROM:
             raise ValueError(f"stage2.rgb_learns_from: {self.stage2.rgb_learns_from!r} is not one of "
                              f"{', '.join(SURFACE_LEARNS_FROM)}")
+        if not 1 <= self.stage3.thermal_supersample <= MAX_THERMAL_SUPERSAMPLE:
+            raise ValueError(f"stage3.thermal_supersample: must be 1 to {MAX_THERMAL_SUPERSAMPLE} sub-pixels a side, "
+                             f"got {self.stage3.thermal_supersample}")
         if not 0.0 <= self.stage3.carve_tolerance < 1.0:
             raise ValueError(f"stage3.carve_tolerance: must be in [0, 1), got {self.stage3.carve_tolerance}")
         if not 0.0 < self.stage3.surface_densify_max_smoke <= 1.0:

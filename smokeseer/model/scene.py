@@ -48,6 +48,15 @@ class View:
             basis = self.sky_bases[env.degree] = env.basis(self.viewmat[0], self.K[0], self.width, self.height)
         return env.from_basis(basis)
 
+    def supersampled(self, factor: int) -> View:
+        """The same camera drawn as ``factor`` × ``factor`` sub-pixels to each pixel, for a render
+        that ``box_filtered`` averages back to this view's pixels. Pixel centres sit at +0.5, so
+        scaling the focal lengths and the principal point tiles every pixel exactly."""
+        if factor == 1:
+            return self
+        rows = torch.tensor([factor, factor, 1.0], dtype=self.K.dtype, device=self.K.device)
+        return View(self.viewmat, self.K * rows[None, :, None], self.width * factor, self.height * factor, self.time)
+
 
 def make_view(viewmat: np.ndarray, K: np.ndarray, width: int, height: int, time: float,
               device: torch.device) -> View:

@@ -1,9 +1,10 @@
 """What a render returns, shared by every backend (``smokeseer.raster.api`` picks one)."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 RADIUS_INT_MAX = 2**30  # radii of enormous footprints saturate here instead of overflowing int32
@@ -32,3 +33,23 @@ def normalised_depth(depths: Tensor, alphas: Tensor) -> Tensor:
     almost nothing is seen (alpha below DEPTH_ALPHA_EPS)."""
     ok = alphas > DEPTH_ALPHA_EPS
     return torch.where(ok, depths / torch.where(ok, alphas, torch.ones_like(alphas)), torch.zeros_like(depths))
+
+
+def box_filtered(out: RasterOutput, factor: int) -> RasterOutput:
+    """Each block of ``factor`` × ``factor`` pixels of a supersampled render (``View.supersampled``)
+    averaged into one pixel: a sensor pixel that integrates what falls on its area, where one
+    sample at its centre would see a Gaussian far smaller than the pixel dilated to the pixel's
+    size. Colours and alphas are averaged; depths, normalised as the model's renders give them, are
+    averaged by alpha, so that each is still the depth of what its pixel sees. The per-Gaussian fields stay in sub-pixel units."""
+    if factor == 1:
+        return out
+
+    def pool(x: Tensor | None) -> Tensor | None:
+        return None if x is None else F.avg_pool2d(x.permute(0, 3, 1, 2), factor).permute(0, 2, 3, 1)
+
+    def depth(d: Tensor | None, a: Tensor | None) -> Tensor | None:
+        return None if d is None or a is None else normalised_depth(pool(d * a), pool(a))
+
+    return replace(out, colors=pool(out.colors), alphas=pool(out.alphas), depths=depth(out.depths, out.alphas),
+                   subset_alphas=pool(out.subset_alphas), rest_depths=depth(out.rest_depths, out.rest_alphas),
+                   rest_alphas=pool(out.rest_alphas))

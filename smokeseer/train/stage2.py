@@ -64,7 +64,8 @@ def clear_pixel_weights(cfg: TrainConfig, mod: ModalityData, idx: list[int], dev
     """Per training view ``idx`` of ``mod``, the weight of each pixel's gradient into the learned
     environment: 1 − Stage 1's smoke mask on the RGB frames under ``background_from=clear-pixels``;
     None (every pixel in full) otherwise, on the thermal frames, and where the frames carry no
-    mask (no smoke marked)."""
+    mask (no smoke marked). A render that already learns by clear pixels
+    (``learn_by_clear_pixels``) weights its environment by the same share, and takes none of these."""
     if cfg.background_from != "clear-pixels" or mod.name == "thermal" or mod.masks is None:
         return None
     return clear_weights(mod.masks[idx], device)
@@ -127,7 +128,6 @@ class Stage2Problem(StageProblem):
         idx = mod.indices("train")
         self.views = views_of(mod, idx, dev)
         self.images = torch.as_tensor(mod.images[idx], device=dev)
-        self.background_grad = clear_pixel_weights(cfg, mod, idx, dev) if self.background is not None else None
         self.clear: torch.Tensor | None = None
         self.notes: list[str] = []
         if self.color == "rgb" and cfg.stage2.rgb_learns_from == "clear-pixels":
@@ -140,6 +140,8 @@ class Stage2Problem(StageProblem):
                         f"({100 * float(self.clear.mean()):.0f} % of the training pixels; stage2.rgb_learns_from=clear-pixels)")
             self.notes.append(note)
             ctx.log_line(f"{self.name}: {note}")
+        self.background_grad = (clear_pixel_weights(cfg, mod, idx, dev)
+                                if self.background is not None and self.clear is None else None)
 
     def forward(self, it: int) -> IterationOutput:
         cfg = self.cfg

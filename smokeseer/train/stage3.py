@@ -22,7 +22,7 @@ from smokeseer.model.planes import PlaneField
 from smokeseer.model.gaussians import DensifyStrategy, GaussianSet, make_optimizer
 from smokeseer.model.optim import Adam
 from smokeseer.model.scene import SceneModel, SmokeAnchor, add_rgb_sh, make_smoke
-from smokeseer.raster.output import RasterOutput
+from smokeseer.raster.output import RasterOutput, box_filtered
 from smokeseer.train.depth_prior import DepthPriorMaps
 from smokeseer.train.loop import IterationOutput, StageProblem, StageSchedule, run_stage
 from smokeseer.train.losses import (depth_consistency, mask_alignment, monochromaticity, render_loss,
@@ -154,6 +154,7 @@ class Stage3Problem(StageProblem):
                 raise ValueError("stage3.surface_learns_from: clear-pixels reads Stage 1's smoke masks, "
                                  "and this run's RGB frames have none")
             self.surface_weights = clear_weights(rgb.masks[rgb_idx], dev)
+            self.background_grad = None  # the composite weights the environment by the same share
             clear = 100 * float(self.surface_weights.mean())
             note = (f"the surface learns from the pixels Stage 1 marks clear ({clear:.0f} % of the training pixels), "
                     "the smoke from all (stage3.surface_learns_from=clear-pixels)")
@@ -167,8 +168,15 @@ class Stage3Problem(StageProblem):
         self.th_imgs = None
         if plan.use_thermal and thermal is not None:
             th_idx = thermal.indices("train")
-            self.th_views = views_of(thermal, th_idx, dev)
+            self.th_views = [v.supersampled(cfg.stage3.thermal_supersample) for v in views_of(thermal, th_idx, dev)]
             self.th_imgs = torch.as_tensor(thermal.images[th_idx], device=dev)
+            if cfg.stage3.thermal_supersample > 1:
+                s = cfg.stage3.thermal_supersample
+                note = (f"the thermal term averages {s}x{s} sub-pixels to each thermal pixel "
+                        f"({self.th_views[0].width}x{self.th_views[0].height} rendered for "
+                        f"{thermal.images.shape[2]}x{thermal.images.shape[1]}; stage3.thermal_supersample={s})")
+                plan.notes.append(note)
+                ctx.log_line(f"stage 3: {note}")
         self.gate_thermal = self.th_imgs is not None and cfg.stage3.thermal_surface_grad == "smoky-views"
         if self.gate_thermal and model.smoke is not None and rgb.masks is None:
             raise ValueError("stage3.thermal_surface_grad: smoky-views reads Stage 1's smoke masks, "
@@ -224,9 +232,11 @@ class Stage3Problem(StageProblem):
         depth_source = (out, k)
         if self.th_imgs is not None:
             j = draw_index(self.streams["stage3.views.thermal"], len(self.th_views))
-            tout = model.render_thermal(self.th_views[j], deform_active=deform_on,
-                                        surface_depth=self.depth_on_thermal, depth=False, motion=motion,
-                                        surface_grad_share=self._thermal_share(it) if self.gate_thermal else None)
+            tout = box_filtered(model.render_thermal(self.th_views[j], deform_active=deform_on,
+                                                     surface_depth=self.depth_on_thermal, depth=False, motion=motion,
+                                                     surface_grad_share=self._thermal_share(it) if self.gate_thermal
+                                                     else None),
+                                cfg.stage3.thermal_supersample)
             terms["render_thermal"] = render_loss(tout.colors[0], self.th_imgs[j], cfg.loss.dssim)
             if self.depth_on_thermal:
                 depth_source = (tout, j)
