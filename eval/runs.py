@@ -103,6 +103,13 @@ CANDIDATES: dict[str, Variant] = {
                         "opacity (stage3.thermal_supersample=3; the surface issue: Full's clean ceiling is 1.2 dB "
                         "under RGB-only's); Stage 3 only, and its thermal render costs nine times the work",
                    overrides={"stage3.thermal_supersample": 3}),
+        _candidate("carve-where-smoky", "Full, the joined start fades what lies in front of the thermal surface on smoke",
+                   note="in the joined start no RGB Gaussian is dropped for lying in front of the coarse thermal "
+                        "surface; each one's opacity is scaled by 1 - the share of its views that see it there on a "
+                        "pixel Stage 1 marks smoke, so a scene without smoke keeps its RGB surface whole "
+                        "(stage3.carve_by=depth-and-smoke; clean plant carved 40 % of its RGB Gaussians, and carving "
+                        "none gained 0.41 dB, docs/experiments/2026-12-06-thermal-pixel-area.md); Stage 3 only",
+                   overrides={"stage3.carve_by": "depth-and-smoke"}),
         _candidate("surface-continues", "Full, Stage 3 carries on Stage 2's surface schedules",
                    note="the surface keeps every SH degree and Stage 2's last position rate into Stage 3 instead of "
                         "restarting both, as the official code continues its schedules "

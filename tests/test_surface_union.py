@@ -47,6 +47,20 @@ def test_points_in_front_of_the_wall_are_carved_and_the_rest_kept() -> None:
     assert c.in_front.tolist() == [3, 0, 3, 0, 0, 0]
 
 
+def test_the_smoky_share_in_front_weighs_each_view_in_front_by_its_mask() -> None:
+    """carve_by=depth-and-smoke's input: a point in front of the wall in all three views, on smoke
+    (mask 1, 1, 0.5), gets 2.5 / 3; one on the wall or behind it gets 0 whatever the masks say;
+    without masks every share is 0."""
+    cameras = _cameras([0.0, 0.1, -0.1])
+    means = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.95], [0.0, 0.0, 3.0]])
+    masks = np.ones((3, H, W))
+    masks[2] = 0.5
+    c = carve_in_front(means, *_wall(3, 2.0), *cameras, 0.05, masks)
+    np.testing.assert_allclose(c.smoky_in_front, [2.5 / 3, 0.0, 0.0])
+    assert c.keep.tolist() == [False, True, True]
+    assert carve_in_front(means, *_wall(3, 2.0), *cameras, 0.05).smoky_in_front.tolist() == [0.0, 0.0, 0.0]
+
+
 def test_a_minority_of_views_in_front_does_not_carve() -> None:
     """In front of the surface in one view of three (hidden behind it in the others): kept. On
     pixels without valid thermal depth: nothing checks it, kept."""

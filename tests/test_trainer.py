@@ -174,6 +174,19 @@ def test_two_surface_run_joins_both_stage2s_and_resumes(splat: Path, tmp_path: P
     assert json.loads((run / "metrics.json").read_text())["metrics"] == doc["metrics"]
 
 
+def test_the_carve_by_smoke_drops_no_rgb_gaussian_and_says_how_much_it_fades(splat: Path, tmp_path: Path) -> None:
+    """stage3.carve_by=depth-and-smoke (the share itself: tests/test_surface_union.py): the joined
+    start keeps every RGB Gaussian, fading each one instead, and the record and note say so."""
+    run = tmp_path / "run"
+    assert main([str(splat), "--out", str(run)] + BY_SMOKE_COLOUR + ["--set", "stage3.carve_by=depth-and-smoke"]) == 0
+    doc = _assert_complete(run)
+    union = doc["stages"]["surface_union"]
+    assert union["carve_by"] == "depth-and-smoke" and union["rgb_kept"] == union["rgb"] > 0
+    assert 0.0 <= union["rgb_carve_share"] <= 1.0
+    assert any("faded by the share of its views that see it in front of the thermal surface on smoke" in n
+               for n in doc["stages"]["notes"])
+
+
 def test_by_clear_views_fades_each_rgb_gaussian_by_its_own_clear_views(splat: Path, tmp_path: Path) -> None:
     """stage3.surface_init=by-clear-views needs no haze-line colour: the RGB Stage 2 joins the
     thermal one with one opacity share per Gaussian (which share: tests/test_surface_union.py).

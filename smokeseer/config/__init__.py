@@ -28,6 +28,7 @@ PROFILES: tuple[str, ...] = ("quick", "standard", "paper")
 SMOKE_COLOR_SOURCES: tuple[str, ...] = ("learned", "haze-lines")
 DENSIFY_UNDER_CAP: tuple[str, ...] = ("index", "gradient")
 SURFACE_INITS: tuple[str, ...] = ("thermal", "by-smoke-colour", "by-clear-views")
+CARVE_BY: tuple[str, ...] = ("depth", "depth-and-smoke")
 THERMAL_SURFACE_GRAD: tuple[str, ...] = ("all", "smoky-views")
 SURFACE_LEARNS_FROM: tuple[str, ...] = ("all-pixels", "clear-pixels")
 BACKGROUND_FROM: tuple[str, ...] = ("all", "clear-pixels")
@@ -350,6 +351,13 @@ class Stage3Config:
     carve_tolerance: float = 0.05
     """With two surfaces: an RGB Gaussian nearer than (1 − this) × the thermal
     surface's depth in most views that see it is smoke taken for surface, and is dropped."""
+    carve_by: str = "depth"
+    """How the joined start carves the RGB Stage 2. "depth": a Gaussian in front of the thermal
+    surface (``carve_tolerance``) in more than half of the views that check it is dropped, smoke or
+    not. "depth-and-smoke": none is dropped; each one's opacity is scaled by 1 − the share of the
+    checking views in which it lies in front on a pixel Stage 1 marks smoke (its mask there), so
+    only smoke can be taken for surface, a scene without smoke loses nothing to the coarse thermal
+    surface, and no Gaussian sits on a cliff at half its views."""
     test_every: int = 1000
 
 
@@ -476,6 +484,8 @@ class TrainConfig:
         if not 1 <= self.stage3.thermal_supersample <= MAX_THERMAL_SUPERSAMPLE:
             raise ValueError(f"stage3.thermal_supersample: must be 1 to {MAX_THERMAL_SUPERSAMPLE} sub-pixels a side, "
                              f"got {self.stage3.thermal_supersample}")
+        if self.stage3.carve_by not in CARVE_BY:
+            raise ValueError(f"stage3.carve_by: {self.stage3.carve_by!r} is not one of {', '.join(CARVE_BY)}")
         if not 0.0 <= self.stage3.carve_tolerance < 1.0:
             raise ValueError(f"stage3.carve_tolerance: must be in [0, 1), got {self.stage3.carve_tolerance}")
         if not 0.0 < self.stage3.surface_densify_max_smoke <= 1.0:

@@ -85,11 +85,14 @@ def fade(g: GaussianSet, share: float | np.ndarray) -> GaussianSet:
 
 @dataclass
 class CarveResult:
-    """Which RGB Gaussians stay, and how many training views saw each one in front of the thermal surface."""
+    """Which RGB Gaussians stay, how many training views check each one against the thermal surface
+    and see it in front, and the share of the checking views in which it lies in front on a pixel
+    marked smoke (Stage 1's mask summed there over ``seen``; 0 without masks or checks)."""
 
     keep: np.ndarray
     seen: np.ndarray
     in_front: np.ndarray
+    smoky_in_front: np.ndarray
 
 
 def _landings(means: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray, shape: tuple[int, ...]
@@ -104,18 +107,23 @@ def _landings(means: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray, shape: tu
 
 
 def carve_in_front(means: np.ndarray, depths: np.ndarray, valid: np.ndarray, viewmats: np.ndarray,
-                   Ks: np.ndarray, tolerance: float) -> CarveResult:
+                   Ks: np.ndarray, tolerance: float, masks: np.ndarray | None = None) -> CarveResult:
     """A Gaussian is carved when, in more than half of the training views where its centre lands on
     the thermal surface's valid pixels (``depths``/``valid``: that surface rendered at the cameras
     ``viewmats``, ``Ks``), it is nearer than (1 − ``tolerance``) × that surface's depth. Gaussians
-    no view checks (sky, outside the thermal model's cover) stay."""
+    no view checks (sky, outside the thermal model's cover) stay. With ``masks`` (Stage 1's smoke
+    masks at the same cameras) the result also weighs each view in front by its mask there."""
     seen = np.zeros(len(means), dtype=np.int64)
     in_front = np.zeros_like(seen)
+    smoky = np.zeros(len(means))
     for f, idx, iu, iv, z in _landings(means, viewmats, Ks, depths.shape):
-        checked = valid[f, iv, iu]
-        seen[idx[checked]] += 1
-        in_front[idx[checked][z[checked] < (1.0 - tolerance) * depths[f, iv[checked], iu[checked]]]] += 1
-    return CarveResult(~(2 * in_front > seen), seen, in_front)
+        front = valid[f, iv, iu]
+        seen[idx[front]] += 1
+        front[front] = z[front] < (1.0 - tolerance) * depths[f, iv[front], iu[front]]
+        in_front[idx[front]] += 1
+        if masks is not None:
+            smoky[idx[front]] += np.clip(masks[f, iv[front], iu[front]], 0.0, 1.0)
+    return CarveResult(~(2 * in_front > seen), seen, in_front, smoky / np.maximum(seen, 1))
 
 
 def _masked_views(means: np.ndarray, masks: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray,
@@ -202,10 +210,15 @@ class TwoSurfaces:
 
     def describe(self) -> str:
         r = self.record
+        by = ("mean of one share per Gaussian, by its clear views" if r["rgb_opacity_share_by"] == "clear views"
+              else "one share for the scene")
+        carved = (f"each faded by the share of its views that see it in front of the thermal surface on smoke, "
+                  f"mean {r['rgb_carve_share']:.3g}" if r["carve_by"] == "depth-and-smoke"
+                  else f"{r['rgb'] - r['rgb_kept']} in front of the thermal surface carved")
         return (f"surface from both Stage 2s: the {r['thermal_kept']} of {r['thermal']} thermal Gaussians in the RGB "
                 f"surface's holes + {r['rgb_kept']} of {r['rgb']} RGB Gaussians at {r['rgb_opacity_share']:.3g} × "
-                f"their opacities ({'mean of one share per Gaussian, by its clear views' if r['rgb_opacity_share_by'] == 'clear views' else 'one share for the scene'}) ({r['rgb'] - r['rgb_kept']} in front of the thermal surface carved, tolerance "
-                f"{r['tolerance']:g}; {r['rgb_unchecked']} no view could check kept)")
+                f"their opacities ({by}) ({carved}, tolerance {r['tolerance']:g}; "
+                f"{r['rgb_unchecked']} no view could check kept)")
 
 
 def join_surfaces(ctx: RunContext, rgb: ModalityData, init_points: np.ndarray, thermal: Stage2Result,
@@ -219,17 +232,20 @@ def join_surfaces(ctx: RunContext, rgb: ModalityData, init_points: np.ndarray, t
     rgb_s2 = train_stage2(ctx, rgb, init_points, deformable=False, checkpoint="stage2_rgb",
                           sha=replace(cfg, mode="rgb-only").stage2_sha256())
     depths, valid = thermal_depth.maps.cpu().numpy(), thermal_depth.valid.cpu().numpy()
+    means = rgb_s2.gaussians["means"].detach().cpu().numpy().astype(np.float64)
+    masks = rgb.masks[rgb.indices("train")] if rgb.masks is not None else None
     share: float | np.ndarray = rgb_share
-    if by_clear_views and rgb.masks is not None:
-        share = rgb_share * clear_share(rgb_s2.gaussians["means"].detach().cpu().numpy().astype(np.float64),
-                                        rgb.masks[rgb.indices("train")], depths, valid, *rgb.cameras("train"),
-                                        cfg.stage3.carve_tolerance)
+    if by_clear_views and masks is not None:
+        share = rgb_share * clear_share(means, masks, depths, valid, *rgb.cameras("train"), cfg.stage3.carve_tolerance)
+    by_smoke = cfg.stage3.carve_by == "depth-and-smoke"
+    carve = carve_in_front(means, depths, valid, *rgb.cameras("train"), cfg.stage3.carve_tolerance,
+                           masks if by_smoke else None)
+    kept = np.ones(len(means), dtype=bool) if by_smoke else carve.keep
+    if by_smoke:
+        share = share * (1.0 - carve.smoky_in_front)
     rgb_set = fade(rgb_s2.gaussians, share)
-    carve = carve_in_front(rgb_set["means"].detach().cpu().numpy().astype(np.float64),
-                           depths, valid, *rgb.cameras("train"),
-                           cfg.stage3.carve_tolerance)
     dev = rgb_set["means"].device
-    keep = torch.as_tensor(carve.keep, device=dev)
+    keep = torch.as_tensor(kept, device=dev)
     carved = GaussianSet({k: v.detach()[keep] for k, v in rgb_set.state_dict().items()})
     opaque = rendered_depth_prior(carved, views_of(rgb, rgb.indices("train"), dev), "rgb").valid.cpu().numpy()
     holes = in_holes(thermal.gaussians["means"].detach().cpu().numpy().astype(np.float64), opaque,
@@ -242,7 +258,8 @@ def join_surfaces(ctx: RunContext, rgb: ModalityData, init_points: np.ndarray, t
               "rgb_opacity_share_by": "clear views" if by_clear_views else "scene",
               "rgb_opacity_share_quartiles": np.quantile(shares, [0.25, 0.5, 0.75]).round(4).tolist()
               if len(shares) else [],
-              "rgb_kept": int(carve.keep.sum()),
+              "rgb_kept": int(kept.sum()), "carve_by": cfg.stage3.carve_by,
+              "rgb_carve_share": float(carve.smoky_in_front.mean()) if by_smoke and len(means) else 0.0,
               "rgb_unchecked": int((carve.seen == 0).sum()), "tolerance": cfg.stage3.carve_tolerance,
               "thermal_kept": int(holes.sum()), "fill_opaque_share": FILL_OPAQUE_SHARE}
     return TwoSurfaces(surface, rgb_s2, record)
