@@ -97,12 +97,14 @@ CANDIDATES: dict[str, Variant] = {
                         "the surface issue: Full's clean ceiling is 1.2 dB under RGB-only's)",
                    overrides={"stage3.thermal_surface_grad": "smoky-views"}),
         _candidate("thermal-box-filtered", "Full, each thermal pixel integrates its area",
-                   note="the Stage-3 thermal term renders each thermal pixel as 3x3 sub-pixels and averages them, as "
+                   note="the Stage-3 thermal term renders each thermal pixel as 2x2 sub-pixels and averages them, as "
                         "the sensor integrates its pixel, so a surface Gaussian sized for the RGB pixels (1.6-3 times "
                         "finer than the thermal's on the committed sets) is no longer dilated to a whole thermal pixel at its full "
-                        "opacity (stage3.thermal_supersample=3; the surface issue: Full's clean ceiling is 1.2 dB "
-                        "under RGB-only's); Stage 3 only, and its thermal render costs nine times the work",
-                   overrides={"stage3.thermal_supersample": 3}),
+                        "opacity (stage3.thermal_supersample=2; the surface issue: Full's clean ceiling is 1.2 dB "
+                        "under RGB-only's; on clean plant 2x2 gains 1.66 dB validation and 3x3 1.73, "
+                        "docs/experiments/2026-12-06-thermal-pixel-area.md); Stage 3 only, and its thermal render "
+                        "costs four times the work",
+                   overrides={"stage3.thermal_supersample": 2}),
         _candidate("carve-where-smoky", "Full, the joined start fades what lies in front of the thermal surface on smoke",
                    note="in the joined start no RGB Gaussian is dropped for lying in front of the coarse thermal "
                         "surface; each one's opacity is scaled by 1 - the share of its views that see it there on a "
