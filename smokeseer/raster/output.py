@@ -40,7 +40,8 @@ def box_filtered(out: RasterOutput, factor: int) -> RasterOutput:
     averaged into one pixel: a sensor pixel that integrates what falls on its area, where one
     sample at its centre would see a Gaussian far smaller than the pixel dilated to the pixel's
     size. Colours and alphas are averaged; depths, normalised as the model's renders give them, are
-    averaged by alpha, so that each is still the depth of what its pixel sees. The per-Gaussian fields stay in sub-pixel units."""
+    averaged by alpha, so that each is still the depth of what its pixel sees. The per-Gaussian
+    fields stay in sub-pixel units."""
     if factor == 1:
         return out
 
