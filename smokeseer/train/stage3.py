@@ -140,8 +140,6 @@ class Stage3Problem(StageProblem):
         rgb_idx = rgb.indices("train")
         self.rgb_views = views_of(rgb, rgb_idx, dev)
         self.rgb_imgs = torch.as_tensor(rgb.images[rgb_idx], device=dev)
-        self.background_grad = (clear_pixel_weights(cfg, rgb, rgb_idx, dev) if model.background_rgb is not None
-                                else None)
         self.masks = (torch.as_tensor(rgb.masks[rgb_idx], device=dev)
                       if plan.use_masks and rgb.masks is not None and model.smoke is not None else None)
         self.mask_floor = (torch.as_tensor(plan.floor_pixels, device=dev)
@@ -154,7 +152,6 @@ class Stage3Problem(StageProblem):
                 raise ValueError("stage3.surface_learns_from: clear-pixels reads Stage 1's smoke masks, "
                                  "and this run's RGB frames have none")
             self.surface_weights = clear_weights(rgb.masks[rgb_idx], dev)
-            self.background_grad = None  # the composite weights the environment by the same share
             clear = 100 * float(self.surface_weights.mean())
             note = (f"the surface learns from the pixels Stage 1 marks clear ({clear:.0f} % of the training pixels), "
                     "the smoke from all (stage3.surface_learns_from=clear-pixels)")
@@ -164,6 +161,9 @@ class Stage3Problem(StageProblem):
             note = "no smoke Gaussians, so every pixel is clear (stage3.surface_learns_from=clear-pixels changes nothing)"
             plan.notes.append(note)
             ctx.log_line(f"stage 3: {note}")
+        # the clear-pixel composite already weights the environment by the same share
+        self.background_grad = (clear_pixel_weights(cfg, rgb, rgb_idx, dev)
+                                if model.background_rgb is not None and self.surface_weights is None else None)
         self.th_views: list = []
         self.th_imgs = None
         if plan.use_thermal and thermal is not None:
