@@ -23,16 +23,15 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw
 
-from contracts.dataset_format import PASS_FILES, file_path
+from contracts.dataset_format import file_path
 from contracts.errors import DatasetError
 from contracts.imageio import image01, read_png, write_png
+from eval.regions import CHANGE_EDGES, CLEAN, SMOKY
 from scenes.images import box_downscale
 
-CHANGE_EDGE = 0.1
-"""Change (0-1, largest channel) the smoke must make to a pixel for it to count: the edge of the
-region split's two strongest bands (``eval.regions.CHANGE_EDGES``), well above the renders' noise
-and a shadow's darkening."""
-CLEAN, SMOKY = PASS_FILES[("rgb", "clean")][0], PASS_FILES[("rgb", "smoky")][0]
+CHANGE_EDGE = CHANGE_EDGES[-2]
+"""Change (0-1, largest channel) the smoke must make to a pixel for it to count: 0.1, where the
+region split's two strongest bands begin, well above the renders' noise and a shadow's darkening."""
 
 
 @dataclass(frozen=True)
