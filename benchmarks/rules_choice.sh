@@ -9,10 +9,11 @@
 #   bash benchmarks/rules_choice.sh standard [--methods full]   the ten standard scenes: Full,
 #                                               RGB-only and the rule candidates (into
 #                                               data/tables_standard); --methods full as below
-#   bash benchmarks/rules_choice.sh dev [--first N] [--methods full]   random-dev: the same (into
-#                                               data/tables_random_dev), the first N scenes only
-#                                               with --first; --methods full leaves RGB-only out
-#                                               (the choice reads Full and the candidates)
+#   bash benchmarks/rules_choice.sh dev [--first N | --only SCENE,...] [--methods full]   random-dev:
+#                                               the same (into data/tables_random_dev), the first N
+#                                               scenes only with --first, the named ones with --only
+#                                               (a screen over optical depth); --methods full leaves
+#                                               RGB-only out (the choice reads Full and the candidates)
 #   bash benchmarks/rules_choice.sh report DIGEST   the per-scene comparisons, validation views, into
 #                                               CSVs named by the first 8 digits of DIGEST
 #
