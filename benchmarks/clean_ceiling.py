@@ -1,9 +1,10 @@
 """Usage: python benchmarks/clean_ceiling.py --out runs/clean_ceiling DATASET [DATASET ...]
-          [--modes full,rgb-only] [--profile standard] [--seed 0] [--threads 1] [--csv FILE]
-          [--finished-only [--digest PREFIX]]
+          [--modes full,rgb-only[,CANDIDATE...]] [--profile standard] [--seed 0] [--threads 1]
+          [--csv FILE] [--finished-only [--digest PREFIX]]
 
-The smoke-free ceiling of a scene: each method (Full and RGB-only), at the same profile and
-budget as the tables, fed the clean renders instead of the smoky ones, RGB and thermal. No
+The smoke-free ceiling of a scene: each method (Full and RGB-only, and any candidate of
+eval/runs.py CANDIDATES: Full with its overrides), at the same profile and budget as the tables,
+fed the clean renders instead of the smoky ones, RGB and thermal. No
 de-smoking method can be expected to beat this number on the scene's test views, so where it is
 under the smoky input's PSNR (thin smoke), "Full above the input" is out of reach at that budget
 whatever the method does. With no smoke, thermal must cost nothing: Full's ceiling should match
@@ -11,7 +12,8 @@ RGB-only's.
 
 Each scene gets a derived dataset (eval/clean_ceiling.py: links into the original, the clean
 frames in place of the smoky ones, no smoke passes) and a `train-and-evaluate --mode MODE` run
-beside it; both resume, and a finished run of other trainer code, profile or seed is retrained.
+beside it; both resume, and a finished run of other trainer code, profile, seed or (a candidate)
+settings is retrained.
 `--finished-only` trains and derives nothing: it tables the ceiling runs already finished in
 OUT by today's trainer or, with `--digest PREFIX`, by the earlier trainer whose code digest starts
 so (as `regenerate-tables --finished-only --digest`); a scene and method without one is named in
@@ -28,9 +30,11 @@ the smoky pixels' ceiling can be set beside what the table methods reach there
 from __future__ import annotations
 
 import argparse
+import json
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 from contracts.atomic import write_rows_csv
 from contracts.errors import DatasetError
@@ -41,31 +45,48 @@ from eval.finished_runs import pick_digest
 from eval.harness import TRAINER_ENTRY
 from eval.regions import score_run
 from eval.report import home_as_tilde
-from eval.runs import RunResult
+from eval.runs import CANDIDATES, RunResult
 
 
 def _rounded(value: float | None, digits: int) -> float | None:
     return None if value is None else round(value, digits)
 
 
-def train(dataset: Path, run_dir: Path, mode: str, profile: str, seed: int, threads: int) -> dict:
-    """The ``mode`` run on the derived dataset by today's trainer (eval.clean_ceiling.ceiling_run:
-    a run of other trainer code, profile or seed is retrained, an interrupted one resumed)."""
+def trainer_mode(key: str) -> tuple[str, dict[str, Any]]:
+    """The trainer mode and config overrides of a ``--modes`` entry: a method or a candidate."""
+    if key in CANDIDATES:
+        return CANDIDATES[key].mode, dict(CANDIDATES[key].overrides)
+    return key, {}
+
+
+def set_args(settings: dict[str, Any]) -> list[str]:
+    """``train-and-evaluate --set`` arguments for config overrides (each value written as JSON,
+    which the trainer reads back as YAML)."""
+    return [f"--set={k}={json.dumps(v)}" for k, v in settings.items()]
+
+
+def train(dataset: Path, run_dir: Path, key: str, profile: str, seed: int, threads: int) -> dict:
+    """The run of method or candidate ``key`` on the derived dataset by today's trainer
+    (eval.clean_ceiling.ceiling_run: a run of other trainer code, profile, seed or settings is
+    retrained, an interrupted one resumed)."""
+    mode, settings = trainer_mode(key)
+
     def run(folder: Path) -> None:
         cmd = [str(Path(sys.executable).with_name("train-and-evaluate")), str(dataset), "--mode", mode,
                "--profile", profile, "--seed", str(seed), "--threads", str(threads), "--out", str(folder),
-               "--no-progress"]
+               "--no-progress", *set_args(settings)]
         print("running:", " ".join(cmd), flush=True)
         subprocess.run(cmd, check=True)
 
-    return ceiling_run(run_dir, code_digest(TRAINER_ENTRY), profile, seed, run)
+    return ceiling_run(run_dir, code_digest(TRAINER_ENTRY), profile, seed, run, settings)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("datasets", nargs="+", type=Path)
     ap.add_argument("--out", type=Path, required=True)
-    ap.add_argument("--modes", default="full,rgb-only", help="comma-separated methods to train on the clean frames")
+    ap.add_argument("--modes", default="full,rgb-only",
+                    help="comma-separated methods (full, rgb-only) and candidates (eval/runs.py) to train on the clean frames")
     ap.add_argument("--profile", default="standard")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=1)
@@ -79,9 +100,10 @@ def main() -> None:
                          "(an earlier trainer's), in place of today's")
     args = ap.parse_args()
     modes = [m for m in args.modes.split(",") if m]
-    bad = [m for m in modes if m not in ("full", "rgb-only")]
+    bad = [m for m in modes if m not in ("full", "rgb-only") and m not in CANDIDATES]
     if not modes or bad:
-        sys.exit(f"clean_ceiling: --modes: {','.join(bad) or 'nothing'} is not full or rgb-only")
+        sys.exit(f"clean_ceiling: --modes: {','.join(bad) or 'nothing'} is not full, rgb-only or a candidate "
+                 f"({', '.join(CANDIDATES)})")
     if args.digest and not args.finished_only:
         sys.exit("clean_ceiling: --digest: only with --finished-only (a run trains under today's trainer's digest)")
     trainer = code_digest(TRAINER_ENTRY)
@@ -100,7 +122,7 @@ def main() -> None:
         for mode in modes:
             run_dir = args.out / src.name / mode
             if args.finished_only:
-                m = finished_ceiling(run_dir, trainer, args.profile, args.seed)
+                m = finished_ceiling(run_dir, trainer, args.profile, args.seed, trainer_mode(mode)[1])
                 if m is None:
                     missing.append(f"{src.name} {mode}")
                     print(f"{run_dir}: no finished run of trainer {trainer[:8]} at {args.profile}, seed {args.seed} "

@@ -13,10 +13,12 @@ is no smoke to see through.
 """
 from __future__ import annotations
 
+import json
 import os
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any
 
 from contracts.atomic import write_json
 from contracts.dataset_format import PASS_FILES, SMOKE_ONLY_PASSES, validate_dataset
@@ -108,12 +110,30 @@ def headroom_recovered(method: float | None, smoky_input: float | None, ceiling:
     return (method - smoky_input) / (ceiling - smoky_input)
 
 
-def _unlike(doc: dict, digest: str, profile: str, seed: int) -> list[str]:
-    """How a ceiling run's metrics.json differs from a run of trainer ``digest`` at this profile and seed."""
+_ABSENT = object()
+
+
+def _unlike(folder: Path, doc: dict, digest: str, profile: str, seed: int,
+            settings: Mapping[str, Any]) -> list[str]:
+    """How the ceiling run in ``folder`` (its metrics.json ``doc``) differs from a run of trainer
+    ``digest`` at this profile and seed with these config ``settings`` (dotted keys, a candidate's
+    overrides), read from the run's config.json."""
     trainer = doc["provenance"]["source_digest"] or ""
     unlike = [f"trainer {trainer[:8] or 'unknown'}, not {digest[:8]}"] if trainer != digest else []
-    return unlike + [f"{key} {doc[key]}, not {wanted}"
-                     for key, wanted in (("profile", profile), ("seed", seed)) if doc[key] != wanted]
+    unlike += [f"{key} {doc[key]}, not {wanted}"
+               for key, wanted in (("profile", profile), ("seed", seed)) if doc[key] != wanted]
+    if not settings:
+        return unlike
+    if not (folder / "config.json").is_file():
+        return unlike + ["no config.json to check its settings against"]
+    config = json.loads((folder / "config.json").read_text())
+    for key, wanted in settings.items():
+        value: Any = config
+        for part in key.split("."):
+            value = value.get(part, _ABSENT) if isinstance(value, dict) else _ABSENT
+        if value is _ABSENT or value != wanted:
+            unlike.append(f"{key} {'absent' if value is _ABSENT else value}, not {wanted}")
+    return unlike
 
 
 def _beside(run_dir: Path, digest: str, profile: str, seed: int) -> Path:
@@ -128,21 +148,25 @@ def ceiling_digests(folder: Path) -> list[str]:
     return [d["provenance"]["source_digest"] for d in docs if d["status"] == "ok" and d["provenance"]["source_digest"]]
 
 
-def finished_ceiling(run_dir: Path, digest: str, profile: str, seed: int) -> dict | None:
-    """metrics.json of the finished ceiling run of trainer ``digest`` at this profile and seed, in
-    ``run_dir`` or (a retrain finished but not yet moved in) beside it; None where there is none.
-    Reads only: for tabling the runs of a named trainer without training (``--finished-only``)."""
+def finished_ceiling(run_dir: Path, digest: str, profile: str, seed: int,
+                     settings: Mapping[str, Any] | None = None) -> dict | None:
+    """metrics.json of the finished ceiling run of trainer ``digest`` at this profile and seed (and
+    config ``settings``, as ``_unlike`` reads them), in ``run_dir`` or (a retrain finished but not yet
+    moved in) beside it; None where there is none. Reads only: for tabling the runs of a named
+    trainer without training (``--finished-only``)."""
     for folder in (run_dir, _beside(run_dir, digest, profile, seed)):
         if (folder / "metrics.json").is_file():
             doc = read_metrics(folder)
-            if doc["status"] == "ok" and not _unlike(doc, digest, profile, seed):
+            if doc["status"] == "ok" and not _unlike(folder, doc, digest, profile, seed, settings or {}):
                 return doc
     return None
 
 
-def ceiling_run(run_dir: Path, digest: str, profile: str, seed: int, train: Callable[[Path], None]) -> dict:
+def ceiling_run(run_dir: Path, digest: str, profile: str, seed: int, train: Callable[[Path], None],
+                settings: Mapping[str, Any] | None = None) -> dict:
     """metrics.json of the ceiling run in ``run_dir`` made by trainer ``digest`` at this profile
-    and seed, training it first where that folder holds no such finished run.
+    and seed (and config ``settings``: a candidate's overrides), training it first where that
+    folder holds no such finished run.
 
     ``train(folder)`` runs the trainer into ``folder``, resuming from its checkpoints. It trains
     beside ``run_dir``, in ``MODE-DIGEST-PROFILE-seedSEED``, so a finished run of another request
@@ -151,7 +175,7 @@ def ceiling_run(run_dir: Path, digest: str, profile: str, seed: int, train: Call
     between them leaves the new run complete beside, and the next call completes the swap."""
     if (run_dir / "metrics.json").is_file():
         doc = read_metrics(run_dir)
-        unlike = _unlike(doc, digest, profile, seed)
+        unlike = _unlike(run_dir, doc, digest, profile, seed, settings or {})
         if not unlike:
             print(f"{run_dir}: finished by trainer {digest[:8]} at {profile}, seed {seed}: reused", flush=True)
             return doc
@@ -160,7 +184,7 @@ def ceiling_run(run_dir: Path, digest: str, profile: str, seed: int, train: Call
     fresh = _beside(run_dir, digest, profile, seed)
     if not (fresh / "metrics.json").is_file():
         train(fresh)
-    unlike = _unlike(read_metrics(fresh), digest, profile, seed)
+    unlike = _unlike(fresh, read_metrics(fresh), digest, profile, seed, settings or {})
     if unlike:
         raise RuntimeError(f"{fresh / 'metrics.json'}: the ceiling run just trained is a run of {'; '.join(unlike)}")
     retired = run_dir.with_name(f".{run_dir.name}.retired")

@@ -16,8 +16,10 @@ from contracts.results_format import PROVENANCE_KEYS, ResultsFormatError
 from eval.clean_ceiling import (ceiling_digests, ceiling_run, derive_clean_dataset, finished_ceiling,
                                 headroom_recovered, smoky_input_psnr, table_test_metrics)
 from eval.finished_runs import pick_digest
+from eval.runs import CANDIDATES
 from eval.tables import RESCORED_LPIPS
 from scenes.load import load_scene
+from smokeseer.cli import build_parser, overrides_from_args
 from tests.results_builder import write_metrics
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -153,6 +155,36 @@ def test_a_swap_cut_between_its_renames_is_completed_without_training(tmp_path: 
     train = _finished_by("bbbb2222")
     assert ceiling_run(run_dir, "bbbb2222" * 8, "standard", 0, train)["provenance"]["source_digest"] == "bbbb2222" * 8
     assert train.calls == [] and sorted(p.name for p in (tmp_path / "house").iterdir()) == ["full"]
+
+
+def test_a_candidates_ceiling_is_checked_against_its_settings(tmp_path: Path) -> None:
+    """A candidate's ceiling run (Full with overrides) is reused only where its config.json holds
+    every override; a run of other settings, or one without config.json, is retrained beside it."""
+    run_dir = tmp_path / "plant" / "thermal-box-filtered"
+    settings = {"stage3.thermal_supersample": 2}
+
+    def finished(folder: Path, supersample: int | None) -> None:
+        _finished_by("bbbb2222")(folder)
+        if supersample is not None:
+            (folder / "config.json").write_text(json.dumps({"mode": "full", "stage3": {"thermal_supersample": supersample}}))
+
+    finished(run_dir, 2)
+    assert finished_ceiling(run_dir, "bbbb2222" * 8, "standard", 0, settings) is not None
+    assert finished_ceiling(run_dir, "bbbb2222" * 8, "standard", 0, {"stage3.thermal_supersample": 3}) is None
+    assert finished_ceiling(run_dir, "bbbb2222" * 8, "standard", 0, {"stage3.carve_by": "depth"}) is None
+    finished(run_dir, 3)  # the candidate's setting has changed since this run
+    calls: list[Path] = []
+
+    def train(folder: Path) -> None:
+        calls.append(folder)
+        finished(folder, 2)
+
+    doc = ceiling_run(run_dir, "bbbb2222" * 8, "standard", 0, train, settings)
+    assert calls == [tmp_path / "plant" / "thermal-box-filtered-bbbb2222-standard-seed0"] and doc["status"] == "ok"
+    assert json.loads((run_dir / "config.json").read_text())["stage3"]["thermal_supersample"] == 2
+    with pytest.raises(RuntimeError, match=r"no config\.json to check its settings against"):
+        ceiling_run(tmp_path / "room" / "thermal-box-filtered", "bbbb2222" * 8, "standard", 0,
+                    lambda folder: finished(folder, None), settings)
 
 
 def test_finished_ceiling_reads_a_named_trainers_run_and_moves_nothing(tmp_path: Path) -> None:

@@ -159,6 +159,14 @@ def test_the_set_script_plans_both_methods_on_every_finished_scene(demo_dataset:
                             "--dry-run"], cwd=root, capture_output=True, text=True)
     assert first.returncode == 0, first.stderr
     assert "1 scenes of" in first.stderr and "= 2 runs" in first.stdout + first.stderr   # random_3 alone
+    only = subprocess.run(["bash", "benchmarks/random_set_tables.sh", str(sets), str(tmp_path / "tables"), "--only",
+                           "random_7", "--dry-run"], cwd=root, capture_output=True, text=True)
+    assert only.returncode == 0, only.stderr
+    assert "1 scenes of" in only.stderr and "= 2 runs" in only.stdout + only.stderr   # random_7 alone
+    absent = subprocess.run(["bash", "benchmarks/random_set_tables.sh", str(sets), str(tmp_path / "tables2"), "--only",
+                             "random_7,random_9", "--dry-run"], cwd=root, capture_output=True, text=True)
+    assert absent.returncode == 2 and "--only: random_9 is not a finished scene" in absent.stderr
+    assert not (tmp_path / "tables2").exists()
     empty = subprocess.run(["bash", "benchmarks/random_set_tables.sh", str(tmp_path / "none"), str(tmp_path / "t")],
                            cwd=root, capture_output=True, text=True)
     assert empty.returncode == 2 and "no finished drawn scene" in empty.stderr
