@@ -72,9 +72,10 @@ def main() -> None:
                          "run_dir": str(run_dir)})
             print({k: rows[-1][k] for k in ("scene", "variant", "strong_pixels", "smoke_kept", "test_psnr")}, flush=True)
         if len(columns) > 2:
-            if any(len(images) != len(columns) for images in views.values()):
-                sys.exit(f"fire_views: {scene}: the runs' test views differ ({', '.join(views)})")
-            write_fire_figure(args.out / f"{scene}.png", columns, views)
+            try:
+                write_fire_figure(args.out / f"{scene}.png", columns, views)
+            except ValueError as exc:
+                sys.exit(f"fire_views: {scene}: the runs' test views differ ({exc})")
     if not rows:
         sys.exit("fire_views: no scene with a finished run to show; nothing written")
     write_rows_csv(args.out / "smoke_kept.csv", rows)

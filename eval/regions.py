@@ -86,6 +86,31 @@ def pooled_psnr(sq_error_sum: float, count: int) -> float:
     return 10.0 * math.log10(1.0 / max(sq_error_sum / count, 10 ** (-PSNR_CAP_DB / 10)))
 
 
+def surface_renders(run_dir: Path) -> list[Path]:
+    """A finished run's saved test-view surface renders (renders/surface/STEM.png), by stem;
+    DatasetError where there is none."""
+    renders = sorted((run_dir / "renders" / "surface").glob("*.png"))
+    if not renders:
+        raise DatasetError(f"{run_dir / 'renders' / 'surface'}: no surface renders")
+    return renders
+
+
+def frames_at_render(render: Path, dataset: Path, *passes: PassFile) -> list[np.ndarray]:
+    """A saved render (renders/SUB/STEM.png) and the dataset's frames of its stem for ``passes``,
+    all in [0, 1], each frame box-downscaled to the render's size by the whole factor the first
+    pass's frame is wider (a run trained at a reduced width). DatasetError names the render where a
+    frame is not the render downscaled so, and a missing file."""
+    pred = image01(read_png(render))
+    frames = [image01(read_png(file_path(dataset, pf, render.stem))) for pf in passes]
+    full = frames[0].shape
+    factor = max(full[1] // pred.shape[1], 1)
+    frames = [box_downscale(f, factor) for f in frames]
+    if any(f.shape[:2] != pred.shape[:2] or f.shape[2:] not in ((), pred.shape[2:]) for f in frames):
+        raise DatasetError(f"{render}: {pred.shape[1]}x{pred.shape[0]} render is not the dataset's frame {render.stem} "
+                           f"({full[1]}x{full[0]}) downscaled by a whole factor")
+    return [pred, *frames]
+
+
 def score_run(result: RunResult, dataset: Path,
               unrecoverable: dict[str, np.ndarray] | None = None) -> list[RegionScore]:
     """The region split of one finished run: its saved surface renders (renders/surface/STEM.png)
@@ -94,36 +119,25 @@ def score_run(result: RunResult, dataset: Path,
     the dataset's resolution, ``dataset_unrecoverable``) the reach split too. ``dataset`` is the
     scene's original dataset (for the dehazing baseline too: the floor is the smoky input, not the
     dehazed one). DatasetError names a missing or unreadable file."""
-    renders = sorted((Path(result.run_dir) / "renders" / "surface").glob("*.png"))
-    if not renders:
-        raise DatasetError(f"{Path(result.run_dir) / 'renders' / 'surface'}: no surface renders")
+    renders = surface_renders(Path(result.run_dir))
     shadowed = (Path(dataset) / SHADOWED.folder).is_dir()
     regions = (WHOLE,) + REGIONS + BANDS + (REACH if unrecoverable else ())
     # Per region: squared error of the method and of the input against clean, then against shadowed, and pixels.
     sums = {r: [0.0, 0.0, 0.0, 0.0, 0] for r in regions}
     for render in renders:
-        stem = render.stem
-        pred = image01(read_png(render))
-        clean = image01(read_png(file_path(dataset, CLEAN, stem)))
-        factor = clean.shape[1] // pred.shape[1]
-
-        def scaled(pf: PassFile) -> np.ndarray:
-            return box_downscale(image01(read_png(file_path(dataset, pf, stem))), factor)
-
-        smoky = scaled(SMOKY)
-        mask = scaled(MASK) >= 0.5
-        clean = box_downscale(clean, factor)
-        if not (pred.shape == clean.shape == smoky.shape and mask.shape == clean.shape[:2]):
-            raise DatasetError(f"{render}: {pred.shape[1]}x{pred.shape[0]} render is not the dataset's frame {stem} "
-                               f"({clean.shape[1] * factor}x{clean.shape[0] * factor}) downscaled by a whole factor")
-        truth_sh = scaled(SHADOWED) if shadowed else clean
+        pred, clean, smoky, mask, *rest = frames_at_render(render, dataset, CLEAN, SMOKY, MASK,
+                                                           *((SHADOWED,) if shadowed else ()))
+        mask = mask >= 0.5
+        truth_sh = rest[0] if shadowed else clean
         errors = [((a - b) ** 2).sum(-1) for a, b in ((pred, clean), (smoky, clean), (pred, truth_sh),
                                                        (smoky, truth_sh))]
         band = np.searchsorted(CHANGE_EDGES, np.abs(smoky - clean).max(-1), side="right") - 1
         selections = [(WHOLE, np.ones_like(mask)), ("smoky", mask), ("clear", ~mask),
                       *((b, band == i) for i, b in enumerate(BANDS))]
         if unrecoverable:
-            out_of_reach = box_downscale(unrecoverable[stem][..., None].astype(np.float64), factor)[..., 0] >= 0.5
+            reach = unrecoverable[render.stem]  # at the dataset's resolution
+            factor = reach.shape[1] // pred.shape[1]
+            out_of_reach = box_downscale(reach[..., None].astype(np.float64), factor)[..., 0] >= 0.5
             selections += [("unrecoverable", out_of_reach), ("recoverable", ~out_of_reach)]
         for region, sel in selections:
             for j, err in enumerate(errors):

@@ -23,11 +23,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw
 
-from contracts.dataset_format import file_path
-from contracts.errors import DatasetError
-from contracts.imageio import image01, read_png, write_png
-from eval.regions import CHANGE_EDGES, CLEAN, SMOKY
-from scenes.images import box_downscale
+from contracts.imageio import write_png
+from eval.regions import CHANGE_EDGES, CLEAN, SMOKY, frames_at_render, surface_renders
 
 CHANGE_EDGE = CHANGE_EDGES[-2]
 """Change (0-1, largest channel) the smoke must make to a pixel for it to count: 0.1, where the
@@ -57,21 +54,12 @@ def run_kept(run_dir: Path, dataset: Path) -> tuple[SmokeKept, list[tuple[str, n
     the dataset's frames of the same stems, downscaled to the render's size by a whole factor, and
     the (stem, smoky, clean, surface) images it read. DatasetError names a missing file or a size
     that does not match."""
-    renders = sorted((Path(run_dir) / "renders" / "surface").glob("*.png"))
-    if not renders:
-        raise DatasetError(f"{Path(run_dir) / 'renders' / 'surface'}: no surface renders")
+    renders = surface_renders(Path(run_dir))
     kept = change = 0.0
     strong = total = 0
     views = []
     for render in renders:
-        surface = image01(read_png(render))[..., :3]
-        clean = image01(read_png(file_path(dataset, CLEAN, render.stem)))[..., :3]
-        factor = clean.shape[1] // surface.shape[1]
-        if factor < 1 or clean.shape[1] != factor * surface.shape[1] or clean.shape[0] != factor * surface.shape[0]:
-            raise DatasetError(f"{render}: {surface.shape[1]}x{surface.shape[0]} render is not the dataset's frame "
-                               f"{render.stem} ({clean.shape[1]}x{clean.shape[0]}) downscaled by a whole factor")
-        clean = box_downscale(clean, factor)
-        smoky = box_downscale(image01(read_png(file_path(dataset, SMOKY, render.stem)))[..., :3], factor)
+        surface, clean, smoky = frames_at_render(render, dataset, CLEAN, SMOKY)
         k, c, n = change_kept(smoky, clean, surface)
         kept, change, strong, total = kept + k, change + c, strong + n, total + surface.shape[0] * surface.shape[1]
         views.append((render.stem, smoky, clean, surface))
