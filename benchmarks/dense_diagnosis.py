@@ -80,7 +80,8 @@ def main() -> None:
             k_true = ((rgb.images[i] - (1 - a_true[..., None]) * clean)[dense] / a_true[dense][:, None]).mean(0) \
                 if dense.any() else np.full(3, np.nan)
             k_seen = (smoke_only[seen] / a_alone[seen][:, None]).mean(0) if seen.any() else np.full(3, np.nan)
-            on_smoke = dict(smoky_alpha_true=float(a_true[smoky].mean()), smoky_alpha_model=float(a_model[smoky].mean()),
+            on_smoke = dict(smoky_alpha_true=float(a_true[smoky].mean()),
+                            smoky_alpha_model=float(a_model[smoky].mean()),
                             smoky_surf_err=float(np.abs(surf - clean)[smoky].mean()),
                             smoky_input_err=float(np.abs(rgb.images[i] - clean)[smoky].mean()),
                             k_true=k_true.round(3).tolist(), k_seen=k_seen.round(3).tolist()) if smoky.any() else {}
