@@ -28,6 +28,12 @@ from smokeseer.train.stage2 import train_stage2
 from smokeseer.train.stage3 import build_scene_model, train_stage3
 from smokeseer.train.util import RunContext, RunLog
 
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from benchmarks.smoke_colour_decisions import estimate, haze_lines  # noqa: E402
+
 SMOKY = 0.05
 """True smoke alpha over which a pixel counts as smoky."""
 DENSE = 0.3
@@ -48,9 +54,9 @@ def rebuild(run: Path, overrides: dict, tmp: Path):
     geo = scene.thermal if prep.plan.use_thermal else scene.rgb
     s2 = train_stage2(ctx, geo, np.random.default_rng(0).normal(size=(8, 3)), deformable=False, heldout_psnr=lambda *a: None)
     pts = np.random.default_rng(1).normal(size=(cfg.stage3.smoke_points, 3)) if prep.plan.use_smoke else None
-    haze = metrics["stages"].get("smoke_colour", {}).get("haze_lines", {})
-    if haze.get("colour") is not None and haze.get("trust", 0.0) > 0.0:  # the smoke colour Stage 3 held, as recorded
-        prep.plan.colour, prep.plan.trust = np.asarray(haze["colour"], dtype=np.float32), float(haze["trust"])
+    colour, _, trust = estimate(haze_lines(metrics["stages"]))
+    if colour is not None and trust > 0.0:  # the smoke colour Stage 3 held, as recorded
+        prep.plan.colour, prep.plan.trust = np.asarray(colour, dtype=np.float32), float(trust)
     model = build_scene_model(ctx, s2, prep.plan, pts, scene.smoke_static)
     model = train_stage3(ctx, model, scene.rgb, scene.thermal, prep.plan, None, heldout_psnr=None)
     return prep, model
