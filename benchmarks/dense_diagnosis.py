@@ -32,7 +32,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from benchmarks.smoke_colour_decisions import estimate, haze_lines  # noqa: E402
+from benchmarks.smoke_colour_decisions import estimate, haze_lines, implied_smoke_colour  # noqa: E402
 
 SMOKY = 0.05
 """True smoke alpha over which a pixel counts as smoky."""
@@ -83,8 +83,8 @@ def main() -> None:
             clean = truth[i]
             smoky = a_true > SMOKY
             dense, seen = a_true > DENSE, a_alone > SMOKY
-            k_true = ((rgb.images[i] - (1 - a_true[..., None]) * clean)[dense] / a_true[dense][:, None]).mean(0) \
-                if dense.any() else np.full(3, np.nan)
+            k_true = implied_smoke_colour(rgb.images[i], clean, a_true, DENSE).mean(0) if dense.any() \
+                else np.full(3, np.nan)
             k_seen = (smoke_only[seen] / a_alone[seen][:, None]).mean(0) if seen.any() else np.full(3, np.nan)
             on_smoke = dict(smoky_alpha_true=float(a_true[smoky].mean()),
                             smoky_alpha_model=float(a_model[smoky].mean()),

@@ -76,6 +76,13 @@ def fraction(met: float | None) -> str:
     return "none" if met is None else f"{met:.2f}"
 
 
+def implied_smoke_colour(smoky: np.ndarray, clean: np.ndarray, alpha: np.ndarray, min_alpha: float = 0.3) -> np.ndarray:
+    """(n, 3): the smoke colour the image formation smoky = alpha·k + (1 − alpha)·clean implies at
+    each pixel whose true smoke alpha (H, W) is over ``min_alpha`` (thinner smoke says little of k)."""
+    inside = alpha > min_alpha
+    return (smoky[inside] - (1.0 - alpha[inside, None]) * clean[inside]) / alpha[inside, None]
+
+
 def true_smoke_colour(root: Path, min_alpha: float = 0.3, every: int = 3) -> tuple[list[float], float]:
     """The median of the per-pixel smoke colour the passes imply, and its 10th-90th percentile spread."""
     data = load_transforms(root, "rgb")
@@ -84,9 +91,8 @@ def true_smoke_colour(root: Path, min_alpha: float = 0.3, every: int = 3) -> tup
     for frame in data["frames"][::every]:
         name = frame["file_stem"]
         smoky, clean = (image01(read_png(root / "rgb" / kind / f"{name}.png")[..., :3]) for kind in ("smoky", "clean"))
-        alpha = read_pass_image(file_path(root, spec, name), spec, (data["h"], data["w"]))[..., None]
-        inside = alpha[..., 0] > min_alpha
-        colours.append(((smoky - (1.0 - alpha) * clean) / np.maximum(alpha, min_alpha))[inside])
+        alpha = read_pass_image(file_path(root, spec, name), spec, (data["h"], data["w"]))
+        colours.append(implied_smoke_colour(smoky, clean, alpha, min_alpha))
     c = np.concatenate(colours)
     if not len(c):
         return [], 0.0

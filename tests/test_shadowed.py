@@ -27,7 +27,8 @@ from generator.api import resolve_spec
 from generator.assets import load_manifest
 from generator.cli import main as cli_main
 from generator.errors import GeneratorError
-from generator.ground_truth_refresh import SMOKE_CHECK_RMS, Refresh, refresh_ground_truth, refresh_plan
+from generator.ground_truth_refresh import (SMOKE_CHECK_BLOCK, SMOKE_CHECK_RMS, Refresh, block_opacity_rms,
+                                           refresh_ground_truth, refresh_plan, same_cameras)
 from generator.job import resolve_asset_materials
 from generator.pipeline import generate
 from generator.presets import preset_path
@@ -178,6 +179,41 @@ def test_shadowed_is_added_to_a_finished_dataset_alone(shadow_scene: tuple[Path,
     (lacking / "dataset.json").write_text(json.dumps(meta))
     assert cli_main(["--update-stats", str(lacking)]) == 0
     assert json.loads((lacking / "dataset.json").read_text())["stats"] == stats
+
+
+def test_the_smoke_check_passes_estimator_noise_and_refuses_other_smoke() -> None:
+    """A plume rendered by the older all-or-nothing opacity estimator (each pixel a binomial
+    share of 256 samples: 0.013 RMS per pixel, as on house) passes the check against its exact
+    opacity; the same plume three pixels further on, or at nine tenths of its density, does not.
+    Per pixel, the noise alone would fail it."""
+    y, x = np.mgrid[0:150, 0:200].astype(np.float64)
+
+    def plume(dx: float = 0.0, scale: float = 1.0) -> np.ndarray:
+        return scale * 0.4 * np.exp(-((x - 100 - dx) ** 2 + (y - 60) ** 2) / (2 * 25.0 ** 2))
+
+    truth = plume()
+    noisy = np.random.default_rng(0).binomial(256, truth) / 256
+    assert 0.01 < block_opacity_rms(noisy, truth) and block_opacity_rms(noisy, truth) > SMOKE_CHECK_RMS
+    assert block_opacity_rms(noisy, truth, SMOKE_CHECK_BLOCK) < SMOKE_CHECK_RMS
+    assert block_opacity_rms(plume(dx=3.0), noisy, SMOKE_CHECK_BLOCK) > SMOKE_CHECK_RMS
+    assert block_opacity_rms(plume(scale=0.9), noisy, SMOKE_CHECK_BLOCK) > SMOKE_CHECK_RMS
+    assert block_opacity_rms(truth[:39, :50] + 1, truth[:39, :50], SMOKE_CHECK_BLOCK) == 1.0  # whole blocks only
+
+
+def test_cameras_computed_again_agree_to_rounding_only() -> None:
+    """Poses computed again on another CPU may differ in the last bit (house: 2.2e-16), and pass;
+    a pose moved by a micrometre, another timestamp or a missing frame does not."""
+    pose = [[0.8825187214943059, 0.15642575271446102, -0.4434993687704301, -12.59322033898305], [0, 0, 0, 1.0]]
+    cams = {"camera_angle_x": 0.96, "frames": [{"file_stem": "0000", "time": 0.5, "transform_matrix": pose}]}
+    again = json.loads(json.dumps(cams))
+    again["frames"][0]["transform_matrix"][0][0] = 0.882518721494306
+    assert same_cameras(cams, again)
+    moved = json.loads(json.dumps(cams))
+    moved["frames"][0]["transform_matrix"][0][3] += 1e-6
+    later = json.loads(json.dumps(cams))
+    later["frames"][0]["time"] = 0.5 + 1e-6
+    assert not same_cameras(cams, moved) and not same_cameras(cams, later)
+    assert not same_cameras(cams, {**cams, "frames": []}) and not same_cameras(cams, {"frames": cams["frames"]})
 
 
 def test_refresh_of_no_dataset_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
