@@ -17,9 +17,11 @@
 #   bash benchmarks/rules_choice.sh report DIGEST   the per-scene comparisons, validation views, into
 #                                               CSVs named by the first 8 digits of DIGEST
 #
-# RULES (the environment) names the candidates; by default the trainer's current wave. Trainer
-# ba3c3d79's wave was start-thermal,start-clear-views,mask-bound:
+# RULES (the environment) names the candidates; by default the trainer's current wave. The report
+# reads finished runs by name, so an earlier wave's report runs again with its names, though a
+# candidate that was not adopted has left eval/runs.py:
 #   RULES=start-thermal,start-clear-views,mask-bound bash benchmarks/rules_choice.sh report ba3c3d79
+#   RULES=rgb-start-clear-pixels,rgb-start-clear-views bash benchmarks/rules_choice.sh report 580fa3b5
 #
 # A shorter Stage 3 does not stand in for the standard profile: at 1000 + 1000 iterations and 80 px
 # every route left food_plate 6-8 dB under its smoky input, where the standard Full ends 0.6 dB over
@@ -27,7 +29,7 @@
 # Extra arguments go to regenerate-tables (e.g. --dry-run).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-RULES=${RULES:-rgb-start-clear-pixels,rgb-start-clear-views}
+RULES=${RULES:-thermal-box-filtered,carve-where-smoky}
 RESULTS=benchmarks/results/rules
 step=${1:-}
 shift || true

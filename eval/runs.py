@@ -79,11 +79,6 @@ CANDIDATES: dict[str, Variant] = {
                    note="the route's candidate with no RGB Stage 2: Stage 3 starts from the thermal Stage 2 alone, "
                         "as the paper's does (docs/method.md, Decisions, row 13)",
                    overrides={"stage3.surface_init": "thermal"}),
-        _candidate("start-clear-views", "Full, Stage 3 from both Stage 2s by clear views",
-                   note="the route's per-Gaussian candidate: each RGB Stage-2 Gaussian keeps the share of its "
-                        "opacity that its training views see it clear of smoke, with no scene-wide trust "
-                        "(docs/method.md, Decisions, row 13)",
-                   overrides={"stage3.surface_init": "by-clear-views"}),
         _candidate("mask-bound", "Full, the mask term pushes to what the images prove",
                    note="the mask term pushes each masked pixel's smoke alpha up to the alpha the smoky frames prove "
                         "there (a clear view's reading, else the lower bound where the haze lines meet), in place of "
@@ -123,24 +118,6 @@ CANDIDATES: dict[str, Variant] = {
                         "cannot ride on the surface's view-dependent colour (stage3.surface_learns_from=clear-pixels; "
                         "the surface issue; costs a second RGB render an iteration)",
                    overrides={"stage3.surface_learns_from": "clear-pixels"}),
-        _candidate("rgb-start-clear-pixels", "Full, the RGB start learns from clear pixels only",
-                   note="the RGB Stage 2 that Full's joined start carves learns each pixel by 1 - Stage 1's smoke "
-                        "mask, so no smoke is baked into its surface and what only smoky pixels see is left to the "
-                        "thermal Gaussians in its holes (stage2.rgb_learns_from=clear-pixels; the surface issue: "
-                        "Full leaves the smoky pixels where the input has them); its RGB Stage 2 is its own",
-                   overrides={"stage2.rgb_learns_from": "clear-pixels"}),
-        _candidate("rgb-start-clear-views", "Full, the RGB start learns from clear pixels and keeps its clear views' share",
-                   note="rgb-start-clear-pixels with the per-Gaussian start of start-clear-views: each Gaussian of the "
-                        "RGB start keeps the share of its opacity that its training views see it clear of smoke, so the "
-                        "faint Gaussians no clear pixel taught give way to the thermal Gaussians "
-                        "(stage2.rgb_learns_from=clear-pixels, stage3.surface_init=by-clear-views); its RGB Stage 2 "
-                        "is rgb-start-clear-pixels'",
-                   overrides={"stage2.rgb_learns_from": "clear-pixels", "stage3.surface_init": "by-clear-views"}),
-        _candidate("clear-pixels-throughout", "Full, the surface learns from clear pixels in both stages",
-                   note="rgb-start-clear-pixels and surface-clear-pixels together: the RGB start bakes no smoke and "
-                        "Stage 3 cannot bake it back into the surface's view-dependent colour "
-                        "(stage2.rgb_learns_from and stage3.surface_learns_from=clear-pixels)",
-                   overrides={"stage2.rgb_learns_from": "clear-pixels", "stage3.surface_learns_from": "clear-pixels"}),
         _candidate("background-clear", "Full, the environment learns from clear pixels only",
                    note="each training pixel's gradient into the RGB environment is weighted by 1 - Stage 1's smoke "
                         "mask, in the RGB Stage 2 and in Stage 3, so the environment cannot learn the smoke's colour "

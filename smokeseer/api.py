@@ -251,7 +251,6 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
     # Flat thermal frames: the Stage 2 is RGB-only's, keyed as its own is.
     s2_sha = replace(cfg, mode="rgb-only").stage2_sha256() if plan.thermal_warning is not None else None
     s2 = train_stage2(ctx, geo, init, deformable=deformable, heldout_psnr=s2_psnr, sha=s2_sha)
-    start_notes.extend(s2.notes)
     wall["stage2"] = time.perf_counter() - t
     ctx.log_line(f"stage 2: {s2.gaussians.n} Gaussians from {geo.name} in {wall['stage2']:.1f} s")
     t = time.perf_counter()
@@ -263,8 +262,7 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
     else:
         smoke_pts = (_sample(scene.rgb, cfg.stage3.smoke_points, b, numpy_stream(cfg.seed, "init.smoke"), start_note,
                              "stage 3 smoke start") if plan.use_smoke else None)
-        joins = cfg.stage3.surface_init in ("by-smoke-colour", "by-clear-views") and plan.use_thermal
-        by_colour = joins and cfg.stage3.surface_init == "by-smoke-colour"
+        joins = cfg.stage3.surface_init == "by-smoke-colour" and plan.use_thermal
         rgb_views = views_of(scene.rgb, scene.rgb.indices("train"), dev)
         rgb_depth = (rendered_depth_prior(s2.gaussians, rgb_views, "rgb")
                      if plan.smoke_colour == "haze-lines" or plan.mask_floor != "all" or joins else None)
@@ -276,20 +274,17 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
                 plan.notes.append(note)
                 ctx.log_line(f"stage 3: {note}")
         rgb_share = 0.0
-        if by_colour:
+        if joins:
             rgb_share, note = surface_start(smoke_colour, plan.use_smoke)
             plan.notes.append(note)
             ctx.log_line(f"stage 3: {note}")
-        elif joins:
-            rgb_share = 1.0
         if rgb_share > 0.0:
             t_rgb = time.perf_counter()
             rgb_init = _init_points(scene, report, scene.rgb, cfg.stage2.init_points, b,
                                     numpy_stream(cfg.seed, "init.points.rgb"), start_note)
-            joined = join_surfaces(ctx, scene.rgb, rgb_init, s2, rgb_depth, rgb_share,
-                                   by_clear_views=cfg.stage3.surface_init == "by-clear-views" and plan.use_smoke)
+            joined = join_surfaces(ctx, scene.rgb, rgb_init, s2, rgb_depth, rgb_share)
             wall["stage2_rgb"] = time.perf_counter() - t_rgb
-            plan.notes.extend([*joined.rgb.notes, joined.describe()])
+            plan.notes.append(joined.describe())
             ctx.log_line(f"stage 3: {joined.describe()} (RGB Stage 2 in {wall['stage2_rgb']:.1f} s)")
         if plan.mask_floor != "all":
             # The floor reads the geometry Stage 3 starts from: with two surfaces, the joined one.

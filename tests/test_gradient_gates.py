@@ -7,12 +7,8 @@
   pixel sends it (checked against the chain rule written out through the composite).
 - stage3.surface_learns_from=clear-pixels: the surface and the environment learn from each pixel
   by 1 − its mask, the smoke from every pixel in full (checked against the ungated render's
-  backward pass with the upstream gradient weighted by hand).
-- stage2.rgb_learns_from=clear-pixels: an RGB Stage 2's Gaussians learn from each pixel by 1 − its
-  mask (the same check, through the Stage 2 problem and its loss)."""
+  backward pass with the upstream gradient weighted by hand)."""
 from __future__ import annotations
-
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -21,10 +17,7 @@ from smokeseer.config import make_config
 from smokeseer.model.background import EnvironmentBackground
 from smokeseer.model.gaussians import GaussianSet
 from smokeseer.model.scene import SceneModel, add_rgb_sh, init_gaussians, make_smoke, make_view, scaled_gradient
-from scenes.scene import Frame, ModalityData
-from smokeseer.train.losses import render_loss
-from smokeseer.train.stage2 import Stage2Problem, learn_by_clear_pixels
-from smokeseer.train.util import RunContext, RunLog
+from smokeseer.train.stage2 import learn_by_clear_pixels
 
 GEOMETRY = ("means", "quats", "log_scales", "opacity")
 
@@ -182,78 +175,3 @@ def test_the_surface_learns_from_clear_pixels_and_the_smoke_from_all() -> None:
             torch.testing.assert_close(g, plain[name][key], rtol=1e-5, atol=1e-7)
     _, all_masked = grads(torch.ones(48, 64))
     assert all(torch.count_nonzero(g) == 0 for g in all_masked["surface"].values())
-
-
-
-def _stage2(tmp_path: Path, learns_from: str, mask: np.ndarray, **overrides: str) -> Stage2Problem:
-    """An RGB Stage 2 on one 64×48 training frame (a gradient target, not a scene) with ``mask``,
-    on black unless ``overrides`` say otherwise."""
-    cfg = make_config("rgb-only", "quick", 0, {"stage2.rgb_learns_from": learns_from, "background": "black",
-                                              **overrides})
-    frame = Frame("0000", np.eye(4), K, 64, 48, 0.0, 0.0, "train")
-    image = np.random.default_rng(7).uniform(0, 1, (1, 48, 64, 3)).astype(np.float32)
-    rgb = ModalityData("rgb", [frame], image, masks=mask[None].astype(np.float32))
-    ctx = RunContext(cfg, tmp_path, RunLog(tmp_path / f"{learns_from}.csv"), torch.zeros(3), 4.0)
-    points = np.column_stack([np.linspace(-0.8, 0.8, 40), np.linspace(-0.5, 0.5, 40)[::-1], np.full(40, 3.0)])
-    return Stage2Problem(ctx, rgb, points, deformable=False, heldout_psnr=None)
-
-
-def test_an_rgb_stage2_learns_from_clear_pixels_only(tmp_path: Path) -> None:
-    """stage2.rgb_learns_from=clear-pixels: the loss is the ungated one; every Gaussian's gradient
-    is the ungated render's with each pixel's upstream gradient (L1 + D-SSIM, so not local) times
-    1 − mask; a full mask leaves the Gaussians nothing. The note names the share of clear pixels."""
-    mask = np.zeros((48, 64))
-    mask[:, 30:] = 1.0
-    mask[:12, :10] = 0.5
-    gated = _stage2(tmp_path, "clear-pixels", mask)
-    out = gated.forward(1)
-    out.loss.backward()
-    assert gated.notes and "clear" in gated.notes[0] and "stage2.rgb_learns_from=clear-pixels" in gated.notes[0]
-    plain = _stage2(tmp_path, "all-pixels", mask)
-    assert plain.notes == []
-    plain_out = plain.forward(1)
-    torch.testing.assert_close(out.loss, plain_out.loss, rtol=0, atol=0)
-    image = plain_out.extra["raster"].colors[0]
-    leaf = image.detach().requires_grad_()
-    (plain.cfg.loss.render * render_loss(leaf, plain.images[0], plain.cfg.loss.dssim)).backward()
-    image.backward(leaf.grad * torch.as_tensor(1.0 - mask, dtype=torch.float32)[..., None])
-    moved = 0
-    for key, p in gated.g.params.items():
-        torch.testing.assert_close(p.grad, plain.g.params[key].grad, rtol=1e-4, atol=1e-7)
-        moved += int(torch.count_nonzero(p.grad))
-    assert moved > 0
-    blind = _stage2(tmp_path, "clear-pixels", np.ones((48, 64)))
-    blind.forward(1).loss.backward()
-    assert all(torch.count_nonzero(p.grad) == 0 for p in blind.g.params.values())
-
-
-def test_the_environment_learns_by_the_clear_share_once(tmp_path: Path) -> None:
-    """An RGB Stage 2 with a learned environment: background_from=clear-pixels alone,
-    stage2.rgb_learns_from=clear-pixels alone, and both together send the environment the same
-    gradient, each pixel's times 1 − mask; together not its square."""
-    mask = np.zeros((48, 64))
-    mask[:, 30:] = 1.0
-    mask[:12, :10] = 0.5
-
-    def env_grad(learns_from: str, background_from: str) -> torch.Tensor:
-        problem = _stage2(tmp_path, learns_from, mask, background="environment", background_from=background_from)
-        problem.forward(1).loss.backward()
-        return problem.background.coeffs.grad
-
-    by_background = env_grad("all-pixels", "clear-pixels")
-    both = env_grad("clear-pixels", "clear-pixels")
-    torch.testing.assert_close(env_grad("clear-pixels", "all"), by_background, rtol=1e-4, atol=1e-7)
-    torch.testing.assert_close(both, by_background, rtol=1e-4, atol=1e-7)
-    assert not torch.allclose(env_grad("all-pixels", "all"), by_background)
-
-
-def test_only_the_rgb_stage2_key_takes_the_rgb_start_option() -> None:
-    """stage2.rgb_learns_from reads the masks in an RGB Stage 2 only: RGB-only's key (which Full's
-    joined start uses) takes it and where the masks come from; the thermal Stage 2 keeps Full's."""
-    def key(mode: str, **overrides: object) -> str:
-        return make_config(mode, "standard", 0, dict(overrides)).stage2_sha256()
-
-    clear = {"stage2.rgb_learns_from": "clear-pixels"}
-    assert key("full", **clear) == key("full")
-    assert key("rgb-only", **clear) != key("rgb-only")
-    assert key("rgb-only", **clear, stage1="estimate") != key("rgb-only", **clear)

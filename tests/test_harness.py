@@ -384,14 +384,14 @@ def test_rule_candidates_run_beside_full_and_share_its_stage2(tmp_path: Path) ->
     from eval.harness import plan_runs
     from eval.shared_stage2 import stage2_sha
 
-    cfg = _cfg(tmp_path, methods=["rgb-only"], ablations=[], candidates=["start-thermal", "start-clear-views"])
-    assert cfg.variants() == ["rgb-only", "start-thermal", "start-clear-views", "full"]
+    cfg = _cfg(tmp_path, methods=["rgb-only"], ablations=[], candidates=["start-thermal", "carve-where-smoky"])
+    assert cfg.variants() == ["rgb-only", "start-thermal", "carve-where-smoky", "full"]
     ds = {s: harness.DatasetOutcome(s, "generated", str(tmp_path / s), "h") for s in cfg.scenes}
     specs = {(r.scene, r.variant, r.seed): r for r in plan_runs(cfg, ds, ds)}
-    full, clear = specs[("alpha", "full", 0)], specs[("alpha", "start-clear-views", 0)]
-    assert clear.overrides["stage3.surface_init"] == "by-clear-views"
+    full, carve = specs[("alpha", "full", 0)], specs[("alpha", "carve-where-smoky", 0)]
+    assert carve.overrides["stage3.carve_by"] == "depth-and-smoke"
     assert specs[("alpha", "start-thermal", 0)].overrides["stage3.surface_init"] == "thermal"
-    assert stage2_sha(clear) == stage2_sha(full) == stage2_sha(specs[("alpha", "start-thermal", 0)])
+    assert stage2_sha(carve) == stage2_sha(full) == stage2_sha(specs[("alpha", "start-thermal", 0)])
     planes = _cfg(tmp_path, methods=["full"], ablations=[], candidates=["motion-planes", "densify-by-gradient"])
     specs = {(r.variant, r.seed): r for r in plan_runs(planes, ds, ds) if r.scene == "alpha"}
     assert stage2_sha(specs[("motion-planes", 0)]) == stage2_sha(specs[("full", 0)])  # the motion is Stage 3's
@@ -595,13 +595,16 @@ def test_a_taker_that_shares_an_earlier_takers_rgb_stage2_starts_behind_it(tmp_p
     and keep their places."""
     from eval.shared_stage2 import leaders_first, stage2_groups
 
-    variants = ("full", "rgb-start-clear-pixels", "rgb-start-clear-views", "no-mask")
-    specs = [RunSpec(scene, variant, VARIANTS[variant].mode, 0, "standard", dict(VARIANTS[variant].overrides),
-                     f"/data/{scene}", "d" * 8, "c" * 8) for scene in ("a", "b") for variant in variants]
+    clear_env = {"background_from": "clear-pixels"}  # an RGB Stage 2 of its own
+    variants = {"full": ("full", {}), "background-clear": ("full", clear_env),
+                "background-clear-carve": ("full", {**clear_env, "stage3.carve_by": "depth-and-smoke"}),
+                "no-mask": (VARIANTS["no-mask"].mode, dict(VARIANTS["no-mask"].overrides))}
+    specs = [RunSpec(scene, variant, mode, 0, "standard", dict(overrides), f"/data/{scene}", "d" * 8, "c" * 8)
+             for scene in ("a", "b") for variant, (mode, overrides) in variants.items()]
     order = [(s.scene, s.variant) for s in leaders_first(specs, tmp_path, stage2_groups(specs, tmp_path))]
     assert order == [("a", "full"), ("b", "full"),
-                     ("a", "rgb-start-clear-pixels"), ("a", "no-mask"), ("b", "rgb-start-clear-pixels"), ("b", "no-mask"),
-                     ("a", "rgb-start-clear-views"), ("b", "rgb-start-clear-views")]
+                     ("a", "background-clear"), ("a", "no-mask"), ("b", "background-clear"), ("b", "no-mask"),
+                     ("a", "background-clear-carve"), ("b", "background-clear-carve")]
 
 
 def test_a_taker_prefers_the_donor_that_has_its_rgb_stage2(tmp_path: Path) -> None:

@@ -8,7 +8,7 @@ import torch
 from smokeseer.model.gaussians import GaussianSet
 from smokeseer.model.scene import add_rgb_sh
 from smokeseer.stage1.haze_lines import SmokeColourEstimate
-from smokeseer.train.surface_union import (SHARE_FLOOR, carve_in_front, clear_share, fade, in_holes, smoky_share,
+from smokeseer.train.surface_union import (SHARE_FLOOR, carve_in_front, fade, in_holes, smoky_share,
                                            surface_start, union_surface)
 
 W, H, F = 40, 30, 20.0
@@ -159,7 +159,7 @@ def test_fade_scales_every_opacity_and_nothing_else() -> None:
 
 
 def test_fade_per_gaussian_scales_each_opacity_by_its_own_share() -> None:
-    """One share per Gaussian, as by-clear-views gives: each opacity scaled by its own, a share of 0
+    """One share per Gaussian, as carve_by=depth-and-smoke gives: each opacity scaled by its own, a share of 0
     held at the floor with a finite logit, a share of 1 leaving that opacity exactly."""
     logits = torch.tensor([-2.0, 0.0, 3.0, 30.0, 1.0])
     g = GaussianSet({"means": torch.zeros(5, 3), "quats": torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(5, 1),
@@ -172,34 +172,10 @@ def test_fade_per_gaussian_scales_each_opacity_by_its_own_share() -> None:
     assert fade(g, np.ones(5)) is g
 
 
-def test_clear_share_is_the_mean_unmasked_share_of_the_views_that_see_a_point() -> None:
-    """Three views of a wall at depth 2: a point on the wall under a mask in two of them keeps 1/3;
-    a soft mask of 0.25 counts 0.75; a point hidden behind the wall, or one no view sees, keeps 1
-    (nothing says smoke lies over it); one in front of the wall is seen, and so is one where the
-    surface leaves a hole (nothing hides it)."""
-    cameras = _cameras([0.0, 0.0, 0.0])
-    maps, valid = _wall(3, 2.0)
-    valid[2, :, 4] = False                  # a hole in view 2's surface at column 4
-    masks = np.zeros((3, H, W))
-    masks[:2, :, : W // 2 + 1] = 1.0        # the left half and the centre column, in views 0 and 1
-    masks[:, :, W // 2 + 5:] = 0.25         # a soft mask on the far right in every view
-    means = np.array([[0.0, 0.0, 2.0],      # centre column, on the wall
-                      [0.4, 0.0, 2.0],      # column 24 (no mask)
-                      [0.9, 0.0, 2.0],      # column 29: soft mask
-                      [0.0, 0.0, 3.0],      # behind the wall: no view sees it
-                      [50.0, 0.0, 2.0],     # outside every view
-                      [0.0, 0.0, 1.0],      # in front of the wall: seen, masked in two views
-                      [-1.6, 0.0, 2.0],     # column 4, on the wall: masked in views 0 and 1, ...
-                      [-2.4, 0.0, 3.0]])    # ... behind it at column 4: seen only through view 2's hole
-    share = clear_share(means, masks, maps, valid, *cameras, 0.05)
-    np.testing.assert_allclose(share, [1 / 3, 1.0, 0.75, 1.0, 1.0, 1 / 3, 1 / 3, 1.0])
-
-
 def test_smoky_share_is_the_mean_mask_of_every_view_a_centre_lands_in() -> None:
-    """The thermal gate's share (stage3.thermal_surface_grad=smoky-views) on clear_share's views:
-    no occlusion test, so a point behind the wall counts the wall's masks; a point no view sees
-    gets 1 (only the thermal frames speak of it). Where no surface hides anything the two shares
-    add up to 1 for every point some view sees."""
+    """The thermal gate's share (stage3.thermal_surface_grad=smoky-views): a soft mask counts as
+    its value, and with no occlusion test a point behind the wall counts the wall's masks; a point
+    no view sees gets 1 (only the thermal frames speak of it)."""
     cameras = _cameras([0.0, 0.0, 0.0])
     masks = np.zeros((3, H, W))
     masks[:2, :, : W // 2 + 1] = 1.0
@@ -211,6 +187,3 @@ def test_smoky_share_is_the_mean_mask_of_every_view_a_centre_lands_in() -> None:
                       [50.0, 0.0, 2.0]])    # outside every view
     share = smoky_share(means, masks, *cameras)
     np.testing.assert_allclose(share, [2 / 3, 0.0, 0.25, 2 / 3, 1.0])
-    maps, valid = _wall(3, 2.0, valid_cols=0)  # no surface: nothing hidden
-    clear = clear_share(means, masks, maps, valid, *cameras, 0.05)
-    np.testing.assert_allclose(share[:4] + clear[:4], 1.0)

@@ -187,22 +187,6 @@ def test_the_carve_by_smoke_drops_no_rgb_gaussian_and_says_how_much_it_fades(spl
                for n in doc["stages"]["notes"])
 
 
-def test_by_clear_views_fades_each_rgb_gaussian_by_its_own_clear_views(splat: Path, tmp_path: Path) -> None:
-    """stage3.surface_init=by-clear-views needs no haze-line colour: the RGB Stage 2 joins the
-    thermal one with one opacity share per Gaussian (which share: tests/test_surface_union.py).
-    This tiny scene's smoke covers part of every view, so the shares spread below 1, and the
-    record and the note say they are per Gaussian."""
-    run = tmp_path / "run"
-    assert main([str(splat), "--out", str(run)] + TINY + ["--set", "stage3.surface_init=by-clear-views"]) == 0
-    union = _assert_complete(run)["stages"]["surface_union"]
-    assert union["rgb_opacity_share_by"] == "clear views"
-    low, mid, high = union["rgb_opacity_share_quartiles"]
-    assert 0.0 <= low < mid < high <= 1.0
-    assert 0.0 < union["rgb_opacity_share"] < 1.0 and 0 < union["rgb_kept"] <= union["rgb"]
-    assert any("one share per Gaussian, by its clear views" in n
-               for n in json.loads((run / "metrics.json").read_text())["stages"]["notes"])
-
-
 def test_the_thermal_gate_trains_and_says_how_much_thermal_shapes_the_surface(splat: Path, tmp_path: Path) -> None:
     """stage3.thermal_surface_grad=smoky-views (the gradient itself: tests/test_thermal_surface_grad.py):
     this tiny scene's smoke covers part of every view, so the mean share at the start lies strictly

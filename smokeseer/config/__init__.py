@@ -27,7 +27,7 @@ MODES: tuple[str, ...] = (
 PROFILES: tuple[str, ...] = ("quick", "standard", "paper")
 SMOKE_COLOR_SOURCES: tuple[str, ...] = ("learned", "haze-lines")
 DENSIFY_UNDER_CAP: tuple[str, ...] = ("index", "gradient")
-SURFACE_INITS: tuple[str, ...] = ("thermal", "by-smoke-colour", "by-clear-views")
+SURFACE_INITS: tuple[str, ...] = ("thermal", "by-smoke-colour")
 CARVE_BY: tuple[str, ...] = ("depth", "depth-and-smoke")
 THERMAL_SURFACE_GRAD: tuple[str, ...] = ("all", "smoky-views")
 SURFACE_LEARNS_FROM: tuple[str, ...] = ("all-pixels", "clear-pixels")
@@ -245,14 +245,6 @@ class Stage2Config:
     deform_warmup: float = 0.2
     """The deformable-3dgs baseline trains its deformation network from this fraction of the
     stage on (D3DGS: 3k iterations; 3000 of the paper's 15000)."""
-    rgb_learns_from: str = "all-pixels"
-    """Which pixels an RGB Stage 2 learns from. "all-pixels": every one (3DGS). "clear-pixels":
-    each pixel's gradient weighted by 1 − Stage 1's smoke mask (the loss value unchanged), so the
-    RGB surface that Full's joined start carves (``stage3.surface_init`` by-smoke-colour or
-    by-clear-views) holds only what some view sees clear of smoke and bakes no smoke into its
-    colours; a surface point that only smoky pixels see gets no gradient, stays near transparent
-    and is left to the thermal Gaussians that fill the RGB surface's holes. RGB frames without
-    masks learn from every pixel, and the notes say so."""
 
 
 @dataclass
@@ -310,10 +302,7 @@ class Stage3Config:
     scaled by 1 − t, carved where it lies in front of the thermal surface and joined by the
     thermal Gaussians in its holes (``smokeseer.train.surface_union``), so that where the RGB sees
     the surface through thin or scattering smoke Stage 3 starts as RGB-only does. Needs
-    smoke_color=haze-lines. "by-clear-views": the same joined surface with no scene-wide trust;
-    each RGB Gaussian keeps the share of its opacity that its training views see it clear of smoke
-    (Stage 1's masks), so one scene can start from the RGB where the smoke only crosses and from
-    the thermal Stage 2 where it always lies."""
+    smoke_color=haze-lines."""
     surface_full_brightness: float = 0.4
     """With surface_init=by-smoke-colour: the trust t of the start takes the colour's meeting and
     line factors, but its darkness factor reaches 1 here, at a brighter colour than the colour's
@@ -478,9 +467,6 @@ class TrainConfig:
         if self.stage3.surface_learns_from not in SURFACE_LEARNS_FROM:
             raise ValueError(f"stage3.surface_learns_from: {self.stage3.surface_learns_from!r} is not one of "
                              f"{', '.join(SURFACE_LEARNS_FROM)}")
-        if self.stage2.rgb_learns_from not in SURFACE_LEARNS_FROM:
-            raise ValueError(f"stage2.rgb_learns_from: {self.stage2.rgb_learns_from!r} is not one of "
-                             f"{', '.join(SURFACE_LEARNS_FROM)}")
         if not 1 <= self.stage3.thermal_supersample <= MAX_THERMAL_SUPERSAMPLE:
             raise ValueError(f"stage3.thermal_supersample: must be 1 to {MAX_THERMAL_SUPERSAMPLE} sub-pixels a side, "
                              f"got {self.stage3.thermal_supersample}")
@@ -579,11 +565,11 @@ class TrainConfig:
     def stage2_sha256(self) -> str:
         """Hash of the settings Stage 2 depends on, so a Stage 2 checkpoint is reused by runs
         that differ only in Stage 3 (ablations, Stage 3 budgets) or in where Stage 1's masks come
-        from (Stage 2 reads no mask, unless an RGB Stage 2 or its environment learns from the
+        from (Stage 2 reads no mask, unless an RGB Stage 2's environment learns from the
         clear pixels only: ``stage1``, ``mask_dir``, ``background_from``) on the same geometry."""
         d = self.to_dict()
         d["mode"] = {"rgb-only": "rgb", "deformable-3dgs": "deformable-3dgs"}.get(self.mode, "thermal")
-        reads_masks = d["mode"] == "rgb" and "clear-pixels" in (self.background_from, self.stage2.rgb_learns_from)
+        reads_masks = d["mode"] == "rgb" and self.background_from == "clear-pixels"
         for key in ("stage3", "loss", "depth_prior", "depth_camera", "mono_weights", "smoke_ply_times", "progress",
                     "log_every", "checkpoint_every", "profile", "lpips_net", "lpips_weights", "lpips_heads",
                     *(() if reads_masks else ("stage1", "mask_dir", "background_from"))):
@@ -594,8 +580,6 @@ class TrainConfig:
         if d["mode"] != "thermal":
             d.pop("thermal_scale")
             d.pop("thermal_equalised_share")
-        if d["mode"] != "rgb":
-            d["stage2"].pop("rgb_learns_from")
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()
 
     def sha256(self) -> str:

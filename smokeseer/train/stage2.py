@@ -3,7 +3,7 @@ thermal images reveal the geometry). With a deformation network the same problem
 Deformable-3DGS backbone used by the ``deformable-3dgs`` baseline."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any, Callable
 
 import numpy as np
@@ -24,14 +24,12 @@ from smokeseer.train.util import RunContext, grads_of, state_or_none, step_optim
 @dataclass
 class Stage2Result:
     """Trained Gaussians; ``color`` is "thermal" (a 1-channel logit) or "rgb" (SH); the learned
-    environment of that modality (None with a black background); what the stage chose to leave out
-    or weigh, for the run's notes."""
+    environment of that modality (None with a black background)."""
 
     gaussians: GaussianSet
     deform: DeformNetwork | None
     color: str
     background: EnvironmentBackground | None
-    notes: list[str] = field(default_factory=list)
 
 
 def views_of(mod: ModalityData, idx: list[int], device: torch.device) -> list[View]:
@@ -79,8 +77,8 @@ def clear_weights(masks: np.ndarray, device: torch.device) -> torch.Tensor:
 def learn_by_clear_pixels(live: torch.Tensor, held: torch.Tensor, clear: torch.Tensor) -> torch.Tensor:
     """The image ``live`` (H, W, C), whose pixels send what it draws their gradient times ``clear``
     (H, W) and the rest through ``held``: the same frame with those Gaussians detached (Stage 3's
-    surface, ``stage3.surface_learns_from=clear-pixels``), or ``live`` detached (an RGB Stage 2,
-    ``stage2.rgb_learns_from=clear-pixels``). Both are one image, so the result has its bytes."""
+    surface, ``stage3.surface_learns_from=clear-pixels``). Both are one image, so the result has its
+    bytes."""
     return held + clear[..., None] * (live - held)
 
 
@@ -128,20 +126,7 @@ class Stage2Problem(StageProblem):
         idx = mod.indices("train")
         self.views = views_of(mod, idx, dev)
         self.images = torch.as_tensor(mod.images[idx], device=dev)
-        self.clear: torch.Tensor | None = None
-        self.notes: list[str] = []
-        if self.color == "rgb" and cfg.stage2.rgb_learns_from == "clear-pixels":
-            if mod.masks is None:
-                note = ("the RGB frames carry no smoke mask, so every pixel is clear "
-                        "(stage2.rgb_learns_from=clear-pixels changes nothing)")
-            else:
-                self.clear = clear_weights(mod.masks[idx], dev)
-                note = (f"the RGB Stage 2 learns from the pixels Stage 1 marks clear "
-                        f"({100 * float(self.clear.mean()):.0f} % of the training pixels; stage2.rgb_learns_from=clear-pixels)")
-            self.notes.append(note)
-            ctx.log_line(f"{self.name}: {note}")
-        self.background_grad = (clear_pixel_weights(cfg, mod, idx, dev)
-                                if self.background is not None and self.clear is None else None)
+        self.background_grad = clear_pixel_weights(cfg, mod, idx, dev) if self.background is not None else None
 
     def forward(self, it: int) -> IterationOutput:
         cfg = self.cfg
@@ -154,8 +139,6 @@ class Stage2Problem(StageProblem):
         out = render(view, [(placed, torch.sigmoid(self.g["opacity"]), cols)], degree, self.background, depth=False,
                      background_grad=None if self.background_grad is None else self.background_grad[k])
         image = out.colors[0]
-        if self.clear is not None:
-            image = learn_by_clear_pixels(image, image.detach(), self.clear[k])
         loss = render_loss(image, self.images[k], cfg.loss.dssim)
         return IterationOutput(cfg.loss.render * loss, {f"render_{self.color}": loss},
                                {"raster": out, "view": view, "deform_on": deform_on})
@@ -213,7 +196,7 @@ class Stage2Problem(StageProblem):
         return None if self.heldout_fn is None else self.heldout_fn(self.g, self.deform, self.background, it)
 
     def result(self) -> Stage2Result:
-        return Stage2Result(self.g, self.deform, self.color, self.background, self.notes)
+        return Stage2Result(self.g, self.deform, self.color, self.background)
 
 
 def train_stage2(ctx: RunContext, mod: ModalityData, init_points: np.ndarray, deformable: bool,

@@ -15,11 +15,6 @@ before the carving, and under dense absorbing smoke (t = 1) the thermal Stage 2 
 Scaling the whole set, not the Gaussians where the smoke reads dense, was chosen on the
 validation views: the local fade lost 3.6 dB on machine
 (docs/experiments/2026-12-02-haze-line-trust.md).
-
-``stage3.surface_init=by-clear-views`` needs no scene-wide trust: each RGB Gaussian keeps the
-share of its opacity that its training views see it clear of smoke (``clear_share``: the mean of
-1 − mask over the views that see its centre), so a surface always under dense smoke goes to the
-thermal Gaussians and one the smoke only crosses stays at the RGB's resolution, both in one scene.
 """
 from __future__ import annotations
 
@@ -126,40 +121,16 @@ def carve_in_front(means: np.ndarray, depths: np.ndarray, valid: np.ndarray, vie
     return CarveResult(~(2 * in_front > seen), seen, in_front, smoky / np.maximum(seen, 1))
 
 
-def _masked_views(means: np.ndarray, masks: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray,
-                  surface: tuple[np.ndarray, np.ndarray, float] | None) -> tuple[np.ndarray, np.ndarray]:
-    """Per point, how many of the training views (``masks``: Stage 1's smoke masks at the cameras
-    ``viewmats``, ``Ks``) see its centre, and the sum of the clipped mask over them. A view sees a
-    point whose centre lands in its image and, with ``surface`` (depths, valid, tolerance: the
-    surface rendered at those cameras), on an invalid pixel or not behind that surface by more
-    than the tolerance of its depth."""
+def smoky_share(means: np.ndarray, masks: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray) -> np.ndarray:
+    """Per point, the mean of the clipped mask (``masks``: Stage 1's smoke masks at the cameras
+    ``viewmats``, ``Ks``) over the views whose image its centre lands in (no occlusion test: a point
+    behind a nearer surface is taken to lie under the same smoke as that surface). Points no view
+    sees get 1: only the thermal frames can tell anything about them."""
     seen = np.zeros(len(means))
     masked = np.zeros(len(means))
-    for f, idx, iu, iv, z in _landings(means, viewmats, Ks, masks.shape):
-        if surface is None:
-            sees = np.ones(len(idx), dtype=bool)
-        else:
-            depths, valid, tolerance = surface
-            sees = ~valid[f, iv, iu] | (z <= (1.0 + tolerance) * depths[f, iv, iu])
-        seen[idx[sees]] += 1.0
-        masked[idx[sees]] += np.clip(masks[f, iv[sees], iu[sees]], 0.0, 1.0)
-    return seen, masked
-
-
-def clear_share(means: np.ndarray, masks: np.ndarray, depths: np.ndarray, valid: np.ndarray,
-                viewmats: np.ndarray, Ks: np.ndarray, tolerance: float) -> np.ndarray:
-    """Per point, the mean of 1 − ``masks`` over the views that see it, not hidden behind the
-    surface rendered at those cameras (``depths``/``valid``; ``_masked_views``). Points no view
-    sees get 1: nothing says smoke hides them."""
-    seen, masked = _masked_views(means, masks, viewmats, Ks, (depths, valid, tolerance))
-    return np.where(seen > 0, 1.0 - masked / np.maximum(seen, 1.0), 1.0)
-
-
-def smoky_share(means: np.ndarray, masks: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray) -> np.ndarray:
-    """Per point, the mean mask over the views whose image its centre lands in (no occlusion test:
-    a point behind a nearer surface is taken to lie under the same smoke as that surface). Points
-    no view sees get 1: only the thermal frames can tell anything about them."""
-    seen, masked = _masked_views(means, masks, viewmats, Ks, None)
+    for f, idx, iu, iv, _ in _landings(means, viewmats, Ks, masks.shape):
+        seen[idx] += 1.0
+        masked[idx] += np.clip(masks[f, iv, iu], 0.0, 1.0)
     return np.where(seen > 0, masked / np.maximum(seen, 1.0), 1.0)
 
 
@@ -210,22 +181,19 @@ class TwoSurfaces:
 
     def describe(self) -> str:
         r = self.record
-        by = ("mean of one share per Gaussian, by its clear views" if r["rgb_opacity_share_by"] == "clear views"
-              else "one share for the scene")
         carved = (f"each faded by the share of its views that see it in front of the thermal surface on smoke, "
                   f"mean {r['rgb_carve_share']:.3g}" if r["carve_by"] == "depth-and-smoke"
                   else f"{r['rgb'] - r['rgb_kept']} in front of the thermal surface carved")
         return (f"surface from both Stage 2s: the {r['thermal_kept']} of {r['thermal']} thermal Gaussians in the RGB "
                 f"surface's holes + {r['rgb_kept']} of {r['rgb']} RGB Gaussians at {r['rgb_opacity_share']:.3g} × "
-                f"their opacities ({by}) ({carved}, tolerance {r['tolerance']:g}; "
+                f"their opacities ({carved}, tolerance {r['tolerance']:g}; "
                 f"{r['rgb_unchecked']} no view could check kept)")
 
 
 def join_surfaces(ctx: RunContext, rgb: ModalityData, init_points: np.ndarray, thermal: Stage2Result,
-                  thermal_depth: DepthPriorMaps, rgb_share: float, by_clear_views: bool = False) -> TwoSurfaces:
+                  thermal_depth: DepthPriorMaps, rgb_share: float) -> TwoSurfaces:
     """Train RGB-only's Stage 2 (checkpoint ``stage2_rgb``, keyed as RGB-only's Stage 2 is), scale
-    its opacities by ``rgb_share`` (``surface_start``), and with ``by_clear_views`` each one's by its
-    ``clear_share`` too, carve it with the thermal surface's depth at
+    its opacities by ``rgb_share`` (``surface_start``), carve it with the thermal surface's depth at
     the RGB training cameras (``thermal_depth``), and join it with the thermal Gaussians in the
     carved surface's holes."""
     cfg = ctx.cfg
@@ -235,8 +203,6 @@ def join_surfaces(ctx: RunContext, rgb: ModalityData, init_points: np.ndarray, t
     means = rgb_s2.gaussians["means"].detach().cpu().numpy().astype(np.float64)
     masks = rgb.masks[rgb.indices("train")] if rgb.masks is not None else None
     share: float | np.ndarray = rgb_share
-    if by_clear_views and masks is not None:
-        share = rgb_share * clear_share(means, masks, depths, valid, *rgb.cameras("train"), cfg.stage3.carve_tolerance)
     by_smoke = cfg.stage3.carve_by == "depth-and-smoke"
     carve = carve_in_front(means, depths, valid, *rgb.cameras("train"), cfg.stage3.carve_tolerance,
                            masks if by_smoke else None)
@@ -255,7 +221,6 @@ def join_surfaces(ctx: RunContext, rgb: ModalityData, init_points: np.ndarray, t
     shares = np.broadcast_to(np.asarray(share, dtype=np.float64), (rgb_s2.gaussians.n,))
     record = {"thermal": thermal.gaussians.n, "rgb": rgb_s2.gaussians.n,
               "rgb_opacity_share": float(shares.mean()) if len(shares) else rgb_share,
-              "rgb_opacity_share_by": "clear views" if by_clear_views else "scene",
               "rgb_opacity_share_quartiles": np.quantile(shares, [0.25, 0.5, 0.75]).round(4).tolist()
               if len(shares) else [],
               "rgb_kept": int(kept.sum()), "carve_by": cfg.stage3.carve_by,
