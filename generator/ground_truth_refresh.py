@@ -50,23 +50,44 @@ dataset's smoke."""
 SMOKE_CHECK_BLOCK = 8
 """The check compares the mean opacity of BLOCK×BLOCK pixel blocks, not pixels: a dataset's
 opacity pass may come from an older, noisier estimator (all-or-nothing samples before the
-absorption estimator), and its per-pixel Monte Carlo noise (0.0128 RMS in a frame on house)
-averages away over a block (0.0013) while a different smoke does not (docs/experiments/
-2026-12-07-smoke-check-against-estimator-noise.md)."""
+absorption estimator), and its per-pixel Monte Carlo noise (house 0.0128 RMS in a frame, rover
+0.0347) averages away over a block (0.0013, 0.0043) while a different smoke does not
+(docs/experiments/2026-12-07-smoke-check-against-estimator-noise.md)."""
 SMOKE_CHECK_RMS = 0.004
-"""Largest RMS difference of block-mean smoke opacity, in any frame, between the dataset and the
-render again at its seed. Measured on house: the same bake 0.0013 at most; one frame of the
-smoke's own motion 0.0097 at least, half the density 0.018 at least. So a smoke that passes is
-the dataset's to well under one frame of its motion."""
+"""Block-mean differences up to this RMS in a frame always pass: under one frame of the smoke's
+own motion on house (0.0097 at least), the thinnest standard smoke."""
+SMOKE_CHECK_NOISE = 2.0
+"""Above SMOKE_CHECK_RMS a frame passes while its block-mean RMS is at most this many times what
+the difference's own pixel noise leaves over a block (``opacity_difference``): white noise leaves
+1 (house, forest and rover 0.8-1.0), while a smoother difference, such as one frame of motion,
+stays near its pixel RMS (6-8 times)."""
 
 
-def block_opacity_rms(a: np.ndarray, b: np.ndarray, block: int = 1) -> float:
-    """RMS difference of two opacity frames after averaging over `block`×`block` pixel blocks
-    (the ragged edge rows and columns left out)."""
+@dataclass(frozen=True)
+class OpacityDifference:
+    """Two opacity frames compared: the RMS of their difference per pixel, over ``block``-pixel block
+    means, and what white pixel noise alone would leave over a block (the within-block spread's
+    RMS, unbiased, over the block side)."""
+
+    pixel_rms: float
+    block_rms: float
+    noise_block_rms: float
+
+    @property
+    def allowed(self) -> float:
+        """The largest block RMS this frame may show and pass."""
+        return max(SMOKE_CHECK_RMS, SMOKE_CHECK_NOISE * self.noise_block_rms)
+
+
+def opacity_difference(a: np.ndarray, b: np.ndarray, block: int = SMOKE_CHECK_BLOCK) -> OpacityDifference:
+    """Compare two opacity frames (the ragged edge rows and columns past whole blocks left out)."""
     h, w = (a.shape[0] // block) * block, (a.shape[1] // block) * block
     d = (np.asarray(a, np.float64) - np.asarray(b, np.float64))[:h, :w]
-    d = d.reshape(h // block, block, w // block, block).mean(axis=(1, 3))
-    return float(np.sqrt(np.mean(d ** 2)))
+    blocks = d.reshape(h // block, block, w // block, block)
+    means = blocks.mean(axis=(1, 3), keepdims=True)
+    n = block * block
+    spread = float(np.sqrt(np.mean((blocks - means) ** 2) * n / (n - 1))) if n > 1 else 0.0
+    return OpacityDifference(float(np.sqrt(np.mean(d ** 2))), float(np.sqrt(np.mean(means ** 2))), spread / block)
 
 
 def rendered_clean_samples(meta: dict[str, Any]) -> dict[str, int]:
@@ -213,17 +234,19 @@ def finish_swap(dataset: Path, meta: dict[str, Any], target: SceneSpec, timings:
 
 def smoke_agreement(dataset: Path, rendered: Path) -> dict[str, Any]:
     """How closely the smoke opacity rendered again (`rendered`) matches the dataset's, per RGB
-    frame: the largest and the mean per-frame RMS difference of block means (against
-    SMOKE_CHECK_RMS), and of pixels for the record."""
+    frame (``opacity_difference``): the largest and the mean RMS of block means, the largest share
+    of its allowance a frame uses (over 1 refuses), and the pixel figures for the record."""
     pf = PASS_FILES[SMOKE_CHECK][0]
     frames = json.loads((dataset / transforms_name("rgb")).read_text())["frames"]
-    pairs = [(read_exr_channel(file_path(rendered, pf, f["file_stem"]), "A"),
-              read_exr_channel(file_path(dataset, pf, f["file_stem"]), "A")) for f in frames]
-    rms = [block_opacity_rms(a, b, SMOKE_CHECK_BLOCK) for a, b in pairs]
-    pixel = [block_opacity_rms(a, b) for a, b in pairs]
-    return {"pass": ".".join(SMOKE_CHECK), "frames": len(rms), "block_px": SMOKE_CHECK_BLOCK,
-            "max_frame_rms": max(rms), "mean_frame_rms": float(np.mean(rms)), "tolerance_rms": SMOKE_CHECK_RMS,
-            "max_frame_pixel_rms": max(pixel), "mean_frame_pixel_rms": float(np.mean(pixel))}
+    diffs = [opacity_difference(read_exr_channel(file_path(rendered, pf, f["file_stem"]), "A"),
+                                read_exr_channel(file_path(dataset, pf, f["file_stem"]), "A")) for f in frames]
+    worst = max(diffs, key=lambda d: d.block_rms / d.allowed)
+    return {"pass": ".".join(SMOKE_CHECK), "frames": len(diffs), "block_px": SMOKE_CHECK_BLOCK,
+            "max_frame_rms": max(d.block_rms for d in diffs), "mean_frame_rms": float(np.mean([d.block_rms for d in diffs])),
+            "tolerance_rms": SMOKE_CHECK_RMS, "noise_factor": SMOKE_CHECK_NOISE,
+            "max_share_of_allowed": worst.block_rms / worst.allowed, "worst_frame_allowed_rms": worst.allowed,
+            "max_frame_pixel_rms": max(d.pixel_rms for d in diffs),
+            "mean_frame_pixel_rms": float(np.mean([d.pixel_rms for d in diffs]))}
 
 
 def refresh_ground_truth(dataset: Path, target: SceneSpec, threads: int | None = None, show_progress: bool = True,
@@ -263,10 +286,11 @@ def refresh_ground_truth(dataset: Path, target: SceneSpec, threads: int | None =
         log.info("%s: the render kept by an earlier attempt is checked and swapped in", dataset.name)
     new_meta = json.loads((rendered / "dataset.json").read_text())
     check = smoke_agreement(dataset, rendered) if checked else None
-    if check is not None and check["max_frame_rms"] > SMOKE_CHECK_RMS:
+    if check is not None and check["max_share_of_allowed"] > 1.0:
         raise GeneratorError(f"{dataset / 'dataset.json'}: the simulation baked again is not the dataset's smoke "
-                             f"(RGB smoke opacity over {SMOKE_CHECK_BLOCK}-pixel blocks differs by up to "
-                             f"{check['max_frame_rms']:.4f} RMS in a frame, tolerance {SMOKE_CHECK_RMS}); "
+                             f"(RGB smoke opacity over {SMOKE_CHECK_BLOCK}-pixel blocks differs in a frame by "
+                             f"{check['max_share_of_allowed']:.2f} times what it may: more than {SMOKE_CHECK_RMS} RMS and "
+                             f"more than {SMOKE_CHECK_NOISE:g} times what pixel noise leaves over a block); "
                              "regenerate the dataset instead")
     fresh = staging / "dataset"
     if fresh.exists():
