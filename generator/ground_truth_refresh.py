@@ -59,8 +59,8 @@ own motion on house (0.0097 at least), the thinnest standard smoke."""
 SMOKE_CHECK_NOISE = 2.0
 """Above SMOKE_CHECK_RMS a frame passes while its block-mean RMS is at most this many times what
 the difference's own pixel noise leaves over a block (``opacity_difference``): white noise leaves
-1 (house, forest and rover 0.8-1.0), while a smoother difference, such as one frame of motion,
-stays near its pixel RMS (6-8 times)."""
+1 (rover's rebake 0.85-1.06 a frame), while a smoother difference, such as one frame of the
+smoke's motion, does not shrink over a block (5-34 times on house, forest and rover)."""
 
 
 @dataclass(frozen=True)
