@@ -78,6 +78,11 @@ class OpacityDifference:
         """The largest block RMS this frame may show and pass."""
         return max(SMOKE_CHECK_RMS, SMOKE_CHECK_NOISE * self.noise_block_rms)
 
+    @property
+    def share_of_allowed(self) -> float:
+        """How much of its allowance the frame uses: over 1 refuses it."""
+        return self.block_rms / self.allowed
+
 
 def opacity_difference(a: np.ndarray, b: np.ndarray, block: int = SMOKE_CHECK_BLOCK) -> OpacityDifference:
     """Compare two opacity frames (the ragged edge rows and columns past whole blocks left out)."""
@@ -240,11 +245,12 @@ def smoke_agreement(dataset: Path, rendered: Path) -> dict[str, Any]:
     frames = json.loads((dataset / transforms_name("rgb")).read_text())["frames"]
     diffs = [opacity_difference(read_exr_channel(file_path(rendered, pf, f["file_stem"]), "A"),
                                 read_exr_channel(file_path(dataset, pf, f["file_stem"]), "A")) for f in frames]
-    worst = max(diffs, key=lambda d: d.block_rms / d.allowed)
+    worst = max(diffs, key=lambda d: d.share_of_allowed)
     return {"pass": ".".join(SMOKE_CHECK), "frames": len(diffs), "block_px": SMOKE_CHECK_BLOCK,
-            "max_frame_rms": max(d.block_rms for d in diffs), "mean_frame_rms": float(np.mean([d.block_rms for d in diffs])),
+            "max_frame_rms": max(d.block_rms for d in diffs),
+            "mean_frame_rms": float(np.mean([d.block_rms for d in diffs])),
             "tolerance_rms": SMOKE_CHECK_RMS, "noise_factor": SMOKE_CHECK_NOISE,
-            "max_share_of_allowed": worst.block_rms / worst.allowed, "worst_frame_allowed_rms": worst.allowed,
+            "max_share_of_allowed": worst.share_of_allowed, "worst_frame_allowed_rms": worst.allowed,
             "max_frame_pixel_rms": max(d.pixel_rms for d in diffs),
             "mean_frame_pixel_rms": float(np.mean([d.pixel_rms for d in diffs]))}
 
@@ -289,8 +295,8 @@ def refresh_ground_truth(dataset: Path, target: SceneSpec, threads: int | None =
     if check is not None and check["max_share_of_allowed"] > 1.0:
         raise GeneratorError(f"{dataset / 'dataset.json'}: the simulation baked again is not the dataset's smoke "
                              f"(RGB smoke opacity over {SMOKE_CHECK_BLOCK}-pixel blocks differs in a frame by "
-                             f"{check['max_share_of_allowed']:.2f} times what it may: more than {SMOKE_CHECK_RMS} RMS and "
-                             f"more than {SMOKE_CHECK_NOISE:g} times what pixel noise leaves over a block); "
+                             f"{check['max_share_of_allowed']:.2f} times what it may: more than {SMOKE_CHECK_RMS} RMS "
+                             f"and more than {SMOKE_CHECK_NOISE:g} times what pixel noise leaves over a block); "
                              "regenerate the dataset instead")
     fresh = staging / "dataset"
     if fresh.exists():
