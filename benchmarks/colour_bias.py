@@ -1,6 +1,7 @@
 """The colour cast a de-smoked surface keeps, for finished runs that were scored before the trainer
 measured it (the surface issue's first diagnostic): the mean signed error per channel of the
-surface render against the clean frame, on the test pixels the smoke mask marks.
+surface render against the clean frame, on the test pixels the smoke mask marks; and, where the
+dataset has them, against the shadowed frames (`rgb.shadowed`), which the shadow does not tint.
 
     python benchmarks/colour_bias.py [--tables data/tables_standard] [--digest d65d2bcb]
         [--variants full,rgb-only] [--out benchmarks/results/standard/colour_bias]
@@ -58,9 +59,15 @@ def run_bias(run: Path, scene_cache: dict[tuple[str, int], Any]) -> dict[str, An
     found, pixels = masked_colour_bias((img, rgb.clean[index[stem]], rgb.masks[index[stem]])
                                        for stem, img in zip(stems, renders))
     bias = np.asarray(found if found is not None else [np.nan] * 3)
+    shadowed: list[float | str] = [""] * 3  # no shadowed frames in the dataset
+    if rgb.shadowed is not None:
+        under, _ = masked_colour_bias((img, rgb.shadowed[index[stem]], rgb.masks[index[stem]])
+                                      for stem, img in zip(stems, renders))
+        shadowed = [round(float(b), 5) for b in (under if under is not None else [np.nan] * 3)]
     return {"scene": rec["scene"], "variant": rec["variant"], "seed": rec["seed"], "run": rec["run_dir"],
             **{f"bias_{c}": round(float(b), 5) for c, b in zip(CHANNELS, bias)},
-            "max_abs_bias": round(float(np.abs(bias).max()), 5), "smoky_pixels": pixels}
+            "max_abs_bias": round(float(np.abs(bias).max()), 5), "smoky_pixels": pixels,
+            **{f"bias_shadowed_{c}": b for c, b in zip(CHANNELS, shadowed)}}
 
 
 def summary(rows: list[dict[str, Any]], variants: list[str], digest: str) -> str:
@@ -89,11 +96,23 @@ def summary(rows: list[dict[str, Any]], variants: list[str], digest: str) -> str
             cells = [f"{c} ± {d:.4f}" for c, d in zip(cells, np.std(by_seed, axis=0, ddof=1))]
         lines.append(f"| {variant_label(v)} | {', '.join(map(str, seeds))} | {len(scenes)} | {' | '.join(cells)} | "
                      f"{np.abs(per_scene[v][worst]).max():.4f} ({worst}) |")
-    lines += ["", "Per scene, mean over its seeds (R, G, B):", "",
-              "| scene | " + " | ".join(variant_label(v) for v in per_scene) + " |",
-              "|---|" + "---|" * len(per_scene)]
+    under = {v: {s: np.mean([[r[f"bias_shadowed_{c}"] for c in CHANNELS] for r in rows
+                            if r["variant"] == v and r["scene"] == s], axis=0)
+                 for s in per_scene[v] if all(r["bias_shadowed_r"] != "" for r in rows
+                                              if r["variant"] == v and r["scene"] == s)}
+             for v in per_scene}
+    columns = [variant_label(v) for v in per_scene] + [f"{variant_label(v)}, against shadowed"
+                                                        for v in per_scene if under[v]]
+    lines += ["", "Per scene, mean over its seeds (R, G, B); against shadowed: the same pixels against the frames "
+              "under the smoke's shadow with no smoke in view (`rgb.shadowed`, where the dataset has it), so "
+              "the shadow is no part of the cast:", "",
+              "| scene | " + " | ".join(columns) + " |", "|---|" + "---|" * len(columns)]
+
+    def cell(table: dict[str, np.ndarray], scene: str) -> str:
+        return ", ".join(f"{b:+.3f}" for b in table[scene]) if scene in table else ""
+
     for s in sorted({s for d in per_scene.values() for s in d}):
-        cells = [", ".join(f"{b:+.3f}" for b in per_scene[v][s]) if s in per_scene[v] else "" for v in per_scene]
+        cells = [cell(per_scene[v], s) for v in per_scene] + [cell(under[v], s) for v in per_scene if under[v]]
         lines.append(f"| {s} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from benchmarks.colour_bias import main, run_bias
+from contracts.imageio import read_png, write_png
 from smokeseer.cli import main as train
 from tests.test_smokeseer_data import write_splat_dataset
 from tests.test_trainer import TINY
@@ -35,6 +36,32 @@ def test_the_saved_renders_give_the_trainers_own_colour_bias(tmp_path: Path,
     out = tmp_path / "out" / "colour_bias"
     assert main(["--tables", str(tmp_path / "tables"), "--variants", "full", "--out", str(out)]) == 0
     assert out.with_suffix(".csv").is_file() and "| Ours (Full) | 0 | 1 |" in out.with_suffix(".md").read_text()
+
+
+def test_the_cast_against_the_shadowed_frames_leaves_the_shadow_out(tmp_path: Path) -> None:
+    """Shadowed frames 10 levels off the clean ones move the cast by 10/255 on every channel, the other
+    way, and the summary shows both columns."""
+    dataset = write_splat_dataset(tmp_path / "splat")
+    run = tmp_path / "tables" / "runs" / "splat" / "full" / "seed0-x"
+    assert train([str(dataset), "--out", str(run)] + TINY) == 0
+    _as_harness_run(run, dataset)
+    meta = json.loads((dataset / "dataset.json").read_text())
+    meta["passes"]["rgb"].remove("shadowed")
+    (dataset / "dataset.json").write_text(json.dumps(meta))
+    without = run_bias(run, {})
+    assert without["bias_shadowed_r"] == ""
+    for clean in sorted((dataset / "rgb" / "clean").glob("*.png")):
+        pixels = read_png(clean).astype(np.int16)
+        assert pixels.max() <= 245, "the test needs clean frames with no value over the shift"
+        write_png(dataset / "rgb" / "shadowed" / clean.name, (pixels + 10).astype(np.uint8))
+    meta["passes"]["rgb"].append("shadowed")
+    (dataset / "dataset.json").write_text(json.dumps(meta))
+    row = run_bias(run, {})
+    assert [row[f"bias_{c}"] for c in "rgb"] == [without[f"bias_{c}"] for c in "rgb"]
+    np.testing.assert_allclose([row[f"bias_{c}"] - row[f"bias_shadowed_{c}"] for c in "rgb"], 10 / 255, atol=1e-4)
+    out = tmp_path / "colour_bias"
+    assert main(["--tables", str(tmp_path / "tables"), "--variants", "full", "--out", str(out)]) == 0
+    assert "| scene | Ours (Full) | Ours (Full), against shadowed |" in out.with_suffix(".md").read_text()
 
 
 def test_a_dataset_whose_masks_are_gone_is_one_line_naming_the_file(tmp_path: Path,
