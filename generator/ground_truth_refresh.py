@@ -65,9 +65,9 @@ smoke's motion, does not shrink over a block (5-34 times on house, forest and ro
 
 @dataclass(frozen=True)
 class OpacityDifference:
-    """Two opacity frames compared: the RMS of their difference per pixel, over ``block``-pixel block
-    means, and what white pixel noise alone would leave over a block (the within-block spread's
-    RMS, unbiased, over the block side)."""
+    """Two opacity frames compared: the RMS of their difference per pixel, over SMOKE_CHECK_BLOCK-pixel
+    block means, and what white pixel noise alone would leave over a block (the within-block
+    spread's RMS, unbiased, over the block side)."""
 
     pixel_rms: float
     block_rms: float
@@ -84,14 +84,15 @@ class OpacityDifference:
         return self.block_rms / self.allowed
 
 
-def opacity_difference(a: np.ndarray, b: np.ndarray, block: int = SMOKE_CHECK_BLOCK) -> OpacityDifference:
-    """Compare two opacity frames (the ragged edge rows and columns past whole blocks left out)."""
+def opacity_difference(a: np.ndarray, b: np.ndarray) -> OpacityDifference:
+    """Compare two opacity frames over SMOKE_CHECK_BLOCK-pixel blocks (the ragged edge rows and
+    columns past whole blocks left out)."""
+    block, n = SMOKE_CHECK_BLOCK, SMOKE_CHECK_BLOCK ** 2
     h, w = (a.shape[0] // block) * block, (a.shape[1] // block) * block
     d = (np.asarray(a, np.float64) - np.asarray(b, np.float64))[:h, :w]
     blocks = d.reshape(h // block, block, w // block, block)
     means = blocks.mean(axis=(1, 3), keepdims=True)
-    n = block * block
-    spread = float(np.sqrt(np.mean((blocks - means) ** 2) * n / (n - 1))) if n > 1 else 0.0
+    spread = float(np.sqrt(np.mean((blocks - means) ** 2) * n / (n - 1)))
     return OpacityDifference(float(np.sqrt(np.mean(d ** 2))), float(np.sqrt(np.mean(means ** 2))), spread / block)
 
 

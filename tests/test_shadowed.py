@@ -192,9 +192,8 @@ def test_the_smoke_check_passes_estimator_noise_and_refuses_other_smoke() -> Non
     def plume(dx: float = 0.0, scale: float = 1.0, peak: float = 0.4) -> np.ndarray:
         return scale * peak * np.exp(-((x - 100 - dx) ** 2 + (y - 60) ** 2) / (2 * 25.0 ** 2))
 
-    def passes(a: np.ndarray, b: np.ndarray) -> bool:
-        d = opacity_difference(a, b)
-        return d.block_rms <= d.allowed
+    def passes(a: np.ndarray, b: np.ndarray) -> bool:  # the refresh refuses a share over 1
+        return opacity_difference(a, b).share_of_allowed <= 1.0
 
     rng = np.random.default_rng(0)
     thin = rng.binomial(256, plume()) / 256
