@@ -3,8 +3,8 @@
 Every tracked text file is read (``git ls-files``): docs, code, tests, scripts, configs, presets,
 committed results and dataset metadata. A file counts as text unless its suffix is a known binary
 image or model format or its bytes hold a NUL. The run records are left out: those under
-``data/tables_*/runs/``, ``data/input_perturbation/tables/runs/``, ``data/clean_ceiling_*/``
-and ``data/candidates/``. They are what each
+``data/tables_*/runs/``, ``data/input_perturbation/tables/runs/``, ``data/float_setup/*/runs/``,
+``data/clean_ceiling_*/`` and ``data/candidates/``. They are what each
 training run wrote (its ``metrics.json``, and the harness's ``harness.json``), including the
 dataset path it was given and that machine's LPIPS message; the harness re-roots those paths on
 load, and rewriting a record by hand would make it no longer the run's own.
@@ -37,7 +37,7 @@ FORBIDDEN = re.compile(
     re.IGNORECASE,
 )
 BINARY_SUFFIXES = {".png", ".jpg", ".jpeg", ".exr", ".ply", ".npy", ".npz", ".pt", ".blend", ".vdb"}
-RUN_RECORDS = re.compile(r"^data/(tables_[^/]+/runs|input_perturbation/tables/runs|clean_ceiling_[^/]+|candidates)/")
+RUN_RECORDS = re.compile(r"^data/(tables_[^/]+/runs|input_perturbation/tables/runs|float_setup/[^/]+/runs|clean_ceiling_[^/]+|candidates)/")
 
 
 def _tracked_text_files() -> list[Path]:
