@@ -29,6 +29,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from contracts.atomic import write_rows_csv, write_text  # noqa: E402
+from contracts.dataset_format import PASS_FILES, file_path, transforms_name  # noqa: E402
 
 LIMIT_S = 180.0
 RECORD = "time.json"
@@ -52,13 +53,18 @@ def generate_one(seed: int, work: Path, threads: int) -> dict[str, Any]:
 
 def row(rec: dict[str, Any], work: Path) -> dict[str, Any]:
     """The record with what the dataset says about where the time went."""
-    meta = json.loads((work / f"random_{rec['seed']}" / "dataset.json").read_text())
-    frames = {m: len(json.loads((work / f"random_{rec['seed']}" / f"transforms_{m}.json").read_text())["frames"])
-              for m in ("rgb", "thermal")}
+    dataset = work / f"random_{rec['seed']}"
+    meta = json.loads((dataset / "dataset.json").read_text())
+    stems = {m: [f["file_stem"] for f in json.loads((dataset / transforms_name(m)).read_text())["frames"]]
+             for m in ("rgb", "thermal")}
     timings = meta["timings_s"]
     out = {**rec, "bake_s": round(timings["bake"], 1), "calibration_s": round(timings.get("calibration", 0.0), 1)}
     for key, per_frame in timings["render"].items():
-        out[f"{key}_s"] = round(per_frame * frames[key.split(".")[0]], 1)
+        # The frames the pass holds (a test-view pass: the test views; before that rule, every frame).
+        modality, name = key.split(".")
+        pf = PASS_FILES[(modality, name)][0]
+        rendered = sum(file_path(dataset, pf, s).is_file() for s in stems[modality])
+        out[f"{key}_s"] = round(per_frame * rendered, 1)
     out["rgb_optical_depth"] = round(meta["smoke"]["optical_depth"]["achieved"], 3)
     out["fire"] = bool(meta["smoke"]["fire"])
     return out

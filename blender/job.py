@@ -158,12 +158,14 @@ class ThermalSmokeJob:
 
 @dataclass(frozen=True)
 class FrameJob:
-    """One image: the smoke is baked frame `blender_frame` blended with the next by `next_weight`."""
+    """One image: the smoke is baked frame `blender_frame` blended with the next by `next_weight`;
+    `split` (train or test) says which passes render it (`contracts.dataset_format.has_frame`)."""
 
     stem: str
     blender_frame: int
     next_weight: float
     c2w: tuple[tuple[float, float, float, float], ...]
+    split: str
 
 
 @dataclass(frozen=True)
@@ -328,3 +330,4 @@ def check(job: WorkerJob, source: str) -> None:
             need(frame.next_weight == 0.0 or frame.blender_frame < job.sim.frame_end,
                  f"{where}.frames[{j}]", "interpolates past the last baked frame")
             need(len(frame.c2w) == 4, f"{where}.frames[{j}].c2w", "must be a 4x4 matrix")
+            need(frame.split in ("train", "test"), f"{where}.frames[{j}].split", "must be 'train' or 'test'")

@@ -21,6 +21,7 @@ from typing import Any
 
 from blender.job import JobError, WorkerJob, built_scene_path
 from contracts.atomic import atomic_path, write_text
+from contracts.dataset_format import has_frame
 
 
 def emit(kind: str, **payload: Any) -> None:
@@ -97,7 +98,7 @@ def _render_all(job: WorkerJob, built) -> dict[str, Any]:
             folder.mkdir(parents=True, exist_ok=True)
             ext = "png" if setup.file_format == "PNG" else "exr"
             key = f"{modality}.{name}"
-            frames = camera.frames
+            frames = [f for f in camera.frames if has_frame(modality, name, f.split)]
             before = previous["passes"].get(key, {})
             done, seconds = before.get("rendered", 0), before.get("seconds", 0.0)
             for frame in frames:

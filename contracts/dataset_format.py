@@ -55,6 +55,18 @@ SMOKE_ONLY_PASSES = ("shadowed", "smoke_alpha")
 """The passes a scene without smoke does not have: no smoke opacity, and its shadowed frames would
 be its clean ones."""
 
+TEST_VIEW_PASSES: frozenset[tuple[str, str]] = frozenset({("rgb", "shadowed")})
+"""The passes rendered for the RGB test views alone. Only scoring reads `shadowed`, and scoring
+reads test views, so its other frames would cost render time (a third of a drawn scene's) and be
+read by nothing. A dataset made before the rule may hold them for every frame: only the test
+views' files are required."""
+
+
+def has_frame(modality: str, name: str, split: str) -> bool:
+    """Whether pass ``modality.name`` puts a file in the dataset for a frame of ``split``."""
+    return split == "test" or (modality, name) not in TEST_VIEW_PASSES
+
+
 GROUND_TRUTH_FOLDERS: frozenset[str] = frozenset(
     pf.folder for (_, name), files in PASS_FILES.items() if name in ("clean", "shadowed", "depth", "smoke_alpha")
     for pf in files if pf.folder.rsplit("/", 1)[1] != "smoke_mask")
@@ -175,7 +187,7 @@ def read_pass_image(path: Path, pf: PassFile, shape: tuple[int, int]) -> np.ndar
 
 def dataset_files(root: Path, meta: dict[str, Any]) -> list[tuple[Path, PassFile, tuple[int, int]]]:
     """Every image file the passes of dataset.json (``meta``) put in the dataset, with its pass
-    and the (H, W) its modality's transforms give."""
+    and the (H, W) its modality's transforms give (a test-view pass: its test views' files)."""
     meta_path = root / DATASET_FILE
     out = []
     for modality, passes in meta["passes"].items():
@@ -189,7 +201,8 @@ def dataset_files(root: Path, meta: dict[str, Any]) -> list[tuple[Path, PassFile
             if (modality, name) not in PASS_FILES:
                 raise DatasetError(f"{meta_path}: unknown pass {modality}.{name}")
             out += [(file_path(root, pf, frame["file_stem"]), pf, shape)
-                    for pf in PASS_FILES[(modality, name)] for frame in transforms["frames"]]
+                    for pf in PASS_FILES[(modality, name)] for frame in transforms["frames"]
+                    if has_frame(modality, name, frame["split"])]
     return out
 
 

@@ -34,7 +34,8 @@ import yaml
 
 from blender.job import CLEAN_SAMPLE_PASSES, SMOKE_PASSES
 from contracts.atomic import write_json
-from contracts.dataset_format import GROUND_TRUTH_FOLDERS, PASS_FILES, file_path, transforms_name, validate_dataset
+from contracts.dataset_format import (GROUND_TRUTH_FOLDERS, PASS_FILES, file_path, has_frame, transforms_name,
+                                     validate_dataset)
 from contracts.imageio import read_exr_channel
 from generator.dataset_stats import scene_stats
 from generator.errors import GeneratorError, SpecError
@@ -212,6 +213,8 @@ def copy_passes(source: Path, into: Path, passes: list[str], why_not: str) -> No
     for item in passes:
         m, name = item.split(".")
         for frame in json.loads((into / transforms_name(m)).read_text())["frames"]:
+            if not has_frame(m, name, frame["split"]):
+                continue
             for pf in PASS_FILES[(m, name)]:
                 dst = file_path(into, pf, frame["file_stem"])
                 dst.parent.mkdir(parents=True, exist_ok=True)

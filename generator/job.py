@@ -135,7 +135,8 @@ def _camera(spec: SceneSpec, k: Intrinsics, supersample: int, cam: CameraSpec, f
         samples=cam.samples, clean_samples=cam.clean_samples, denoise=effective_denoise(spec, cam),
         volume_step_rate=cam.volume_step_rate,
         frames=tuple(FrameJob(stem=f.stem, blender_frame=f.base_frame, next_weight=f.next_weight,
-                              c2w=tuple(tuple(float(v) for v in row) for row in f.c2w)) for f in frames),
+                              c2w=tuple(tuple(float(v) for v in row) for row in f.c2w), split=f.split)
+                     for f in frames),
     )
 
 

@@ -27,7 +27,8 @@ from generator.assets import Manifest, load_manifest
 from generator.bakes import bake_folder, bake_in, bake_key, is_baked
 from contracts.atomic import write_json
 from contracts.source import code_digest
-from contracts.dataset_format import FORMAT, FORMAT_VERSION, PASS_FILES, file_path, transforms_name, validate_dataset
+from contracts.dataset_format import (FORMAT, FORMAT_VERSION, PASS_FILES, file_path, has_frame, transforms_name,
+                                     validate_dataset)
 from generator.errors import GeneratorError
 from generator.job import (Plan, effective_denoise, load_scene_meshes, make_job, make_plan, resolve_asset_materials,
                            smoke_coefficients, without_absent_passes)
@@ -106,8 +107,9 @@ def _transforms(modality: str, k: Intrinsics, fps: float, offset: float, frames:
     }
 
 
-def _frame_done(out: Path, modality: str, passes: tuple[str, ...], stem: str) -> bool:
-    return all(file_path(out, pf, stem).exists() for p in passes for pf in PASS_FILES[(modality, p)])
+def _frame_done(out: Path, modality: str, passes: tuple[str, ...], frame: FrameSample) -> bool:
+    return all(file_path(out, pf, frame.stem).exists() for p in passes if has_frame(modality, p, frame.split)
+               for pf in PASS_FILES[(modality, p)])
 
 
 def _postprocess(spec: SceneSpec, plan: Plan, work: Path, sensor: ThermalSensor | None, show: bool) -> float:
@@ -119,10 +121,10 @@ def _postprocess(spec: SceneSpec, plan: Plan, work: Path, sensor: ThermalSensor 
     for modality, passes in spec.passes.items():
         frames = plan.frames[modality]
         for frame in tqdm(frames, desc=f"post {modality}", unit="frame", disable=not show, leave=False):
-            if _frame_done(out, modality, passes, frame.stem):
+            if _frame_done(out, modality, passes, frame):
                 continue
             if modality == "rgb":
-                postprocess.finish_rgb_frame(ctx, frame.stem)
+                postprocess.finish_rgb_frame(ctx, frame.stem, frame.split)
             else:
                 postprocess.finish_thermal_frame(ctx, frame.stem, frame.index)
     return time.perf_counter() - t0

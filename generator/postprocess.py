@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from contracts.dataset_format import PASS_FILES, file_path
+from contracts.dataset_format import PASS_FILES, file_path, has_frame
 from contracts.imageio import read_exr, read_exr_channel, read_png, write_exr, write_png
 from generator.optics.sensor import ThermalSensor, area_average
 
@@ -59,9 +59,9 @@ def _wanted(ctx: PostContext, modality: str, name: str) -> bool:
     return name in ctx.requested.get(modality, ())
 
 
-def finish_rgb_frame(ctx: PostContext, stem: str) -> None:
+def finish_rgb_frame(ctx: PostContext, stem: str, split: str) -> None:
     for name in ("smoky", "clean", "shadowed"):
-        if _wanted(ctx, "rgb", name):
+        if _wanted(ctx, "rgb", name) and has_frame("rgb", name, split):
             # Re-encoded pixels only: Cycles writes render times into PNG metadata, which would
             # make identical renders differ byte for byte.
             write_png(file_path(ctx.out, PASS_FILES[("rgb", name)][0], stem),

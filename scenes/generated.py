@@ -18,8 +18,8 @@ from typing import Callable
 import numpy as np
 import yaml
 
-from contracts.dataset_format import (GROUND_TRUTH_FOLDERS, SPEC_FILE, dataset_files, file_path, load_transforms,
-                                      pass_file, read_pass_image, transforms_name, validate_dataset)
+from contracts.dataset_format import (GROUND_TRUTH_FOLDERS, SPEC_FILE, dataset_files, file_path, has_frame,
+                                      load_transforms, pass_file, read_pass_image, transforms_name, validate_dataset)
 from contracts.errors import DatasetError
 from scenes.cameras import GL_TO_CV_AXES
 from scenes.images import box_downscale, check_finite, downscale_depth, gray, rgb01, thermal_images, working_factor
@@ -76,12 +76,16 @@ def _modality(root: Path, modality: str, passes: list[str], max_width: int, read
     def images(name: str, ext: str) -> list[np.ndarray]:
         return [a for _, a in files(name, ext)]
 
-    def scoring_only(name: str, ext: str, convert: Callable[[Path, np.ndarray], np.ndarray]) -> np.ndarray:
-        """A ground-truth pass read for the evaluation frames alone; the training frames' slots
-        hold NaN, and their files are never opened."""
-        decoded = [convert(p, a) for p, a in files(name, ext, evaluation)]
+    def scoring_only(name: str, ext: str, convert: Callable[[Path, np.ndarray], np.ndarray]) -> np.ndarray | None:
+        """A ground-truth pass read for the evaluation frames alone (a test-view pass: the test
+        frames); the other frames' slots hold NaN, and their files are never opened. None when
+        no such frame has the pass."""
+        subset = [i for i in evaluation if has_frame(modality, name, frames[i].split)]
+        if not subset:
+            return None
+        decoded = [convert(p, a) for p, a in files(name, ext, subset)]
         out = np.full((len(frames), *decoded[0].shape), np.nan, dtype=np.float32)
-        for i, a in zip(evaluation, decoded):
+        for i, a in zip(subset, decoded):
             out[i] = a
         return out
 
@@ -89,16 +93,16 @@ def _modality(root: Path, modality: str, passes: list[str], max_width: int, read
     clean = shadowed = scale = masks = depth = None
     if modality == "rgb":
         smoky = np.stack([box_downscale(rgb01(a, p), factor) for p, a in files("smoky", "png")])
-        if "clean" in passes and evaluation:
+        if "clean" in passes:
             clean = scoring_only("clean", "png", lambda p, a: box_downscale(rgb01(a, p), factor))
-        if "shadowed" in passes and evaluation:
+        if "shadowed" in passes:
             shadowed = scoring_only("shadowed", "png", lambda p, a: box_downscale(rgb01(a, p), factor))
     else:
         smoky, scale = thermal_images(np.stack([gray(a) for a in images("smoky", "png")]), factor, thermal_scale)
         if "clean" in passes and all_ground_truth:
             clean = np.stack([box_downscale(scale.apply(gray(a)), factor)[..., None]
                               for a in images("clean", "png")]).astype(np.float32)
-    if "depth" in passes and evaluation and (modality == "rgb" or all_ground_truth):
+    if "depth" in passes and (modality == "rgb" or all_ground_truth):
         depth = scoring_only("depth", "exr", lambda p, a: downscale_depth(a.astype(np.float64), factor))
     if "smoke_alpha" in passes:
         masks = np.stack([box_downscale(gray(a) / 255.0, factor) for a in images("smoke_alpha", "png")])

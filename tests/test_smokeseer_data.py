@@ -143,7 +143,7 @@ def write_splat_dataset(path: Path, smoke: str = "moving", n_rgb: int = 12, n_th
             if modality == "rgb":
                 _png(root / "smoky" / f"{stem}.png", np.round(np.clip(smoky, 0, 1) * 255).astype(np.uint8))
                 _png(root / "clean" / f"{stem}.png", np.round(np.clip(clean, 0, 1) * 255).astype(np.uint8))
-                if shadowed:
+                if shadowed and split == "test":  # a test-view pass (contracts.dataset_format)
                     dark = clean * (1.0 - 0.5 * alpha[..., None])
                     _png(root / "shadowed" / f"{stem}.png", np.round(np.clip(dark, 0, 1) * 255).astype(np.uint8))
             else:
@@ -250,7 +250,7 @@ def test_every_image_is_decoded_once_and_checked(splat_dataset: Path, monkeypatc
         assert np.isfinite(truth[scene.rgb.indices("test")]).all()
     reads.clear()
     load_scene(splat_dataset, max_width=24, all_ground_truth=True)
-    assert set(reads) == {p for p, _, _ in files} and len(files) == 8 * 6 + 6 * 7
+    assert set(reads) == {p for p, _, _ in files} and len(files) == 8 * 5 + 2 + 6 * 7  # shadowed: the 2 test views
     assert set(reads.values()) == {1}
 
 
