@@ -9,7 +9,8 @@ other, into WORK/random_SEED; nothing else should run meanwhile (the load averag
 each scene is recorded beside it). A seed whose dataset and record are already in WORK is read,
 not generated again, so the command resumes. The CSV has one row per seed: wall seconds, the
 worker's render seconds per frame of each pass (times its frames: the pass's share of the scene),
-bake and calibration seconds, the loads, the scene's RGB optical depth and whether it has fire.
+bake and calibration seconds, the loads, the CPU, the scene's RGB optical depth and whether it has
+fire.
 Prints the median against the limit.
 """
 from __future__ import annotations
@@ -30,9 +31,16 @@ if str(ROOT) not in sys.path:
 
 from contracts.atomic import write_rows_csv, write_text  # noqa: E402
 from contracts.dataset_format import PASS_FILES, file_path, transforms_name  # noqa: E402
+from contracts.float_setup import cpu_facts  # noqa: E402
 
 LIMIT_S = 180.0
 RECORD = "time.json"
+
+
+def cpu_line() -> str:
+    """The CPU a time was measured on, and its widest vector unit (Cycles runs faster with AVX-512)."""
+    model, flags = cpu_facts()
+    return f"{model}, {'AVX-512' if 'avx512f' in flags else 'AVX2' if 'avx2' in flags else 'no AVX2'}"
 
 
 def generate_one(seed: int, work: Path, threads: int) -> dict[str, Any]:
@@ -46,7 +54,7 @@ def generate_one(seed: int, work: Path, threads: int) -> dict[str, Any]:
     subprocess.run([sys.executable, "-m", "generator.cli", "--random", str(seed), "--out", str(out),
                     "--threads", str(threads), "--quiet", "--force"], check=True, cwd=ROOT)
     rec = {"seed": seed, "wall_s": round(time.perf_counter() - started, 1), "threads": threads,
-           "load_before": round(load_before, 2), "load_after": round(os.getloadavg()[0], 2)}
+           "load_before": round(load_before, 2), "load_after": round(os.getloadavg()[0], 2), "cpu": cpu_line()}
     write_text(record, json.dumps(rec, indent=2))
     return rec
 
@@ -58,7 +66,7 @@ def row(rec: dict[str, Any], work: Path) -> dict[str, Any]:
     stems = {m: [f["file_stem"] for f in json.loads((dataset / transforms_name(m)).read_text())["frames"]]
              for m in ("rgb", "thermal")}
     timings = meta["timings_s"]
-    out = {**rec, "bake_s": round(timings["bake"], 1), "calibration_s": round(timings.get("calibration", 0.0), 1)}
+    out = {**rec, "cpu": rec.get("cpu", "not recorded"), "bake_s": round(timings["bake"], 1), "calibration_s": round(timings.get("calibration", 0.0), 1)}
     for key, per_frame in timings["render"].items():
         # The frames the pass holds (a test-view pass: the test views; before that rule, every frame).
         modality, name = key.split(".")
