@@ -13,7 +13,8 @@ loaded at the renders' width as the trainer loads them: the trainer's own functi
 two agree to the 8-bit rounding, under 0.002; tests/test_colour_bias.py). Writes OUT.csv (one row
 per run) and OUT.md: per variant, the per-channel bias on the ten-scene mean (mean ± std over
 seeds) and the largest |bias| of any scene (mean over its seeds), the two numbers the surface
-issue bounds (0.02 and 0.05); then per scene.
+issue bounds (0.02 and 0.05), and the same against shadowed where every scene has the frames;
+then per scene.
 """
 from __future__ import annotations
 
@@ -79,23 +80,31 @@ def summary(rows: list[dict[str, Any]], variants: list[str], digest: str) -> str
              "| variant | seeds | scenes | R | G | B | largest scene |bias| (scene) |",
              "|---|---|---|---|---|---|---|"]
     per_scene: dict[str, dict[str, np.ndarray]] = {}
-    for v in variants:
-        mine = [r for r in rows if r["variant"] == v]
-        if not mine:
-            continue
+
+    def summary_row(label: str, mine: list[dict[str, Any]], prefix: str) -> dict[str, np.ndarray]:
+        """The variant's line (mean over seeds of the scene mean, ± over seeds) and its per-scene casts."""
         seeds = sorted({r["seed"] for r in mine})
         scenes = sorted({r["scene"] for r in mine})
-        by_seed = [np.mean([[r[f"bias_{c}"] for c in CHANNELS] for r in mine if r["seed"] == s], axis=0)
+        by_seed = [np.mean([[r[f"{prefix}{c}"] for c in CHANNELS] for r in mine if r["seed"] == s], axis=0)
                    for s in seeds]
-        mean = np.mean(by_seed, axis=0)
-        per_scene[v] = {s: np.mean([[r[f"bias_{c}"] for c in CHANNELS] for r in mine if r["scene"] == s], axis=0)
-                        for s in scenes}
-        worst = max(per_scene[v], key=lambda s: np.abs(per_scene[v][s]).max())
-        cells = [f"{m:+.4f}" for m in mean]
+        table = {s: np.mean([[r[f"{prefix}{c}"] for c in CHANNELS] for r in mine if r["scene"] == s], axis=0)
+                 for s in scenes}
+        worst = max(table, key=lambda s: np.abs(table[s]).max())
+        cells = [f"{m:+.4f}" for m in np.mean(by_seed, axis=0)]
         if len(seeds) > 1:
             cells = [f"{c} ± {d:.4f}" for c, d in zip(cells, np.std(by_seed, axis=0, ddof=1))]
-        lines.append(f"| {variant_label(v)} | {', '.join(map(str, seeds))} | {len(scenes)} | {' | '.join(cells)} | "
-                     f"{np.abs(per_scene[v][worst]).max():.4f} ({worst}) |")
+        lines.append(f"| {label} | {', '.join(map(str, seeds))} | {len(scenes)} | {' | '.join(cells)} | "
+                     f"{np.abs(table[worst]).max():.4f} ({worst}) |")
+        return table
+
+    for v in variants:
+        mine = [r for r in rows if r["variant"] == v]
+        if mine:
+            per_scene[v] = summary_row(variant_label(v), mine, "bias_")
+    for v in per_scene:  # against shadowed where every scene of the variant has the frames
+        mine = [r for r in rows if r["variant"] == v]
+        if all(r["bias_shadowed_r"] != "" for r in mine):
+            summary_row(f"{variant_label(v)}, against shadowed", mine, "bias_shadowed_")
     under = {v: {s: np.mean([[r[f"bias_shadowed_{c}"] for c in CHANNELS] for r in rows
                             if r["variant"] == v and r["scene"] == s], axis=0)
                  for s in per_scene[v] if all(r["bias_shadowed_r"] != "" for r in rows

@@ -61,7 +61,11 @@ def test_the_cast_against_the_shadowed_frames_leaves_the_shadow_out(tmp_path: Pa
     np.testing.assert_allclose([row[f"bias_{c}"] - row[f"bias_shadowed_{c}"] for c in "rgb"], 10 / 255, atol=1e-4)
     out = tmp_path / "colour_bias"
     assert main(["--tables", str(tmp_path / "tables"), "--variants", "full", "--out", str(out)]) == 0
-    assert "| scene | Ours (Full) | Ours (Full), against shadowed |" in out.with_suffix(".md").read_text()
+    text = out.with_suffix(".md").read_text()
+    assert "| scene | Ours (Full) | Ours (Full), against shadowed |" in text
+    summary = next(line for line in text.splitlines() if line.startswith("| Ours (Full), against shadowed | 0 | 1 |"))
+    np.testing.assert_allclose([float(c) for c in summary.split("|")[4:7]], [row[f"bias_shadowed_{c}"] for c in "rgb"],
+                               atol=1e-4)
 
 
 def test_a_dataset_whose_masks_are_gone_is_one_line_naming_the_file(tmp_path: Path,
