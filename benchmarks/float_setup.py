@@ -9,8 +9,9 @@ arithmetic shows up here, not only when a run moves to another machine.
 Each setup is one ``regenerate-tables`` call (Full at one seed, no ablations) in a process started
 with that setup's environment, into OUT/<setup> (the default side may reuse a tables folder that
 already holds those runs: ``--default-from``); both are resumable. The CSV has one row per scene:
-``scene, default_psnr, avx2_psnr``, the difference, both validation PSNRs and the float-setup line
-each side recorded. It refuses to compare when the two sides report the same torch capability (an
+``scene, default_psnr, avx2_psnr``, the difference, both validation PSNRs, the trainer version and
+the float-setup line each side recorded (a scene trained under two trainer versions on both sides
+has a row for each). It refuses to compare when the two sides report the same torch capability (an
 AVX2 machine has nothing to compare) or trained different trainer versions.
 """
 from __future__ import annotations
@@ -24,7 +25,7 @@ from typing import Any
 
 from benchmarks import full_seed_runs
 from contracts.float_setup import HELD_TO, ISA_VARIABLES
-from eval.finished_runs import finished_runs
+from eval.finished_runs import finished_records
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -42,34 +43,43 @@ def tables_command(scenes: list[str], datasets: Path, profile: str, seed: int, w
     return full_seed_runs.tables_command({s: datasets / s for s in scenes}, profile, seed, workers, out)
 
 
-def side(tables: Path, seed: int, scenes: list[str]) -> tuple[str, dict[str, tuple[Path, dict[str, Any]]]]:
-    """(trainer digest, {scene: (run folder, harness record)}) of the finished Full runs at ``seed``."""
-    digest, runs = finished_runs(tables, ["full"])
-    return digest, {rec["scene"]: (run, rec) for run, rec in runs if rec["seed"] == seed and rec["scene"] in scenes}
+def side(tables: Path, seed: int, scenes: list[str]) -> dict[str, dict[str, tuple[Path, dict[str, Any]]]]:
+    """{scene: {trainer digest: (run folder, harness record)}} of the finished Full runs at ``seed``."""
+    runs: dict[str, dict[str, tuple[Path, dict[str, Any]]]] = {}
+    for run, rec in finished_records(tables, ["full"]):
+        if rec["seed"] == seed and rec["scene"] in scenes:
+            runs.setdefault(rec["scene"], {})[rec["code_digest"]] = (run, rec)
+    return runs
 
 
 def compare(default_tables: Path, avx2_tables: Path, seed: int, scenes: list[str]) -> list[dict[str, Any]]:
-    """One row per scene that finished on both sides; raises ValueError when the sides
-    are not comparable."""
-    d_digest, default = side(default_tables, seed, scenes)
-    a_digest, avx2 = side(avx2_tables, seed, scenes)
-    if d_digest != a_digest:
-        raise ValueError(f"{default_tables} holds trainer {d_digest[:8]} and {avx2_tables} trainer {a_digest[:8]}: "
-                         "train both sides with the same code")
+    """One row per scene and trainer version that finished on both sides (a scene's two runs are
+    compared only under one trainer); raises ValueError when the sides are not comparable."""
+    default, avx2 = side(default_tables, seed, scenes), side(avx2_tables, seed, scenes)
     rows = []
     for scene in scenes:
         if scene not in default or scene not in avx2:
             continue
-        (d_run, d_rec), (a_run, a_rec) = default[scene], avx2[scene]
-        if _capability(d_rec["float_setup"]) == _capability(a_rec["float_setup"]):
-            raise ValueError(f"{scene}: both sides trained with torch's {_capability(d_rec['float_setup'])} kernels "
-                             "(on an AVX2 machine the default is AVX2: there is nothing to compare)")
-        dp, ap = float(d_rec["metrics"]["psnr"]), float(a_rec["metrics"]["psnr"])
-        rows.append({"scene": scene, "default_psnr": round(dp, 4), "avx2_psnr": round(ap, 4),
-                     "avx2_minus_default": round(ap - dp, 4), "default_val_psnr": full_seed_runs.validation_psnr(d_run),
-                     "avx2_val_psnr": full_seed_runs.validation_psnr(a_run), "default_float_setup": d_rec["float_setup"],
-                     "avx2_float_setup": a_rec["float_setup"]})
+        common = sorted(set(default[scene]) & set(avx2[scene]))
+        if not common:
+            raise ValueError(f"{scene}: {default_tables} holds trainer {', '.join(d[:8] for d in default[scene])} and "
+                             f"{avx2_tables} trainer {', '.join(d[:8] for d in avx2[scene])}: train both sides with "
+                             "the same code")
+        rows += [_row(scene, default[scene][digest], avx2[scene][digest]) for digest in common]
     return rows
+
+
+def _row(scene: str, default: tuple[Path, dict[str, Any]], avx2: tuple[Path, dict[str, Any]]) -> dict[str, Any]:
+    """The CSV row of one scene's two runs under one trainer."""
+    (d_run, d_rec), (a_run, a_rec) = default, avx2
+    if _capability(d_rec["float_setup"]) == _capability(a_rec["float_setup"]):
+        raise ValueError(f"{scene}: both sides trained with torch's {_capability(d_rec['float_setup'])} kernels "
+                         "(on an AVX2 machine the default is AVX2: there is nothing to compare)")
+    dp, ap = float(d_rec["metrics"]["psnr"]), float(a_rec["metrics"]["psnr"])
+    return {"scene": scene, "default_psnr": round(dp, 4), "avx2_psnr": round(ap, 4),
+            "avx2_minus_default": round(ap - dp, 4), "default_val_psnr": full_seed_runs.validation_psnr(d_run),
+            "avx2_val_psnr": full_seed_runs.validation_psnr(a_run), "trainer": d_rec["code_digest"][:8],
+            "default_float_setup": d_rec["float_setup"], "avx2_float_setup": a_rec["float_setup"]}
 
 
 def _capability(line: str) -> str:

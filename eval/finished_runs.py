@@ -19,16 +19,24 @@ def finished_runs(tables: Path, variants: Iterable[str],
     digest starts with ``digest``, else the one with the most such runs. Raises ValueError naming
     the folder when there is none."""
     wanted = set(variants)
+    records = finished_records(tables, wanted)
+    if not records:
+        raise ValueError(f"{tables}/runs: no finished run of {', '.join(sorted(wanted))} records a code_digest")
+    chosen = pick_digest([rec["code_digest"] for _, rec in records], digest, f"{tables}/runs")
+    return chosen, [(run_dir, rec) for run_dir, rec in records if rec["code_digest"] == chosen]
+
+
+def finished_records(tables: Path, variants: Iterable[str]) -> list[tuple[Path, dict[str, Any]]]:
+    """[(run folder, harness.json record)] of every finished run of ``variants`` that records its
+    code digest, whatever the trainer version (a study pairing runs by version picks its own)."""
+    wanted = set(variants)
     records = []
     for path in sorted((Path(tables) / "runs").glob("*/*/*/harness.json")):
         rec = json.loads(path.read_text())
         if (rec.get("status") == "ok" and rec.get("variant") in wanted and rec.get("code_digest")
                 and (path.parent / "train_log.csv").is_file()):
             records.append((path.parent, rec))
-    if not records:
-        raise ValueError(f"{tables}/runs: no finished run of {', '.join(sorted(wanted))} records a code_digest")
-    chosen = pick_digest([rec["code_digest"] for _, rec in records], digest, f"{tables}/runs")
-    return chosen, [(run_dir, rec) for run_dir, rec in records if rec["code_digest"] == chosen]
+    return records
 
 
 def pick_digest(digests: Iterable[str], digest: str | None, where: str) -> str:

@@ -98,3 +98,20 @@ def test_the_comparison_pairs_scenes_and_refuses_what_cannot_be_compared(tmp_pat
     assert main(["--out", str(tmp_path), "--scenes", "house", "--datasets", str(datasets), "--compare-only",
                  "--default-from", str(other), "--csv", str(out_csv)]) == 2
     assert "holds trainer eeeeeeee" in capsys.readouterr().err
+
+
+def test_each_scene_pairs_its_runs_under_the_trainer_both_sides_share(tmp_path: Path) -> None:
+    """Scenes trained under different trainer versions are compared each under its own; a scene
+    whose two sides share no version is refused by name."""
+    default, avx2 = tmp_path / "default", tmp_path / "avx2"
+    _run(default, "house", 30.0, "AVX512")
+    _run(avx2, "house", 29.5, "AVX2")
+    _run(default, "room", 14.0, "AVX512", digest="e" * 64)
+    _run(avx2, "room", 15.0, "AVX2", digest="e" * 64)
+    rows = compare(default, avx2, 0, ["house", "room"])
+    assert [(r["scene"], r["trainer"], r["avx2_minus_default"]) for r in rows] == [("house", "dddddddd", -0.5),
+                                                                                  ("room", "eeeeeeee", 1.0)]
+    _run(default, "plant", 20.0, "AVX512", digest="f" * 64)
+    _run(avx2, "plant", 20.0, "AVX2")
+    with pytest.raises(ValueError, match="plant: .* holds trainer ffffffff and .* trainer dddddddd"):
+        compare(default, avx2, 0, ["house", "room", "plant"])
