@@ -66,7 +66,8 @@ def row(rec: dict[str, Any], work: Path) -> dict[str, Any]:
     stems = {m: [f["file_stem"] for f in json.loads((dataset / transforms_name(m)).read_text())["frames"]]
              for m in ("rgb", "thermal")}
     timings = meta["timings_s"]
-    out = {**rec, "cpu": rec.get("cpu", "not recorded"), "bake_s": round(timings["bake"], 1), "calibration_s": round(timings.get("calibration", 0.0), 1)}
+    out = {**rec, "cpu": rec.get("cpu", "not recorded"), "bake_s": round(timings["bake"], 1),
+           "calibration_s": round(timings.get("calibration", 0.0), 1)}
     for key, per_frame in timings["render"].items():
         # The frames the pass holds (a test-view pass: the test views; before that rule, every frame).
         modality, name = key.split(".")
