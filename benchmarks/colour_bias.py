@@ -81,19 +81,22 @@ def summary(rows: list[dict[str, Any]], variants: list[str], digest: str) -> str
              "|---|---|---|---|---|---|---|"]
     per_scene: dict[str, dict[str, np.ndarray]] = {}
 
+    def scene_means(mine: list[dict[str, Any]], prefix: str) -> dict[str, np.ndarray]:
+        """Each scene's cast, the mean over its seeds."""
+        return {s: np.mean([[r[f"{prefix}{c}"] for c in CHANNELS] for r in mine if r["scene"] == s], axis=0)
+                for s in sorted({r["scene"] for r in mine})}
+
     def summary_row(label: str, mine: list[dict[str, Any]], prefix: str) -> dict[str, np.ndarray]:
         """The variant's line (mean over seeds of the scene mean, ± over seeds) and its per-scene casts."""
         seeds = sorted({r["seed"] for r in mine})
-        scenes = sorted({r["scene"] for r in mine})
         by_seed = [np.mean([[r[f"{prefix}{c}"] for c in CHANNELS] for r in mine if r["seed"] == s], axis=0)
                    for s in seeds]
-        table = {s: np.mean([[r[f"{prefix}{c}"] for c in CHANNELS] for r in mine if r["scene"] == s], axis=0)
-                 for s in scenes}
+        table = scene_means(mine, prefix)
         worst = max(table, key=lambda s: np.abs(table[s]).max())
         cells = [f"{m:+.4f}" for m in np.mean(by_seed, axis=0)]
         if len(seeds) > 1:
             cells = [f"{c} ± {d:.4f}" for c, d in zip(cells, np.std(by_seed, axis=0, ddof=1))]
-        lines.append(f"| {label} | {', '.join(map(str, seeds))} | {len(scenes)} | {' | '.join(cells)} | "
+        lines.append(f"| {label} | {', '.join(map(str, seeds))} | {len(table)} | {' | '.join(cells)} | "
                      f"{np.abs(table[worst]).max():.4f} ({worst}) |")
         return table
 
@@ -101,15 +104,12 @@ def summary(rows: list[dict[str, Any]], variants: list[str], digest: str) -> str
         mine = [r for r in rows if r["variant"] == v]
         if mine:
             per_scene[v] = summary_row(variant_label(v), mine, "bias_")
-    for v in per_scene:  # against shadowed where every scene of the variant has the frames
+    under: dict[str, dict[str, np.ndarray]] = {}  # against shadowed, the scenes whose dataset has the frames
+    for v in per_scene:
         mine = [r for r in rows if r["variant"] == v]
-        if all(r["bias_shadowed_r"] != "" for r in mine):
-            summary_row(f"{variant_label(v)}, against shadowed", mine, "bias_shadowed_")
-    under = {v: {s: np.mean([[r[f"bias_shadowed_{c}"] for c in CHANNELS] for r in rows
-                            if r["variant"] == v and r["scene"] == s], axis=0)
-                 for s in per_scene[v] if all(r["bias_shadowed_r"] != "" for r in rows
-                                              if r["variant"] == v and r["scene"] == s)}
-             for v in per_scene}
+        with_frames = [r for r in mine if r["bias_shadowed_r"] != ""]
+        under[v] = (summary_row(f"{variant_label(v)}, against shadowed", mine, "bias_shadowed_")
+                    if len(with_frames) == len(mine) else scene_means(with_frames, "bias_shadowed_"))
     columns = [variant_label(v) for v in per_scene] + [f"{variant_label(v)}, against shadowed"
                                                         for v in per_scene if under[v]]
     lines += ["", "Per scene, mean over its seeds (R, G, B); against shadowed: the same pixels against the frames "

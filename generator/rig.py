@@ -138,12 +138,8 @@ def last_baked_frame(frames: list[FrameSample]) -> int:
     return max(f.base_frame + (f.next_weight > 0) for f in frames)
 
 
-def held_out_indices(frames: int, test_every: int) -> set[int]:
-    return set(range(test_every // 2, frames, test_every)) if frames > 1 else set()
-
-
 def rgb_frames(spec: SceneSpec, line: Timeline) -> list[FrameSample]:
-    held_out = held_out_indices(spec.frames, spec.test_every)
+    held_out = spec.test_frames()
     out = []
     for i in range(spec.frames):
         ts = i / spec.rig.rgb.fps

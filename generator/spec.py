@@ -12,7 +12,7 @@ from typing import Any, TypeVar
 import yaml
 
 from blender.job import CLEAN_SAMPLE_PASSES
-from contracts.dataset_format import MODALITY_PASSES
+from contracts.dataset_format import MODALITY_PASSES, has_frame
 from generator.errors import SpecError
 from generator.fields import REQUIRED, Fields, read_fields, spec_field
 
@@ -219,6 +219,10 @@ class SceneSpec:
     def has_fire(self) -> bool:
         return any(s.kind in ("fire", "both") for s in self.sources)
 
+    def test_frames(self) -> set[int]:
+        """The RGB frames held out for scoring: every ``test_every``-th, the first half a step in."""
+        return set(range(self.test_every // 2, self.frames, self.test_every)) if self.frames > 1 else set()
+
     def to_dict(self) -> dict[str, Any]:
         """The spec as plain YAML-ready data that `parse_spec` reads back to an equal spec
         (a material's name is its key, so it is not repeated inside the entry)."""
@@ -339,6 +343,7 @@ def check_render_budget(spec: SceneSpec, source: str, fields: dict[str, str]) ->
     cameras = {"rgb": (rgb.width, rgb.height, rgb.samples, spec.frames, 1),
                "thermal": (thermal.width, thermal.height, thermal.samples, thermal_frames, thermal.supersample)}
     clean_samples = {"rgb": rgb.clean_samples, "thermal": thermal.clean_samples}
+    tests = len(spec.test_frames())
     work: dict[str, float] = {}
     for modality, (width, height, samples, frames, supersample) in cameras.items():
         pixels = width * height * supersample ** 2
@@ -348,9 +353,10 @@ def check_render_budget(spec: SceneSpec, source: str, fields: dict[str, str]) ->
             raise SpecError(source, fields[modality],
                             f"{size} needs about {need / 2**30:,.0f} GiB to render one frame ({BYTES_PER_RENDER_PIXEL} "
                             f"bytes per pixel); the limit is {MAX_RENDER_BYTES // 2**30} GiB")
-        per_frame = sum(clean_samples[modality] if p in CLEAN_SAMPLE_PASSES else samples
-                        for p in spec.passes.get(modality, ()))
-        work[modality] = float(pixels) * per_frame * frames
+        work[modality] = float(pixels) * sum(
+            (clean_samples[modality] if p in CLEAN_SAMPLE_PASSES else samples)
+            * (frames if has_frame(modality, p, "train") else tests)  # a test-view pass renders those alone
+            for p in spec.passes.get(modality, ()))
     total = sum(work.values())
     if total > MAX_PIXEL_SAMPLES:
         largest = max(work, key=lambda m: work[m])

@@ -99,7 +99,7 @@ def test_asset_errors_leave_no_staging_folder(tmp_path: Path, case: str, needle:
 
 @pytest.mark.parametrize("args, needle", [
     (["--resolution", "100000x75000"], "command line: --resolution: 100000x75000 needs about 447 GiB to render one frame"),
-    (["--frames", "100000", "--resolution", "4000x3000"], "command line: --resolution: 7.3e+14 pixel-samples in all"),
+    (["--frames", "100000", "--resolution", "4000x3000"], "command line: --resolution: 5.2e+14 pixel-samples in all"),
     (["--thermal-resolution", "16000x12000"], "--thermal-resolution: 16000x12000 (x2 supersampled) needs about 46 GiB"),
 ])
 def test_renders_too_big_to_fit_or_finish_are_refused_before_any_work(tmp_path: Path, args: list[str],

@@ -125,6 +125,7 @@ def test_parser_is_driven_by_field_metadata() -> None:
 def test_render_budget_names_the_camera_field() -> None:
     """A frame that cannot fit in memory is refused where the spec is read, naming the camera;
     the largest frame the camera fields allow (16384 x 16384 RGB) is exactly at the limit."""
+    from generator import spec as spec_mod
     from generator.spec import MAX_RENDER_BYTES, BYTES_PER_RENDER_PIXEL
 
     assert 16384 * 16384 * BYTES_PER_RENDER_PIXEL == MAX_RENDER_BYTES
@@ -132,11 +133,17 @@ def test_render_budget_names_the_camera_field() -> None:
         parse_spec({"name": "x", "rig": {"thermal": {"width": 16384, "height": 16384}}}, "bad.yaml")
     big = parse_spec({"name": "x", "frames": 2, "rig": {"rgb": {"width": 16384, "height": 16384}}}, "ok.yaml")
     assert big.rig.rgb.width == 16384
-    with pytest.raises(SpecError, match=r"many.yaml: rig.rgb: 1.4e\+12 pixel-samples in all \(16 rgb frames of "
+    with pytest.raises(SpecError, match=r"many.yaml: rig.rgb: 1.2e\+12 pixel-samples in all \(16 rgb frames of "
                                          r"16384x16384 at 64 samples, 64 for clean and shadowed, 5 passes\)"):
         parse_spec({"name": "x", "frames": 16, "rig": {"rgb": {"width": 16384, "height": 16384, "samples": 64,
                                                              "clean_samples": 64}}}, "many.yaml")
     # The clean and shadowed passes count at their own samples.
-    with pytest.raises(SpecError, match=r"clean.yaml: rig.rgb: 3e\+12 pixel-samples in all"):
+    with pytest.raises(SpecError, match=r"clean.yaml: rig.rgb: 2.2e\+12 pixel-samples in all"):
         parse_spec({"name": "x", "frames": 16, "rig": {"rgb": {"width": 16384, "height": 16384, "samples": 64,
                                                              "clean_samples": 256}}}, "clean.yaml")
+    # The shadowed pass counts its test views alone (frames 2, 6 and 10 of 13), as it is rendered:
+    # 13 x 4 + 3 frame-passes fit in 10^12 where 13 x 5 would not.
+    few = parse_spec({"name": "x", "frames": 13, "rig": {"rgb": {"width": 16384, "height": 16384, "samples": 64,
+                                                               "clean_samples": 64}}}, "few.yaml")
+    assert few.test_frames() == {2, 6, 10}
+    assert 16384 ** 2 * 64 * 13 * 5 > spec_mod.MAX_PIXEL_SAMPLES
