@@ -85,6 +85,14 @@ CANDIDATES: dict[str, Variant] = {
                         "the floor at 0.4 where the estimate reaches it (loss.mask_floor_where=estimated-bound; "
                         "docs/method.md, Decisions, rows 16-17)",
                    overrides={"loss.mask_floor_where": "estimated-bound"}),
+        _candidate("floor-by-meeting-trust", "Full, the mask floor reads the haze lines' meeting by its weight",
+                   note="the estimated mask floor blends its rule with and without the point where the haze lines "
+                        "meet, by how far that point is trusted (the trust's line and meeting ramps), in place of "
+                        "taking the point wherever a fifth of at least 100 lines meet: food_plate's two float "
+                        "setups parted there, 106 lines giving the point and a floor on 49 % of the masked "
+                        "pixels, under 100 none and 20 % (loss.mask_floor_meeting=trusted; the rules issue's "
+                        "cliffs); Stage 3 only",
+                   overrides={"loss.mask_floor_meeting": "trusted"}),
         _candidate("thermal-where-smoky", "Full, the thermal term shapes the surface only under smoke",
                    note="the thermal render term moves each surface Gaussian's position, shape and opacity by the "
                         "share of the RGB training views whose smoke mask covers it, so the coarse thermal frames "

@@ -291,7 +291,8 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
             floor_depth = rendered_depth_prior(joined.surface, rgb_views, "rgb") if joined else rgb_depth
             masked = scene.rgb.masks[scene.rgb.indices("train")] > 0.5
             if plan.mask_floor == "estimated-bound":
-                plan.alpha_targets = alpha_targets(scene.rgb, floor_depth, cfg.loss.mask_alpha_floor, smoke_colour)
+                plan.alpha_targets = alpha_targets(scene.rgb, floor_depth, cfg.loss.mask_alpha_floor, smoke_colour,
+                                                   cfg.loss.mask_floor_meeting)
                 pushed = masked & (plan.alpha_targets > 0)
                 mean = float(plan.alpha_targets[pushed].mean()) if pushed.any() else 0.0
                 where = ("the haze lines meet" if smoke_colour is not None and smoke_colour.meeting is not None else
@@ -302,17 +303,9 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
                         f"mean target {mean:.2f} ({where}; loss.mask_floor_where=estimated-bound)")
             else:
                 plan.floor_pixels = mask_floor_pixels(plan, scene.rgb, floor_depth, cfg.loss.mask_alpha_floor,
-                                                      smoke_colour)
-                meeting = None if smoke_colour is None else smoke_colour.meeting
-                rest = {"never-clear": "the rest are seen smoke-free from another training view",
-                        "estimated-meeting": "the rest are thinner smoke by the images (a clear view, or too far "
-                                             f"from where the haze lines meet, {np.round(meeting, 3).tolist()})"
-                                             if meeting is not None else
-                                             "the haze lines do not meet, so the smoke reads thin: only points seen "
-                                             "clear elsewhere and dense there, or the geometry does not cover them"
-                        }[plan.mask_floor]
-                note = (f"mask floor on {100 * int(plan.floor_pixels.sum()) / max(int(masked.sum()), 1):.0f} % "
-                        f"of the masked training pixels: {rest} (loss.mask_floor_where={plan.mask_floor})")
+                                                      smoke_colour, cfg.loss.mask_floor_meeting)
+                note = mask_floor_note(plan.mask_floor, cfg.loss.mask_floor_meeting, smoke_colour,
+                                       float(plan.floor_pixels.sum()) / max(int(masked.sum()), 1))
             plan.notes.append(note)
             ctx.log_line(f"stage 3: {note}")
         model = build_scene_model(ctx, s2, plan, smoke_pts, scene.smoke_static,
@@ -373,28 +366,60 @@ def haze_line_smoke_colour(cfg: TrainConfig, depth: DepthPriorMaps, rgb: Modalit
                                  HazeLineSettings.of(cfg.stage3))
 
 
+def by_meeting(rule: Callable[[np.ndarray | None], np.ndarray], estimate: SmokeColourEstimate | None,
+               meeting: str) -> np.ndarray:
+    """``rule`` (a per-pixel floor or target, given the point where the haze lines meet, or None) as
+    ``loss.mask_floor_meeting`` reads the meeting: "present", with the point wherever enough of the
+    lines meet; "trusted", the rule with the point and without it blended by the point's weight
+    (``SmokeColourEstimate.meeting_weight``), so that no one line turns a whole run's floor."""
+    if meeting == "present":
+        return rule(None if estimate is None else estimate.meeting)
+    w = 0.0 if estimate is None or estimate.colour is None else estimate.meeting_weight
+    with_point = rule(estimate.colour).astype(np.float32) if w > 0.0 else 0.0
+    without = rule(None).astype(np.float32) if w < 1.0 else 0.0
+    return np.asarray(w * with_point + (1.0 - w) * without, dtype=np.float32)
+
+
 def mask_floor_pixels(plan: Stage3Plan, rgb: ModalityData, depth: DepthPriorMaps, floor: float,
-                      estimate: SmokeColourEstimate | None) -> np.ndarray:
+                      estimate: SmokeColourEstimate | None, meeting: str) -> np.ndarray:
     """The training frames' pixels where the mask floor acts (``smokeseer.train.mask_floor``), with
     Stage 3's starting geometry rendered as depth at the same cameras and, for ``estimated-meeting``,
-    the point where the haze lines ``estimate`` meet."""
+    the point where the haze lines ``estimate`` meet (read as ``meeting`` says: ``by_meeting``); in
+    [0, 1] where that blends two rules, else bool."""
     train = rgb.indices("train")
     maps, valid = depth.maps.cpu().numpy(), depth.valid.cpu().numpy()
     if plan.mask_floor == "never-clear":
         return never_seen_clear(rgb.masks[train], maps, valid, *rgb.cameras("train"))
-    colour = estimate.meeting if estimate is not None else None
-    return estimated_dense(rgb.masks[train], rgb.images[train], maps, valid, *rgb.cameras("train"), colour, floor)
+    return by_meeting(lambda colour: estimated_dense(rgb.masks[train], rgb.images[train], maps, valid,
+                                                     *rgb.cameras("train"), colour, floor), estimate, meeting)
 
 
 def alpha_targets(rgb: ModalityData, depth: DepthPriorMaps, floor: float,
-                  estimate: SmokeColourEstimate | None) -> np.ndarray:
+                  estimate: SmokeColourEstimate | None, meeting: str) -> np.ndarray:
     """The smoke alpha the mask term pushes each masked training pixel up to with
     ``loss.mask_floor_where=estimated-bound`` (``smokeseer.train.mask_floor.estimated_alpha_bound``);
-    ``floor`` where the geometry does not cover the pixel."""
+    ``floor`` where the geometry does not cover the pixel; the meeting read as ``by_meeting``."""
     train = rgb.indices("train")
-    colour = estimate.meeting if estimate is not None else None
-    return estimated_alpha_bound(rgb.masks[train], rgb.images[train], depth.maps.cpu().numpy(),
-                                 depth.valid.cpu().numpy(), *rgb.cameras("train"), colour, floor)
+    maps, valid = depth.maps.cpu().numpy(), depth.valid.cpu().numpy()
+    return by_meeting(lambda colour: estimated_alpha_bound(rgb.masks[train], rgb.images[train], maps, valid,
+                                                           *rgb.cameras("train"), colour, floor), estimate, meeting)
+
+
+def mask_floor_note(where: str, meeting: str, estimate: SmokeColourEstimate | None, share: float) -> str:
+    """The log line of where the mask floor acts: ``share`` of the masked training pixels (a
+    weighted share where ``by_meeting`` blends two rules), and what decided the rest."""
+    if where == "never-clear":
+        rest = "the rest are seen smoke-free from another training view"
+    elif meeting == "trusted" and estimate is not None and estimate.colour is not None:
+        rest = (f"the rule with the point where the haze lines meet, {np.round(estimate.colour, 3).tolist()}, at "
+                f"weight {estimate.meeting_weight:.2f} and without it at the rest (loss.mask_floor_meeting=trusted)")
+    elif meeting == "present" and estimate is not None and estimate.meeting is not None:
+        rest = ("the rest are thinner smoke by the images (a clear view, or too far from where the haze lines "
+                f"meet, {np.round(estimate.meeting, 3).tolist()})")
+    else:
+        rest = ("the haze lines do not meet, so the smoke reads thin: only points seen clear elsewhere and dense "
+                "there, or the geometry does not cover them")
+    return f"mask floor on {100 * share:.0f} % of the masked training pixels: {rest} (loss.mask_floor_where={where})"
 
 
 def smoke_colour_record(plan: Stage3Plan, estimate: SmokeColourEstimate | None) -> dict[str, Any] | None:

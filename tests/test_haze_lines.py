@@ -13,7 +13,8 @@ import pytest
 
 from benchmarks.smoke_colour_decisions import decision
 from scenes.cameras import backproject
-from smokeseer.stage1.haze_lines import (HazeLineSettings, estimate_smoke_colour, fit_lines, meeting_point, observations,
+from smokeseer.stage1.haze_lines import (HazeLineSettings, estimate_smoke_colour, fit_lines, meeting_factors,
+                                         meeting_point, observations,
                                          trust)
 
 SMOKE = np.array([0.2, 0.3, 0.25])
@@ -145,6 +146,22 @@ def test_trust_moves_without_a_step() -> None:
     assert "250 lines" in why and "0.25 of the lines meet" in why and "channel mean 0.45 (full at 0.4" in why
 
 
+def test_the_meeting_weight_is_the_trust_without_its_darkness_ramp() -> None:
+    """How far the meeting point places the smoke's density: the trust's line and meeting ramps
+    alone, so a bright smoke whose colour is not held still has a meeting of full weight, and
+    the weight moves without a step in the line count (0 at 100 lines, where an estimate begins)."""
+    rng = np.random.default_rng(3)
+    images, depths, valid, vms, ks = _static_frames(rng.uniform(0.2, 0.9, (20, H, W)), rng)
+    mean = float(np.mean(SMOKE))
+    bright = estimate_smoke_colour(images, depths, valid, vms, ks, np.random.default_rng(0),
+                                   HazeLineSettings(max_brightness=mean - 0.04, full_brightness=mean - 0.08))
+    assert bright.trust == 0.0 and bright.meeting_weight == 1.0
+    s = HazeLineSettings()
+    weights = [float(np.prod(list(meeting_factors(n, 0.9, s).values()))) for n in range(s.min_lines, s.full_lines + 1)]
+    assert weights[0] == 0.0 and weights[-1] == 1.0 and np.max(np.diff(weights)) <= 1.0 / (s.full_lines - s.min_lines) + 1e-12
+    assert float(np.prod(list(meeting_factors(250, 0.25, s).values()))) == pytest.approx(0.5 * 0.5)
+
+
 def test_estimate_refuses_smoke_that_never_changes() -> None:
     rng = np.random.default_rng(4)
     images, depths, valid, vms, ks = _static_frames(np.full((20, H, W), 0.5), rng)
@@ -162,6 +179,7 @@ def test_lines_that_do_not_meet_get_no_trust() -> None:
     est = estimate_smoke_colour(images, np.full((20, H, W), 2.0), np.ones((20, H, W), bool),
                                 np.stack([_viewmat(0.0)] * 20), np.stack([K] * 20), np.random.default_rng(0))
     assert est.lines >= 100 and est.meeting_fraction < 0.2 and est.meeting is None and est.trust == 0.0
+    assert est.meeting_weight == 0.0
     assert est.colour is not None and "0.02 of the lines meet (full at 0.3): 0.00" in est.reason
 
 

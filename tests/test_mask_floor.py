@@ -170,12 +170,74 @@ def test_mask_term_without_floor_keeps_only_the_push_to_zero() -> None:
     assert alpha.grad[0, 0] == 0 and alpha.grad[0, 1] < 0 and alpha.grad[0, 2] > 0
 
 
+def _old_mask_term(alpha: torch.Tensor, mask: torch.Tensor, floor: float, where: torch.Tensor) -> torch.Tensor:
+    """The term as written before it took weights: alpha counted as full smoke inside the mask
+    where it reaches the floor or the floor does not act."""
+    full = (alpha >= floor) | ~where
+    return (torch.where((mask > 0.5) & full, torch.ones_like(alpha), alpha) - mask).abs().mean()
+
+
+def test_a_weighted_floor_blends_the_term_with_and_without_it() -> None:
+    """A floor weight of 0 or 1 gives the bool rule's value and gradient to the last bit (so
+    ``present`` trains as before); a weight between is the same blend of the two terms, value
+    and gradient, so a floor that moves a little moves the loss a little."""
+    gen = torch.Generator().manual_seed(0)
+    alpha0 = torch.rand(4, 9, 11, generator=gen)
+    mask = (torch.rand(4, 9, 11, generator=gen) > 0.4).float() * torch.rand(4, 9, 11, generator=gen).clamp(min=0.6)
+    where = torch.rand(4, 9, 11, generator=gen) > 0.5
+
+    def value_and_grad(fn):
+        a = alpha0.clone().requires_grad_(True)
+        loss = fn(a)
+        loss.backward()
+        return loss.detach(), a.grad
+
+    old, old_grad = value_and_grad(lambda a: _old_mask_term(a, mask, 0.4, where))
+    for given in (where, where.float()):
+        new, new_grad = value_and_grad(lambda a: mask_alignment(a, mask, 0.4, given))
+        assert new.item() == old.item() and torch.equal(new_grad, old_grad)
+    on, on_grad = value_and_grad(lambda a: mask_alignment(a, mask, 0.4, torch.ones_like(mask)))
+    off, off_grad = value_and_grad(lambda a: mask_alignment(a, mask, 0.4, torch.zeros_like(mask)))
+    half, half_grad = value_and_grad(lambda a: mask_alignment(a, mask, 0.4, torch.full_like(mask, 0.3)))
+    assert half.item() == pytest.approx(0.3 * on.item() + 0.7 * off.item(), rel=1e-6)
+    torch.testing.assert_close(half_grad, 0.3 * on_grad + 0.7 * off_grad)
+    assert off.item() < half.item() < on.item()
+
+
+def test_the_floor_reads_the_meeting_as_the_setting_says() -> None:
+    """``present`` takes the rule with the point wherever enough lines meet, whatever its weight;
+    ``trusted`` blends the rule with the point and without it by the point's weight, so two runs
+    whose line counts straddle the estimate's start (food_plate's 106 and 98) get nearly one floor."""
+    from smokeseer.api import by_meeting
+    from smokeseer.stage1.haze_lines import SmokeColourEstimate
+
+    calls: list[object] = []
+
+    def rule(colour: np.ndarray | None) -> np.ndarray:
+        calls.append(None if colour is None else tuple(colour))
+        return np.array([True, colour is not None, False])
+
+    point = np.array([0.3, 0.3, 0.3])
+    for weight, expected in ((0.0, [1, 0, 0]), (0.02, [1, 0.02, 0]), (0.5, [1, 0.5, 0]), (1.0, [1, 1, 0])):
+        est = SmokeColourEstimate(point, 106, 300, 0.5, meeting=point, meeting_weight=weight)
+        calls.clear()
+        np.testing.assert_allclose(by_meeting(rule, est, "trusted"), expected, atol=1e-7)
+        assert len(calls) == 1 + (0.0 < weight < 1.0)
+        np.testing.assert_array_equal(by_meeting(rule, est, "present"), [True, True, False])
+    nothing = by_meeting(rule, None, "trusted")
+    assert nothing.dtype == np.float32 and nothing.tolist() == [1, 0, 0]
+    unmet = SmokeColourEstimate(point, 500, 900, 0.1, meeting=None, meeting_weight=0.0)
+    assert by_meeting(rule, unmet, "present").tolist() == by_meeting(rule, unmet, "trusted").tolist() == [1, 0, 0]
+
+
 def test_bad_setting_names_the_field() -> None:
     with pytest.raises(ValueError, match="loss.mask_floor_where: 'sometimes' is not one of all, never-clear, estimated-meeting, estimated-bound"):
         make_config("full", "quick", overrides={"loss.mask_floor_where": "sometimes"})
     with pytest.raises(ValueError, match="loss.mask_floor_where: estimated-meeting .* stage3.smoke_color=haze-lines"):
         make_config("full", "quick", overrides={"loss.mask_floor_where": "estimated-meeting",
                                                 "stage3.smoke_color": "learned"})
+    with pytest.raises(ValueError, match="loss.mask_floor_meeting: 'always' is not one of present, trusted"):
+        make_config("full", "quick", overrides={"loss.mask_floor_meeting": "always"})
 
 
 def test_floor_rule_follows_the_setting_and_needs_masks_and_smoke(tmp_path) -> None:

@@ -556,9 +556,9 @@ def test_training_opens_no_ground_truth_of_its_training_frames(splat: Path, tmp_
 def test_mask_alpha_floor_reaches_the_mask_term(splat: Path, tmp_path: Path,
                                                monkeypatch: pytest.MonkeyPatch) -> None:
     """loss.mask_alpha_floor is the floor Stage 3's mask term uses (default 0.4, the public code's),
-    and loss.mask_floor_where=never-clear or estimated-meeting hands it a per-pixel map of the mask's shape
-    (said in stages.notes); estimated-bound hands it a target per pixel instead; by default it acts on
-    every masked pixel."""
+    and loss.mask_floor_where=never-clear or estimated-meeting hands it a per-pixel map of the mask's
+    shape (said in stages.notes), a weight in [0, 1] with loss.mask_floor_meeting=trusted;
+    estimated-bound hands it a target per pixel instead; by default it acts on every masked pixel."""
     import smokeseer.train.stage3 as stage3
 
     seen: list[tuple[float, tuple[int, ...] | None, bool]] = []
@@ -566,28 +566,32 @@ def test_mask_alpha_floor_reaches_the_mask_term(splat: Path, tmp_path: Path,
 
     def recording(alpha: torch.Tensor, mask: torch.Tensor, floor: float, floor_where: torch.Tensor | None = None,
                   targets: torch.Tensor | None = None) -> torch.Tensor:
-        assert floor_where is None or (floor_where.dtype == torch.bool and floor_where.shape == mask.shape)
+        assert floor_where is None or floor_where.shape == mask.shape
+        assert floor_where is None or floor_where.dtype == (torch.float32 if trusted else torch.bool)
+        assert floor_where is None or bool(((floor_where >= 0) & (floor_where <= 1)).all())
         assert targets is None or (targets.dtype == mask.dtype and targets.shape == mask.shape
                                    and bool(((targets >= 0) & (targets <= 1)).all()))
         seen.append((floor, None if floor_where is None else tuple(floor_where.shape), targets is not None))
         return term(alpha, mask, floor, floor_where, targets)
 
     monkeypatch.setattr(stage3, "mask_alignment", recording)
+    estimated = ["--set", "loss.mask_floor_where=estimated-meeting", "--set", "stage3.smoke_color=haze-lines"]
     for name, extra, expected in (("default", [], 0.4), ("floor", ["--set", "loss.mask_alpha_floor=0.9"], 0.9),
                                   ("gated", ["--set", "loss.mask_floor_where=never-clear"], 0.4),
-                                  ("estimated", ["--set", "loss.mask_floor_where=estimated-meeting",
-                                                 "--set", "stage3.smoke_color=haze-lines"], 0.4),
+                                  ("estimated", estimated, 0.4),
+                                  ("trusted", estimated + ["--set", "loss.mask_floor_meeting=trusted"], 0.4),
                                   ("bound", ["--set", "loss.mask_floor_where=estimated-bound",
                                              "--set", "stage3.smoke_color=haze-lines"], 0.4)):
         seen.clear()
+        trusted = name == "trusted"
         assert main([str(splat), "--out", str(tmp_path / name)] + TINY + extra) == 0
         assert seen and {f for f, _, _ in seen} == {expected}
         gated = {shape is not None for _, shape, _ in seen}
-        assert gated == {name in ("gated", "estimated")}
+        assert gated == {name in ("gated", "estimated", "trusted")}
         assert {t for _, _, t in seen} == {name == "bound"}
         notes = json.loads((tmp_path / name / "metrics.json").read_text())["stages"]["notes"]
-        assert any("mask floor on" in n for n in notes) == (name in ("gated", "estimated"))
-        assert any("loss.mask_floor_where=estimated-meeting)" in n for n in notes) == (name == "estimated")
+        assert any("mask floor on" in n for n in notes) == (name in ("gated", "estimated", "trusted"))
+        assert any("loss.mask_floor_where=estimated-meeting)" in n for n in notes) == (name in ("estimated", "trusted"))
 
 
 @pytest.mark.parametrize("smoke", ["none", "opaque"])

@@ -38,6 +38,7 @@ MAX_THERMAL_SUPERSAMPLE = 4
 INIT_FROM: tuple[str, ...] = ("random", "images")
 POSE_SOURCES: tuple[str, ...] = ("given", "sfm")
 MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "estimated-meeting", "estimated-bound")
+MASK_FLOOR_MEETING: tuple[str, ...] = ("present", "trusted")
 DEFORM_KINDS: tuple[str, ...] = ("mlp", "fourier", "planes")
 LPIPS_NETS: tuple[str, ...] = ("alex", "vgg")
 
@@ -78,6 +79,13 @@ class LossWeights:
     "estimated-bound", no step at all: every masked pixel is pushed up to the alpha the same
     estimate proves there (the reading off a clear view, else the lower bound), a floor of its own
     (``mask_floor.estimated_alpha_bound``)."""
+    mask_floor_meeting: str = "present"
+    """How the "estimated" floors read where the haze lines meet: "present", wherever enough of the
+    lines meet to give a point (a whole run's floor then turns on one line more or less, as
+    food_plate's did between two float setups: 106 lines against fewer than 100); "trusted", as a
+    blend of the rule with the point and the rule without it, weighted by how far the point is
+    trusted (``haze_lines.SmokeColourEstimate.meeting_weight``), so the floor moves little when the
+    line count does."""
 
 
 @dataclass
@@ -492,6 +500,9 @@ class TrainConfig:
         if self.loss.mask_floor_where not in MASK_FLOOR_WHERE:
             raise ValueError(f"loss.mask_floor_where: {self.loss.mask_floor_where!r} is not one of "
                              f"{', '.join(MASK_FLOOR_WHERE)}")
+        if self.loss.mask_floor_meeting not in MASK_FLOOR_MEETING:
+            raise ValueError(f"loss.mask_floor_meeting: {self.loss.mask_floor_meeting!r} is not one of "
+                             f"{', '.join(MASK_FLOOR_MEETING)}")
         if self.loss.mask_floor_where.startswith("estimated") and self.stage3.smoke_color != "haze-lines":
             raise ValueError(f"loss.mask_floor_where: {self.loss.mask_floor_where} reads the haze lines; it needs "
                              "stage3.smoke_color=haze-lines")

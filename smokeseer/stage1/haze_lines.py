@@ -87,6 +87,9 @@ class SmokeColourEstimate:
     surface_trust: float = 0.0
     """In [0, 1], at least ``trust``: the RGB Stage 2 keeps 1 − this of its opacities in Stage 3's
     start (``smokeseer.train.surface_union.surface_start``)."""
+    meeting_weight: float = 0.0
+    """In [0, 1]: how far ``colour`` is trusted to place the smoke's density, the trust's line and
+    meeting ramps without its darkness one (``loss.mask_floor_meeting=trusted``)."""
 
     def describe(self) -> str:
         met = "" if self.meeting_fraction is None else f", {self.meeting_fraction:.2f} of them meeting"
@@ -103,15 +106,20 @@ def ramp(value: float, zero: float, one: float) -> float:
     return float(np.clip((value - zero) / (one - zero), 0.0, 1.0))
 
 
+def meeting_factors(lines: int, met: float, settings: HazeLineSettings) -> dict[str, float]:
+    """The ramps of enough lines and of lines that meet, by what each reads."""
+    return {f"{lines} lines (full at {settings.full_lines})": ramp(lines, settings.min_lines, settings.full_lines),
+            f"{met:.2f} of the lines meet (full at {settings.full_meeting_fraction})":
+                ramp(met, settings.min_meeting_fraction, settings.full_meeting_fraction)}
+
+
 def trust(colour: np.ndarray, lines: int, met: float, settings: HazeLineSettings,
           full_brightness: float) -> tuple[float, str]:
     """The product of three ramps, enough lines, lines that meet and a dark colour (1 at channel
     mean ``full_brightness`` or under), and what holds it under 1 ("" at 1)."""
     mean = float(np.mean(colour))
     factors = {
-        f"{lines} lines (full at {settings.full_lines})": ramp(lines, settings.min_lines, settings.full_lines),
-        f"{met:.2f} of the lines meet (full at {settings.full_meeting_fraction})":
-            ramp(met, settings.min_meeting_fraction, settings.full_meeting_fraction),
+        **meeting_factors(lines, met, settings),
         f"channel mean {mean:.2f} (full at {full_brightness} or darker: a scattering smoke's radiance follows "
         "the light and the view)": ramp(mean, settings.max_brightness, full_brightness)}
     value = float(np.prod(list(factors.values())))
@@ -213,4 +221,5 @@ def estimate_smoke_colour(images: np.ndarray, depths: np.ndarray, valid: np.ndar
     value, limits = trust(colour, lines, met, settings, settings.full_brightness)
     surface, _ = trust(colour, lines, met, settings, settings.surface_full_brightness)
     meeting = colour if met >= settings.min_meeting_fraction else None
-    return SmokeColourEstimate(colour, lines, n_points, met, limits, meeting, value, surface)
+    weight = float(np.prod(list(meeting_factors(lines, met, settings).values())))
+    return SmokeColourEstimate(colour, lines, n_points, met, limits, meeting, value, surface, weight)

@@ -101,14 +101,18 @@ def mask_alignment(smoke_alpha: Tensor, mask: Tensor, floor: float, floor_where:
     scenes) the smoke then hides the surface and the surface-only render fails (chair: 15.3 dB
     with the plain L1, 20.7 dB without the term). Outside the mask it still pulls alpha to 0.
 
-    ``floor_where`` (bool, like the mask): inside the mask but outside it, any alpha counts as full
-    smoke, so only the push to zero outside the mask is left (``loss.mask_floor_where``).
+    ``floor_where`` (like the mask, bool or a weight in [0, 1]): inside the mask but outside it, any
+    alpha counts as full smoke, so only the push to zero outside the mask is left
+    (``loss.mask_floor_where``); a weight w between blends the two, w × the floor's term + (1 − w) ×
+    the term without it (``loss.mask_floor_meeting=trusted``).
 
     ``targets`` (like the mask, in [0, 1]; ``loss.mask_floor_where=estimated-bound``): inside the
     mask the alpha is pushed up to its pixel's target and never down, a floor per pixel in place of
     the one step at ``floor``."""
     if targets is not None:
         return torch.where(mask > 0.5, torch.relu(targets - smoke_alpha), (smoke_alpha - mask).abs()).mean()
-    full = smoke_alpha >= floor if floor_where is None else (smoke_alpha >= floor) | ~floor_where
-    counted = torch.where((mask > 0.5) & full, torch.ones_like(smoke_alpha), smoke_alpha)
-    return (counted - mask).abs().mean()
+    floored = (torch.where(smoke_alpha >= floor, torch.ones_like(smoke_alpha), smoke_alpha) - mask).abs()
+    if floor_where is not None:  # the term without the floor: alpha counts as full smoke, 1 - mask
+        w = floor_where.to(smoke_alpha.dtype)
+        floored = w * floored + (1.0 - w) * (1.0 - mask).abs()
+    return torch.where(mask > 0.5, floored, (smoke_alpha - mask).abs()).mean()
