@@ -19,7 +19,9 @@ smoky input.
 paired difference from Full (mean, std over scenes, scenes ahead). That is what a rule is chosen on,
 with `--split val` on random-dev; `--summary CSV` writes those counts, one row per rule. With
 candidates a scene needs Full and every candidate, not RGB-only: the counts against RGB-only read
-the scenes where it was trained, and say how many.
+the scenes where it was trained, and say how many. A candidate that would train exactly like Full
+on a scene has no run folder there (the harness took Full's run, `eval/twins.py`): it reads Full's,
+and the row's `same_as_full` names it.
 
 Runs of one scene need not come from one machine: the harness takes a finished run of the same
 settings wherever it was trained. `machines` names each run's CPU and torch capability (harness.json
@@ -44,6 +46,7 @@ if str(ROOT) not in sys.path:
 from contracts.atomic import write_rows_csv  # noqa: E402
 from contracts.float_setup import machine_of  # noqa: E402
 from eval.finished_runs import finished_runs  # noqa: E402
+from eval.twins import run_twin_reason  # noqa: E402
 
 DENSE = 1.0
 """The optical depth from which a scene counts as dense smoke (the must-hold's split)."""
@@ -74,7 +77,10 @@ def score_rows(tables: Path, datasets: Path, split: str, seed: int, digest: str 
     required = {"full", *candidates} if candidates else {"full", "rgb-only"}
     rows = []
     for scene in sorted(by_scene):
-        if not required <= set(by_scene[scene]):
+        found = by_scene[scene]
+        twins = [c for c in candidates if c not in found and "full" in found and run_twin_reason(c, found["full"][0])]
+        found.update({c: found["full"] for c in twins})  # the harness took Full's run for it (eval/twins.py)
+        if not required <= set(found):
             continue
         meta = json.loads((datasets / scene / "dataset.json").read_text())
         depth = (meta.get("smoke", {}).get("optical_depth") or {}).get("achieved")
@@ -86,7 +92,7 @@ def score_rows(tables: Path, datasets: Path, split: str, seed: int, digest: str 
                      "full_minus_rgb_only": None if rgb is None else round(full - rgb, 4),
                      "full_minus_input": round(full - full_input, 4),
                      **{column(c): round(_psnrs(*by_scene[scene][c], split)[0], 4) for c in candidates},
-                     "float_setups": len(setups),
+                     "float_setups": len(setups), "same_as_full": ",".join(twins),
                      "machines": "; ".join(f"{v}: {machine_of(by_scene[scene][v][1].get('float_setup') or '')}" for v in sorted(by_scene[scene]))})
     return chosen, rows
 

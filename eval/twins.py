@@ -1,21 +1,29 @@
-"""Table-2 rows that would train exactly like Full on a scene take Full's finished run.
+"""Runs that would train exactly like Full on a scene take Full's finished run.
 
 Full's metrics.json records its Stage 3 plan (``stages.stage3_plan``, docs/results-format.md):
 where the plan dropped a colour prior (the smoke colour held at the haze-line estimate, or no
 smoke Gaussians), "w/o smoke_color" and "w/o mono" remove a term that was not there: with the
-same scene, seed, data, settings and code they end with Full's bytes (tests/test_twins.py checks
-this with the real trainer). The harness then records Full's result for them, marked
-``same_as``, instead of training them; the tables say on how many scenes. Runs written before
-the plan was recorded say the same through ``stages.smoke_colour.source`` = ``haze-lines``.
+same scene, seed, data, settings and code they end with Full's bytes. Runs written before the
+plan was recorded say the same through ``stages.smoke_colour.source`` = ``haze-lines``. The
+candidate ``floor-by-meeting-trust`` changes the mask floor only where the haze lines' meeting
+point has a weight strictly between 0 and 1, or a weight that disagrees with whether Full used the
+point: elsewhere (no point, a floor that does not read it, or a point fully trusted and used) its
+floor is Full's, and so is every byte (tests/test_twins.py checks both with the real trainer).
+The harness then records Full's result for them, marked ``same_as``, instead of training them;
+the tables say on how many scenes.
 """
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
 
+import numpy as np
+
 from contracts.results_format import ResultsFormatError, read_metrics, stage3_plan
-from eval.runs import RunResult, RunSpec
+from eval.runs import VARIANTS, RunResult, RunSpec
+from smokeseer.stage1.haze_lines import HazeLineSettings, meeting_factors
 
 COLOUR_PRIOR_ABLATIONS = {"no-smoke-color": "smoke_color", "no-mono": "mono"}
 """Ablations that only zero a smoke-colour prior, and the term each zeroes."""
@@ -24,8 +32,43 @@ COLOUR_FIXED_REASON = ("Full held the smoke colour at the haze-line estimate, so
                        "and the run would train exactly like Full")
 
 
-def twin_reason(variant: str, full_doc: dict[str, Any], where: Path = Path("metrics.json")) -> str | None:
-    """Why ``variant`` would train exactly like the Full run whose metrics.json is ``full_doc``, or None."""
+MEETING_CANDIDATE = "floor-by-meeting-trust"
+"""The candidate that reads the haze lines' meeting point by its weight (``loss.mask_floor_meeting``)."""
+
+TWIN_VARIANTS = (*COLOUR_PRIOR_ABLATIONS, MEETING_CANDIDATE)
+"""Variants that may stand on Full's run, each by its own rule (``twin_reason``)."""
+
+
+def meeting_twin_reason(full_doc: dict[str, Any], config: dict[str, Any], where: Path) -> str | None:
+    """Why ``floor-by-meeting-trust`` would floor exactly as the Full run did (metrics.json
+    ``full_doc``, config.json ``config``), or None: the meeting point's weight (the haze-line
+    trust's line and meeting ramps) is 0 where Full used no point, or 1 where it used one."""
+    plan = stage3_plan(full_doc, where)
+    if plan is None:
+        return None
+    if plan["mask_floor"] not in ("estimated-meeting", "estimated-bound"):
+        return f"Full's mask floor ({plan['mask_floor']}) does not read the haze lines, so the run would train exactly like Full"
+    lines = ((full_doc.get("stages") or {}).get("smoke_colour") or {}).get("haze_lines")
+    if lines is None or lines.get("colour") is None:
+        return "the haze lines gave Full no meeting point, so both floors read none and the run would train exactly like Full"
+    stage3 = config["stage3"]
+    settings = HazeLineSettings(min_meeting_fraction=stage3["smoke_color_min_meeting"],
+                                full_meeting_fraction=stage3["smoke_color_full_meeting"])
+    met = lines["meeting_fraction"]
+    weight = float(np.prod(list(meeting_factors(lines["lines"], met, settings).values())))
+    used = met >= settings.min_meeting_fraction
+    if weight == (1.0 if used else 0.0):
+        return (f"the meeting point's weight is {weight:.0f} ({lines['lines']} lines, {met:.2f} meeting) and Full "
+                f"{'used' if used else 'did not use'} the point, so the floors agree and the run would train exactly like Full")
+    return None
+
+
+def twin_reason(variant: str, full_doc: dict[str, Any], where: Path = Path("metrics.json"),
+                config: dict[str, Any] | None = None) -> str | None:
+    """Why ``variant`` would train exactly like the Full run whose metrics.json is ``full_doc`` (and
+    config.json ``config``, which the meeting candidate reads), or None."""
+    if variant == MEETING_CANDIDATE:
+        return None if config is None else meeting_twin_reason(full_doc, config, where)
     term = COLOUR_PRIOR_ABLATIONS.get(variant)
     if term is None:
         return None
@@ -39,19 +82,23 @@ def twin_reason(variant: str, full_doc: dict[str, Any], where: Path = Path("metr
 
 
 def run_twin_reason(variant: str, full_dir: Path) -> str | None:
-    """``twin_reason`` for the Full run folder ``full_dir`` (read from its metrics.json)."""
-    return twin_reason(variant, read_metrics(full_dir), full_dir / "metrics.json")
+    """``twin_reason`` for the Full run folder ``full_dir`` (its metrics.json and config.json)."""
+    if variant not in TWIN_VARIANTS:
+        return None
+    config = json.loads((full_dir / "config.json").read_text()) if (full_dir / "config.json").is_file() else None
+    return twin_reason(variant, read_metrics(full_dir), full_dir / "metrics.json", config)
 
 
 def full_twins(specs: list[RunSpec], out: Path,
                finished: Callable[[RunSpec, Path], RunResult | None]) -> dict[str, RunResult]:
-    """For each ablation run of the plan that Full's finished run stands for: its record (Full's
+    """For each run of the plan that Full's finished run stands for: its record (Full's
     metrics and run folder, this run's identity and config hash), keyed by its own run folder."""
     fulls = {(s.scene, s.seed, s.dataset_hash, s.code): s for s in specs if s.variant == "full"}
     twins: dict[str, RunResult] = {}
     for spec in specs:
         full = fulls.get((spec.scene, spec.seed, spec.dataset_hash, spec.code))
-        if spec.variant not in COLOUR_PRIOR_ABLATIONS or full is None or dict(full.overrides) != dict(spec.overrides):
+        if spec.variant not in TWIN_VARIANTS or full is None or \
+                dict(spec.overrides) != {**dict(full.overrides), **VARIANTS[spec.variant].overrides}:
             continue
         full_dir = full.run_dir(out).resolve()
         done = finished(full, full_dir)

@@ -170,3 +170,25 @@ def test_the_set_script_plans_both_methods_on_every_finished_scene(demo_dataset:
     empty = subprocess.run(["bash", "benchmarks/random_set_tables.sh", str(tmp_path / "none"), str(tmp_path / "t")],
                            cwd=root, capture_output=True, text=True)
     assert empty.returncode == 2 and "no finished drawn scene" in empty.stderr
+
+
+def test_a_candidate_the_harness_took_fulls_run_for_reads_fulls(tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """floor-by-meeting-trust has no run folder where Full's haze lines gave no meeting point (the
+    harness took Full's run, eval/twins.py): the row reads Full's scores for it and names it; where
+    its floor differs and it has not finished, the scene has no row."""
+    from tests.test_twins import write_full_record
+
+    tables, datasets = tmp_path / "tables", tmp_path / "sets"
+    for scene, colour in (("random_1", None), ("random_2", [0.3, 0.3, 0.3])):
+        _dataset(datasets, scene, 1.0)
+        _run(tables, scene, "full", 21.0, 20.0)
+        write_full_record(tables / "runs" / scene / "full" / "seed0-x", colour, lines=250, met=0.5)
+    out = tmp_path / "per_scene.csv"
+    assert main(["--tables", str(tables), "--datasets", str(datasets), "--out", str(out), "--split", "val",
+                 "--candidates", "floor-by-meeting-trust"]) == 0
+    with open(out) as f:
+        rows = list(csv.DictReader(f))
+    assert [(r["scene"], r["floor_by_meeting_trust_psnr"], r["same_as_full"]) for r in rows] == [
+        ("random_1", "20.0", "floor-by-meeting-trust")]
+    assert "- Full +0.00 ± 0.00 dB, ahead on 0 of 1" in capsys.readouterr().out

@@ -1,7 +1,8 @@
-"""Ablations that would train exactly like Full take Full's finished run (eval/twins.py).
+"""Runs that would train exactly like Full take Full's finished run (eval/twins.py).
 
-The claim they rest on is checked with the real trainer: with the smoke colour held fixed,
-"w/o smoke_color" and "w/o mono" end with Full's bytes, and "w/o mask" (a control) does not.
+The claims they rest on are checked with the real trainer: with the smoke colour held fixed,
+"w/o smoke_color" and "w/o mono" end with Full's bytes, and "w/o mask" (a control) does not; the
+meeting candidate ends with Full's bytes where its rule says it would.
 """
 from __future__ import annotations
 
@@ -106,3 +107,91 @@ def test_harness_takes_fulls_run_for_colour_prior_ablations_where_the_colour_was
     rows = {r["variant"]: r for r in csv.DictReader(open(paths["table2.csv"])) if r["metric"] == "psnr"}
     assert rows["no-mono"]["runs_ok"] == "2"
     assert "alpha/no-mono/seed 0 = full" in paths["report.md"].read_text()
+
+
+def write_full_record(run: Path, colour: list[float] | None, lines: int, met: float | None,
+                      mask_floor: str = "estimated-meeting") -> None:
+    """A finished Full run's metrics.json and config.json as the meeting rule reads them: the plan's
+    floor and the haze lines' record (its validation kept where the folder had one)."""
+    from smokeseer.config import make_config
+    from tests.results_builder import write_metrics
+
+    old = json.loads((run / "metrics.json").read_text()) if (run / "metrics.json").is_file() else {}
+    plan = {**_plan("haze-lines" if colour else "learned", {}), "mask_floor": mask_floor}
+    write_metrics(run, scene=run.parents[1].name, method="full", profile="standard", seed=0,
+                  metrics=old.get("metrics"), validation=old.get("validation"),
+                  stages={"stage3_plan": plan, "smoke_colour": {"source": "haze-lines", "haze_lines": {
+                      "colour": colour, "lines": lines, "meeting_fraction": met if colour else None}}})
+    (run / "config.json").write_text(json.dumps(make_config("full", "standard", 0).to_dict()))
+
+
+@pytest.mark.parametrize("colour, lines, met, floor, twin", [
+    (None, 86, None, "estimated-meeting", True),             # no point: both floors read none
+    ([0.3, 0.3, 0.3], 500, 0.8, "estimated-meeting", True),  # weight 1, and Full used the point
+    ([0.3, 0.3, 0.3], 500, 0.1, "estimated-meeting", True),  # weight 0, and Full did not
+    ([0.3, 0.3, 0.3], 106, 0.58, "estimated-meeting", False),  # weight 0.02: food_plate's case
+    ([0.3, 0.3, 0.3], 500, 0.25, "estimated-bound", False),  # used, at weight 0.5
+    ([0.3, 0.3, 0.3], 100, 0.5, "estimated-meeting", False),  # used, at weight 0 (the ramp's foot)
+    ([0.3, 0.3, 0.3], 106, 0.58, "never-clear", True),       # a floor that reads no haze line
+])
+def test_the_meeting_candidate_stands_on_fulls_run_where_the_floors_agree(tmp_path: Path, colour, lines, met,
+                                                                         floor, twin) -> None:
+    from eval.twins import run_twin_reason
+
+    run = tmp_path / "runs" / "scene" / "full" / "seed0-x"
+    run.mkdir(parents=True)
+    write_full_record(run, colour, lines, met, floor)
+    reason = run_twin_reason("floor-by-meeting-trust", run)
+    assert (reason is not None) == twin
+    assert run_twin_reason("thermal-box-filtered", run) is None
+
+
+def test_the_meeting_candidate_trains_like_full_where_its_rule_says_so(tmp_path: Path,
+                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """The claim the meeting rule rests on, with the real trainer and the standard floor: with no
+    meeting point, or a fully trusted one, loss.mask_floor_meeting=trusted (a float floor map and
+    the mask term's weighted form) ends with Full's bytes. (This scene's geometry leaves every
+    masked pixel floored under both rules, so a point at weight 0.5 floors alike here too: the
+    blend itself is tests/test_mask_floor.py's.)"""
+    import smokeseer.api as api
+    from smokeseer.stage1.haze_lines import SmokeColourEstimate
+
+    ds = write_splat_dataset(tmp_path / "splat", n_rgb=8, n_thermal=6)
+    floor = {**TINY, "loss.mask_floor_where": "estimated-meeting"}
+    point = np.array([0.8, 0.8, 0.82])
+    estimates = {"none": SmokeColourEstimate(None, 86, 191, reason="fewer than 100 observation lines"),
+                 "full weight": SmokeColourEstimate(point, 500, 900, 0.9, meeting=point, trust=1.0, meeting_weight=1.0)}
+    for name, estimate in estimates.items():
+        monkeypatch.setattr(api, "haze_line_smoke_colour", lambda cfg, depth, rgb, e=estimate: e)
+        plys = {}
+        for meeting in ("present", "trusted"):
+            out = tmp_path / f"{name}-{meeting}"
+            api.train_and_evaluate(ds, out, "full", profile="quick", seed=0,
+                                   overrides={**floor, "loss.mask_floor_meeting": meeting})
+            plys[meeting] = (out / "ply" / "surface.ply").read_bytes()
+        assert plys["present"] == plys["trusted"], name
+
+
+def haze_train(dataset: Path, out: Path, mode: str, profile: str = "quick", seed: int = 0,
+               overrides: dict[str, Any] | None = None) -> dict[str, Any]:
+    """identity_train whose record has no meeting point on scene alpha, one at weight 0.5 on beta."""
+    identity_train(dataset, out, mode, profile, seed, overrides)
+    alpha = json.loads((dataset / "dataset.json").read_text())["scene"] == "alpha"
+    write_full_record(out, None if alpha else [0.3, 0.3, 0.3], 250, 0.5)
+    return {}
+
+
+def test_harness_takes_fulls_run_for_the_meeting_candidate_where_the_floors_agree(tmp_path: Path) -> None:
+    datasets = {s: write_tiny_dataset(tmp_path / s, s) for s in ("alpha", "beta")}
+    base = dict(out=tmp_path / "out", scenes=["alpha", "beta"], seeds=[0], workers=1, datasets=datasets,
+                ablations=[])
+    regenerate(HarnessConfig(methods=["full"], **base), train_fn=haze_train)
+    n = _calls(tmp_path / "out")
+    results, _ = regenerate(HarnessConfig(methods=["full"], candidates=["floor-by-meeting-trust"], **base),
+                            train_fn=haze_train)
+    assert _calls(tmp_path / "out") - n == 1   # beta's candidate trains; alpha's is Full's run
+    by = {(r.scene, r.variant): r for r in results}
+    twin = by[("alpha", "floor-by-meeting-trust")]
+    assert twin.same_as == "full" and twin.run_dir == by[("alpha", "full")].run_dir
+    assert "no meeting point" in twin.same_as_reason
+    assert not by[("beta", "floor-by-meeting-trust")].same_as
