@@ -29,7 +29,7 @@
 # Extra arguments go to regenerate-tables (e.g. --dry-run).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-RULES=${RULES:-thermal-box-filtered,carve-where-smoky,floor-by-meeting-trust}
+RULES=${RULES:-carve-where-smoky,floor-by-meeting-trust}
 RESULTS=benchmarks/results/rules
 step=${1:-}
 shift || true
