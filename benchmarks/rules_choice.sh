@@ -22,6 +22,7 @@
 # candidate that was not adopted has left eval/runs.py:
 #   RULES=start-thermal,start-clear-views,mask-bound bash benchmarks/rules_choice.sh report ba3c3d79
 #   RULES=rgb-start-clear-pixels,rgb-start-clear-views bash benchmarks/rules_choice.sh report 580fa3b5
+#   RULES=thermal-box-filtered,carve-where-smoky,floor-by-meeting-trust bash benchmarks/rules_choice.sh report 6348cb72
 #
 # A shorter Stage 3 does not stand in for the standard profile: at 1000 + 1000 iterations and 80 px
 # every route left food_plate 6-8 dB under its smoky input, where the standard Full ends 0.6 dB over
