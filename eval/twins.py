@@ -5,10 +5,9 @@ where the plan dropped a colour prior (the smoke colour held at the haze-line es
 smoke Gaussians), "w/o smoke_color" and "w/o mono" remove a term that was not there: with the
 same scene, seed, data, settings and code they end with Full's bytes. Runs written before the
 plan was recorded say the same through ``stages.smoke_colour.source`` = ``haze-lines``. The
-candidate ``floor-by-meeting-trust`` changes the mask floor only where the haze lines' meeting
-point has a weight strictly between 0 and 1, or a weight that disagrees with whether Full used the
-point: elsewhere (no point, a floor that does not read it, or a point fully trusted and used) its
-floor is Full's, and so is every byte (tests/test_twins.py checks both with the real trainer).
+candidate ``floor-by-meeting-trust`` changes the mask floor only where Full's floor read a haze-line
+meeting point: where the lines gave none, or too few of them met, or the floor reads no haze line,
+its floor is Full's, and so is every byte (tests/test_twins.py checks both with the real trainer).
 The harness then records Full's result for them, marked ``same_as``, instead of training them;
 the tables say on how many scenes.
 """
@@ -19,11 +18,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
 
-import numpy as np
-
 from contracts.results_format import ResultsFormatError, read_metrics, stage3_plan
 from eval.runs import VARIANTS, RunResult, RunSpec
-from smokeseer.stage1.haze_lines import HazeLineSettings, meeting_factors
 
 COLOUR_PRIOR_ABLATIONS = {"no-smoke-color": "smoke_color", "no-mono": "mono"}
 """Ablations that only zero a smoke-colour prior, and the term each zeroes."""
@@ -41,8 +37,10 @@ TWIN_VARIANTS = (*COLOUR_PRIOR_ABLATIONS, MEETING_CANDIDATE)
 
 def meeting_twin_reason(full_doc: dict[str, Any], config: dict[str, Any], where: Path) -> str | None:
     """Why ``floor-by-meeting-trust`` would floor exactly as the Full run did (metrics.json
-    ``full_doc``, config.json ``config``), or None: the meeting point's weight (the haze-line
-    trust's line and meeting ramps) is 0 where Full used no point, or 1 where it used one."""
+    ``full_doc``, config.json ``config``), or None: Full's floor reads no haze line, or the lines
+    gave no point, or fewer of them met than the point needs (``stage3.smoke_color_min_meeting``),
+    where the point's weight is 0 and Full used none. (A point at full weight floors alike too,
+    but its weight is the trainer's own rule: such a run trains.)"""
     plan = stage3_plan(full_doc, where)
     if plan is None:
         return None
@@ -51,15 +49,10 @@ def meeting_twin_reason(full_doc: dict[str, Any], config: dict[str, Any], where:
     lines = ((full_doc.get("stages") or {}).get("smoke_colour") or {}).get("haze_lines")
     if lines is None or lines.get("colour") is None:
         return "the haze lines gave Full no meeting point, so both floors read none and the run would train exactly like Full"
-    stage3 = config["stage3"]
-    settings = HazeLineSettings(min_meeting_fraction=stage3["smoke_color_min_meeting"],
-                                full_meeting_fraction=stage3["smoke_color_full_meeting"])
-    met = lines["meeting_fraction"]
-    weight = float(np.prod(list(meeting_factors(lines["lines"], met, settings).values())))
-    used = met >= settings.min_meeting_fraction
-    if weight == (1.0 if used else 0.0):
-        return (f"the meeting point's weight is {weight:.0f} ({lines['lines']} lines, {met:.2f} meeting) and Full "
-                f"{'used' if used else 'did not use'} the point, so the floors agree and the run would train exactly like Full")
+    least = config["stage3"]["smoke_color_min_meeting"]
+    if lines["meeting_fraction"] < least:
+        return (f"{lines['meeting_fraction']:.2f} of the haze lines met, under the {least} a point needs, so both floors "
+                "read none and the run would train exactly like Full")
     return None
 
 

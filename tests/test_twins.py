@@ -127,7 +127,7 @@ def write_full_record(run: Path, colour: list[float] | None, lines: int, met: fl
 
 @pytest.mark.parametrize("colour, lines, met, floor, twin", [
     (None, 86, None, "estimated-meeting", True),             # no point: both floors read none
-    ([0.3, 0.3, 0.3], 500, 0.8, "estimated-meeting", True),  # weight 1, and Full used the point
+    ([0.3, 0.3, 0.3], 500, 0.8, "estimated-meeting", False),  # weight 1: alike, but the weight is the trainer's rule
     ([0.3, 0.3, 0.3], 500, 0.1, "estimated-meeting", True),  # weight 0, and Full did not
     ([0.3, 0.3, 0.3], 106, 0.58, "estimated-meeting", False),  # weight 0.02: food_plate's case
     ([0.3, 0.3, 0.3], 500, 0.25, "estimated-bound", False),  # used, at weight 0.5
