@@ -46,16 +46,31 @@ def open_executor(workers: int, scheduler: str | None) -> Iterator[Executor]:
             cluster.close()
 
 
-def drain(ex: Executor, jobs: list[tuple[Any, tuple[Any, ...], Callable[[Any], None],
-                                          Callable[[BaseException], None]]], bar: Progress) -> None:
-    """Submit every job, then route each result (or a worker crash) to its callback."""
-    futures = {ex.submit(fn, *args): (ok, fail) for fn, args, ok, fail in jobs}
-    for fut in ex.as_completed(list(futures)):
-        ok, fail = futures[fut]
-        try:
-            value = fut.result()
-        except Exception as exc:  # a worker died (e.g. a native abort): the task failed
-            fail(exc)
-        else:
-            ok(value)
-        bar.update(1)
+Job = tuple[Any, tuple[Any, ...], Callable[[Any], Any], Callable[[BaseException], Any]]
+"""A task for ``drain``: the function, its arguments, and the callbacks for its result and for a
+crash; a callback may return further jobs, which are submitted then."""
+
+
+def drain(ex: Executor, jobs: list[Job], bar: Progress) -> None:
+    """Submit every job, then route each result (or a worker crash) to its callback, and submit
+    the jobs a callback returns (work that waits on another job's result)."""
+    futures: dict[Any, tuple[Callable[[Any], Any], Callable[[BaseException], Any]]] = {}
+
+    def submit(batch: list[Job]) -> None:
+        for fn, args, ok, fail in batch:
+            futures[ex.submit(fn, *args)] = (ok, fail)
+
+    submit(jobs)
+    while futures:
+        for fut in ex.as_completed(list(futures)):
+            ok, fail = futures.pop(fut)
+            try:
+                value = fut.result()
+            except Exception as exc:  # a worker died (e.g. a native abort): the task failed
+                more = fail(exc)
+            else:
+                more = ok(value)
+            bar.update(1)
+            if more:
+                submit(more)
+                break  # wait on the new futures too

@@ -27,7 +27,7 @@ import numpy as np
 from tqdm import tqdm
 
 from contracts.atomic import write_json
-from contracts.executors import Executor, drain, open_executor
+from contracts.executors import Executor, Job, drain, open_executor
 from contracts.folder_lock import folder_lock, lock_held
 from contracts.provenance import provenance
 from contracts.results_format import ResultsFormatError, read_metrics
@@ -40,7 +40,7 @@ from eval.settings import DatasetOutcome, HarnessConfig
 from eval.shared_stage2 import (leaders_first, rgb_stage2_sha, stage2_done, stage2_donors, stage2_groups,
                                 stage2_leaders, stage2_sha, take_finished_stage2)
 from eval.sources import sources_sha256
-from eval.twins import full_twins
+from eval.twins import full_twins, twin_source
 
 log = logging.getLogger("regenerate-tables")
 
@@ -397,6 +397,44 @@ def _line(r: RunResult) -> str:
     return f"[FAILED] {head}: {r.error.splitlines()[0] if r.error else 'unknown error'}"
 
 
+def after_full(jobs: list[Job], specs: list[RunSpec], out: Path, training: set[str], results: list[RunResult],
+               bar: Any) -> list[Job]:
+    """The jobs to submit now: a run that Full's run may stand for (eval/twins.py) waits for the
+    Full run this invocation trains, then takes it where its rule says so and trains otherwise."""
+    now: list[Job] = []
+    waiting: dict[str, list[tuple[Job, RunSpec]]] = {}
+    for job in jobs:
+        full = twin_source(job[1][0], specs)
+        full_dir = str(full.run_dir(out).resolve()) if full is not None else ""
+        if full is not None and full_dir in training:
+            waiting.setdefault(full_dir, []).append((job, full))
+        else:
+            now.append(job)
+
+    def release(full_dir: str) -> list[Job]:
+        """The waiting jobs that Full's run, now ended, does not stand for."""
+        train = []
+        for job, full in waiting.pop(full_dir, []):
+            spec, run_dir = job[1][0], job[1][1]
+            twin = full_twins([full, spec], out, finished_run).get(run_dir)
+            if twin is None:
+                train.append(job)
+            else:
+                results.append(twin)
+                bar.write(_line(twin))
+                bar.update(1)
+        return train
+
+    def then(callback: Callable[[Any], Any], full_dir: str) -> Callable[[Any], list[Job]]:
+        def call(value: Any) -> list[Job]:
+            callback(value)
+            return release(full_dir)
+        return call
+
+    return [(fn, args, then(ok, args[1]), then(fail, args[1])) if args[1] in waiting else (fn, args, ok, fail)
+            for fn, args, ok, fail in now]
+
+
 def execute_runs(cfg: HarnessConfig, ex: Executor, plan: Plan, train_fn: TrainFn,
                  datasets: dict[str, DatasetOutcome], dehazed: dict[str, DatasetOutcome]) -> list[RunResult]:
     """Collect cached runs and those a finished Full run stands for (eval/twins.py), run the rest
@@ -448,7 +486,7 @@ def execute_runs(cfg: HarnessConfig, ex: Executor, plan: Plan, train_fn: TrainFn
                         leaders.get(str(run_dir), "") if leaders.get(str(run_dir)) in training else ""), ok, fail)
             for spec, run_dir, prep, ok, fail in pending]
     if jobs:
-        drain(ex, jobs, bar)
+        drain(ex, after_full(jobs, specs, Path(cfg.out), training, results, bar), bar)
     bar.close()
     order = {(s.scene, s.variant, s.seed): i for i, s in enumerate(specs)}
     return sorted(results, key=lambda r: order[(r.scene, r.variant, r.seed)])

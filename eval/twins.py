@@ -82,16 +82,27 @@ def run_twin_reason(variant: str, full_dir: Path) -> str | None:
     return twin_reason(variant, read_metrics(full_dir), full_dir / "metrics.json", config)
 
 
+def twin_source(spec: RunSpec, specs: list[RunSpec]) -> RunSpec | None:
+    """The Full run of ``specs`` whose finished run may stand for ``spec`` (same scene, seed, data
+    and code, and Full's settings plus the variant's own), or None; its record decides."""
+    if spec.variant not in TWIN_VARIANTS:
+        return None
+    for full in specs:
+        if full.variant == "full" and (full.scene, full.seed, full.dataset_hash, full.code) == \
+                (spec.scene, spec.seed, spec.dataset_hash, spec.code) and \
+                dict(spec.overrides) == {**dict(full.overrides), **VARIANTS[spec.variant].overrides}:
+            return full
+    return None
+
+
 def full_twins(specs: list[RunSpec], out: Path,
                finished: Callable[[RunSpec, Path], RunResult | None]) -> dict[str, RunResult]:
     """For each run of the plan that Full's finished run stands for: its record (Full's
     metrics and run folder, this run's identity and config hash), keyed by its own run folder."""
-    fulls = {(s.scene, s.seed, s.dataset_hash, s.code): s for s in specs if s.variant == "full"}
     twins: dict[str, RunResult] = {}
     for spec in specs:
-        full = fulls.get((spec.scene, spec.seed, spec.dataset_hash, spec.code))
-        if spec.variant not in TWIN_VARIANTS or full is None or \
-                dict(spec.overrides) != {**dict(full.overrides), **VARIANTS[spec.variant].overrides}:
+        full = twin_source(spec, specs)
+        if full is None:
             continue
         full_dir = full.run_dir(out).resolve()
         done = finished(full, full_dir)

@@ -195,3 +195,19 @@ def test_harness_takes_fulls_run_for_the_meeting_candidate_where_the_floors_agre
     assert twin.same_as == "full" and twin.run_dir == by[("alpha", "full")].run_dir
     assert "no meeting point" in twin.same_as_reason
     assert not by[("beta", "floor-by-meeting-trust")].same_as
+
+
+def test_the_meeting_candidate_waits_for_the_full_run_trained_beside_it(tmp_path: Path) -> None:
+    """In one invocation that trains Full too, the candidate is decided once Full's run has ended:
+    the run Full's record stands for is not trained, the other is."""
+    datasets = {s: write_tiny_dataset(tmp_path / s, s) for s in ("alpha", "beta")}
+    results, _ = regenerate(HarnessConfig(methods=["full"], candidates=["floor-by-meeting-trust"], ablations=[],
+                                          out=tmp_path / "out", scenes=["alpha", "beta"], seeds=[0], workers=2,
+                                          datasets=datasets), train_fn=haze_train)
+    assert _calls(tmp_path / "out") == 3   # both Full runs and beta's candidate
+    by = {(r.scene, r.variant): r for r in results}
+    twin = by[("alpha", "floor-by-meeting-trust")]
+    assert twin.status == "ok" and twin.same_as == "full" and twin.run_dir == by[("alpha", "full")].run_dir
+    assert by[("beta", "floor-by-meeting-trust")].status == "ok" and not by[("beta", "floor-by-meeting-trust")].same_as
+    assert [(r.scene, r.variant) for r in results] == [(s, v) for s in ("alpha", "beta")
+                                                       for v in ("full", "floor-by-meeting-trust")]
