@@ -8,6 +8,8 @@ plan was recorded say the same through ``stages.smoke_colour.source`` = ``haze-l
 candidate ``floor-by-meeting-trust`` changes the mask floor only where Full's floor read a haze-line
 meeting point: where the lines gave none, or too few of them met, or the floor reads no haze line,
 its floor is Full's, and so is every byte (tests/test_twins.py checks both with the real trainer).
+The candidate ``carve-where-smoky`` changes only how the joined start is carved: where Full's
+Stage 3 started from one surface (the thermal Stage 2 alone under dense, dark smoke), it is Full.
 The harness then records Full's result for them, marked ``same_as``, instead of training them;
 the tables say on how many scenes.
 """
@@ -31,8 +33,21 @@ COLOUR_FIXED_REASON = ("Full held the smoke colour at the haze-line estimate, so
 MEETING_CANDIDATE = "floor-by-meeting-trust"
 """The candidate that reads the haze lines' meeting point by its weight (``loss.mask_floor_meeting``)."""
 
-TWIN_VARIANTS = (*COLOUR_PRIOR_ABLATIONS, MEETING_CANDIDATE)
+CARVE_CANDIDATE = "carve-where-smoky"
+"""The candidate that carves Stage 3's joined start by smoke (``stage3.carve_by``)."""
+
+TWIN_VARIANTS = (*COLOUR_PRIOR_ABLATIONS, MEETING_CANDIDATE, CARVE_CANDIDATE)
 """Variants that may stand on Full's run, each by its own rule (``twin_reason``)."""
+
+
+def carve_twin_reason(full_doc: dict[str, Any]) -> str | None:
+    """Why ``carve-where-smoky`` would train exactly like the Full run whose metrics.json is
+    ``full_doc``, or None: Full's Stage 3 started from one surface, not the joined one
+    (``stages.surface_union`` recorded as null), so no RGB Gaussian was carved."""
+    stages = full_doc.get("stages") or {}
+    if "surface_union" not in stages or stages["surface_union"] is not None:
+        return None
+    return "Full's Stage 3 started from one surface, not the joined one, so nothing was carved and the run would train exactly like Full"
 
 
 def meeting_twin_reason(full_doc: dict[str, Any], config: dict[str, Any], where: Path) -> str | None:
@@ -62,6 +77,8 @@ def twin_reason(variant: str, full_doc: dict[str, Any], where: Path = Path("metr
     config.json ``config``, which the meeting candidate reads), or None."""
     if variant == MEETING_CANDIDATE:
         return None if config is None else meeting_twin_reason(full_doc, config, where)
+    if variant == CARVE_CANDIDATE:
+        return carve_twin_reason(full_doc)
     term = COLOUR_PRIOR_ABLATIONS.get(variant)
     if term is None:
         return None

@@ -172,6 +172,45 @@ def test_the_meeting_candidate_trains_like_full_where_its_rule_says_so(tmp_path:
         assert plys["present"] == plys["trusted"], name
 
 
+def test_the_carve_candidate_stands_on_fulls_run_where_no_start_was_joined() -> None:
+    from eval.twins import twin_reason
+
+    assert "one surface" in twin_reason("carve-where-smoky", {"stages": {"surface_union": None}})
+    assert twin_reason("carve-where-smoky", {"stages": {"surface_union": {"rgb_kept": 10}}}) is None
+    assert twin_reason("carve-where-smoky", {"stages": {}}) is None  # a record that does not say
+
+
+def test_the_carve_candidate_trains_like_full_without_a_joined_start(tmp_path: Path,
+                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """The claim the carve rule rests on, with the real trainer: under a fully trusted dark smoke
+    colour Stage 3 starts from the thermal Stage 2 alone and stage3.carve_by changes no byte; under
+    an untrusted one the start is joined and carved by the setting, as the record says (this tiny
+    scene has nothing in front of its thermal surface, so both carvings keep every RGB Gaussian)."""
+    import smokeseer.api as api
+    from smokeseer.stage1.haze_lines import SmokeColourEstimate
+
+    ds = write_splat_dataset(tmp_path / "splat", n_rgb=8, n_thermal=6)
+    point = np.array([0.2, 0.2, 0.22])
+    estimates = {"thermal start": SmokeColourEstimate(point, 500, 900, 0.9, meeting=point, trust=1.0,
+                                                      surface_trust=1.0, meeting_weight=1.0),
+                 "joined start": SmokeColourEstimate(None, 86, 191, reason="fewer than 100 observation lines")}
+    for name, estimate in estimates.items():
+        monkeypatch.setattr(api, "haze_line_smoke_colour", lambda cfg, depth, rgb, e=estimate: e)
+        plys, joined = {}, {}
+        for carve in ("depth", "depth-and-smoke"):
+            out = tmp_path / f"{name}-{carve}"
+            api.train_and_evaluate(ds, out, "full", profile="quick", seed=0,
+                                   overrides={**TINY, "stage3.surface_init": "by-smoke-colour",
+                                              "stage3.carve_by": carve})
+            plys[carve] = (out / "ply" / "surface.ply").read_bytes()
+            joined[carve] = json.loads((out / "metrics.json").read_text())["stages"]["surface_union"]
+        if name == "thermal start":
+            assert joined == {"depth": None, "depth-and-smoke": None}
+            assert plys["depth"] == plys["depth-and-smoke"]
+        else:
+            assert joined["depth"]["carve_by"] == "depth" and joined["depth-and-smoke"]["carve_by"] == "depth-and-smoke"
+
+
 def haze_train(dataset: Path, out: Path, mode: str, profile: str = "quick", seed: int = 0,
                overrides: dict[str, Any] | None = None) -> dict[str, Any]:
     """identity_train whose record has no meeting point on scene alpha, one at weight 0.5 on beta."""
