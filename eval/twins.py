@@ -54,8 +54,9 @@ def meeting_twin_reason(full_doc: dict[str, Any], config: dict[str, Any], where:
     """Why ``floor-by-meeting-trust`` would floor exactly as the Full run did (metrics.json
     ``full_doc``, config.json ``config``), or None: Full's floor reads no haze line, or the lines
     gave no point, or fewer of them met than the point needs (``stage3.smoke_color_min_meeting``),
-    where the point's weight is 0 and Full used none. (A point at full weight floors alike too,
-    but its weight is the trainer's own rule: such a run trains.)"""
+    where the point's weight is 0 and Full used none; or the point's weight is 1, where the blend
+    is Full's floor. The weight is the trust's line and meeting ramps, and the recorded surface
+    trust is their product with a darkness ramp, so a surface trust of 1 means a weight of 1."""
     plan = stage3_plan(full_doc, where)
     if plan is None:
         return None
@@ -68,6 +69,9 @@ def meeting_twin_reason(full_doc: dict[str, Any], config: dict[str, Any], where:
     if lines["meeting_fraction"] < least:
         return (f"{lines['meeting_fraction']:.2f} of the haze lines met, under the {least} a point needs, so both floors "
                 "read none and the run would train exactly like Full")
+    if (lines.get("surface_trust") or 0.0) >= 1.0:
+        return ("the haze lines' point was fully trusted (surface trust 1), so its weight is 1, the blended floor is "
+                "Full's and the run would train exactly like Full")
     return None
 
 

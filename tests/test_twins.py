@@ -110,7 +110,7 @@ def test_harness_takes_fulls_run_for_colour_prior_ablations_where_the_colour_was
 
 
 def write_full_record(run: Path, colour: list[float] | None, lines: int, met: float | None,
-                      mask_floor: str = "estimated-meeting") -> None:
+                      mask_floor: str = "estimated-meeting", surface_trust: float = 0.5) -> None:
     """A finished Full run's metrics.json and config.json as the meeting rule reads them: the plan's
     floor and the haze lines' record (its validation kept where the folder had one)."""
     from smokeseer.config import make_config
@@ -121,26 +121,28 @@ def write_full_record(run: Path, colour: list[float] | None, lines: int, met: fl
     write_metrics(run, scene=run.parents[1].name, method="full", profile="standard", seed=0,
                   metrics=old.get("metrics"), validation=old.get("validation"),
                   stages={"stage3_plan": plan, "smoke_colour": {"source": "haze-lines", "haze_lines": {
-                      "colour": colour, "lines": lines, "meeting_fraction": met if colour else None}}})
+                      "colour": colour, "lines": lines, "meeting_fraction": met if colour else None,
+                      "surface_trust": surface_trust if colour else 0.0}}})
     (run / "config.json").write_text(json.dumps(make_config("full", "standard", 0).to_dict()))
 
 
-@pytest.mark.parametrize("colour, lines, met, floor, twin", [
-    (None, 86, None, "estimated-meeting", True),             # no point: both floors read none
-    ([0.3, 0.3, 0.3], 500, 0.8, "estimated-meeting", False),  # weight 1: alike, but the weight is the trainer's rule
-    ([0.3, 0.3, 0.3], 500, 0.1, "estimated-meeting", True),  # weight 0, and Full did not
-    ([0.3, 0.3, 0.3], 106, 0.58, "estimated-meeting", False),  # weight 0.02: food_plate's case
-    ([0.3, 0.3, 0.3], 500, 0.25, "estimated-bound", False),  # used, at weight 0.5
-    ([0.3, 0.3, 0.3], 100, 0.5, "estimated-meeting", False),  # used, at weight 0 (the ramp's foot)
-    ([0.3, 0.3, 0.3], 106, 0.58, "never-clear", True),       # a floor that reads no haze line
+@pytest.mark.parametrize("colour, lines, met, floor, surface_trust, twin", [
+    (None, 86, None, "estimated-meeting", 0.0, True),              # no point: both floors read none
+    ([0.3, 0.3, 0.3], 500, 0.8, "estimated-meeting", 1.0, True),   # weight 1 (surface trust 1): the floors agree
+    ([0.6, 0.6, 0.6], 500, 0.8, "estimated-meeting", 0.0, False),  # weight 1 under a bright colour: not read
+    ([0.3, 0.3, 0.3], 500, 0.1, "estimated-meeting", 0.0, True),   # weight 0, and Full did not
+    ([0.3, 0.3, 0.3], 106, 0.58, "estimated-meeting", 0.02, False),  # weight 0.02: food_plate's case
+    ([0.3, 0.3, 0.3], 500, 0.25, "estimated-bound", 0.5, False),   # used, at weight 0.5
+    ([0.3, 0.3, 0.3], 100, 0.5, "estimated-meeting", 0.0, False),  # used, at weight 0 (the ramp's foot)
+    ([0.3, 0.3, 0.3], 106, 0.58, "never-clear", 0.02, True),       # a floor that reads no haze line
 ])
 def test_the_meeting_candidate_stands_on_fulls_run_where_the_floors_agree(tmp_path: Path, colour, lines, met,
-                                                                         floor, twin) -> None:
+                                                                         floor, surface_trust, twin) -> None:
     from eval.twins import run_twin_reason
 
     run = tmp_path / "runs" / "scene" / "full" / "seed0-x"
     run.mkdir(parents=True)
-    write_full_record(run, colour, lines, met, floor)
+    write_full_record(run, colour, lines, met, floor, surface_trust)
     reason = run_twin_reason("floor-by-meeting-trust", run)
     assert (reason is not None) == twin
     assert run_twin_reason("thermal-box-filtered", run) is None
