@@ -4,14 +4,17 @@ arithmetic shows up here, not only when a run moves to another machine.
 
     python -m benchmarks.float_setup --out data/float_setup [--scenes house,room] [--datasets data/standard]
         [--profile standard] [--seed 0] [--workers 2] [--default-from data/tables_standard]
-        [--csv benchmarks/results/float_setup/per_scene.csv]
+        [--method full | --method CANDIDATE] [--csv benchmarks/results/float_setup/per_scene.csv]
 
 Each setup is one ``regenerate-tables`` call (Full at one seed, no ablations) in a process started
 with that setup's environment, into OUT/<setup> (the default side may reuse a tables folder that
-already holds those runs: ``--default-from``); both are resumable. The CSV has one row per scene:
-``scene, default_psnr, avx2_psnr``, the difference, both validation PSNRs, the trainer version and
-the float-setup line each side recorded (a scene trained under two trainer versions on both sides
-has a row for each). It refuses to compare when the two sides report the same torch capability (an
+already holds those runs: ``--default-from``); both are resumable. ``--method`` compares a rule
+candidate of ``eval/runs.py`` in place of Full (trained beside Full; where the harness took Full's
+run for it, ``eval/twins.py``, Full's run is its run on that side, and the row says so). The CSV
+has one row per scene: ``scene, default_psnr, avx2_psnr``, the difference, both validation PSNRs,
+the trainer version and the float-setup line each side recorded, the method, and the sides on
+which Full's run stood for it (a scene trained under two trainer versions on both sides has a row
+for each). It refuses to compare when the two sides report the same torch capability (an
 AVX2 machine has nothing to compare) or trained different trainer versions.
 """
 from __future__ import annotations
@@ -26,8 +29,11 @@ from typing import Any
 from benchmarks import full_seed_runs
 from contracts.float_setup import HELD_TO, ISA_VARIABLES
 from eval.finished_runs import finished_records
+from eval.runs import CANDIDATES
+from eval.twins import run_twin_reason
 
 ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_CSV = Path("benchmarks/results/float_setup/per_scene.csv")
 
 
 def setup_environment(setup: str, base: dict[str, str] | None = None) -> dict[str, str]:
@@ -38,24 +44,37 @@ def setup_environment(setup: str, base: dict[str, str] | None = None) -> dict[st
 
 
 def tables_command(scenes: list[str], datasets: Path, profile: str, seed: int, workers: int,
-                   out: Path) -> list[str]:
-    """The ``regenerate-tables`` call that trains Full on ``scenes`` at ``seed`` into ``out``."""
-    return full_seed_runs.tables_command({s: datasets / s for s in scenes}, profile, seed, workers, out)
+                   out: Path, method: str = "full") -> list[str]:
+    """The ``regenerate-tables`` call that trains Full (and ``method`` where it is a candidate) on
+    ``scenes`` at ``seed`` into ``out``."""
+    return full_seed_runs.tables_command({s: datasets / s for s in scenes}, profile, seed, workers, out,
+                                         () if method == "full" else (method,))
 
 
-def side(tables: Path, seed: int, scenes: list[str]) -> dict[str, dict[str, tuple[Path, dict[str, Any]]]]:
-    """{scene: {trainer digest: (run folder, harness record)}} of the finished Full runs at ``seed``."""
-    runs: dict[str, dict[str, tuple[Path, dict[str, Any]]]] = {}
-    for run, rec in finished_records(tables, ["full"]):
-        if rec["seed"] == seed and rec["scene"] in scenes:
-            runs.setdefault(rec["scene"], {})[rec["code_digest"]] = (run, rec)
-    return runs
+Side = dict[str, dict[str, tuple[Path, dict[str, Any], bool]]]
+"""{scene: {trainer digest: (run folder, harness record, whether it is Full's run standing in)}}."""
 
 
-def compare(default_tables: Path, avx2_tables: Path, seed: int, scenes: list[str]) -> list[dict[str, Any]]:
+def side(tables: Path, seed: int, scenes: list[str], method: str = "full") -> Side:
+    """The finished runs of ``method`` at ``seed`` on one side: its own, else Full's run where the
+    harness's rule lets Full's run stand for it (``eval.twins.run_twin_reason``)."""
+    runs: Side = {}
+    for run, rec in finished_records(tables, ["full"] if method == "full" else ["full", method]):
+        if rec["seed"] != seed or rec["scene"] not in scenes:
+            continue
+        held = runs.setdefault(rec["scene"], {})
+        if rec["variant"] == method:
+            held[rec["code_digest"]] = (run, rec, False)
+        elif rec["code_digest"] not in held and run_twin_reason(method, run):
+            held[rec["code_digest"]] = (run, rec, True)
+    return {scene: held for scene, held in runs.items() if held}
+
+
+def compare(default_tables: Path, avx2_tables: Path, seed: int, scenes: list[str],
+            method: str = "full") -> list[dict[str, Any]]:
     """One row per scene and trainer version that finished on both sides (a scene's two runs are
     compared only under one trainer); raises ValueError when the sides are not comparable."""
-    default, avx2 = side(default_tables, seed, scenes), side(avx2_tables, seed, scenes)
+    default, avx2 = side(default_tables, seed, scenes, method), side(avx2_tables, seed, scenes, method)
     rows = []
     for scene in scenes:
         if scene not in default or scene not in avx2:
@@ -65,13 +84,14 @@ def compare(default_tables: Path, avx2_tables: Path, seed: int, scenes: list[str
             raise ValueError(f"{scene}: {default_tables} holds trainer {', '.join(d[:8] for d in default[scene])} and "
                              f"{avx2_tables} trainer {', '.join(d[:8] for d in avx2[scene])}: train both sides with "
                              "the same code")
-        rows += [_row(scene, default[scene][digest], avx2[scene][digest]) for digest in common]
+        rows += [_row(scene, method, default[scene][digest], avx2[scene][digest]) for digest in common]
     return rows
 
 
-def _row(scene: str, default: tuple[Path, dict[str, Any]], avx2: tuple[Path, dict[str, Any]]) -> dict[str, Any]:
+def _row(scene: str, method: str, default: tuple[Path, dict[str, Any], bool],
+         avx2: tuple[Path, dict[str, Any], bool]) -> dict[str, Any]:
     """The CSV row of one scene's two runs under one trainer."""
-    (d_run, d_rec), (a_run, a_rec) = default, avx2
+    (d_run, d_rec, d_full), (a_run, a_rec, a_full) = default, avx2
     if _capability(d_rec["float_setup"]) == _capability(a_rec["float_setup"]):
         raise ValueError(f"{scene}: both sides trained with torch's {_capability(d_rec['float_setup'])} kernels "
                          "(on an AVX2 machine the default is AVX2: there is nothing to compare)")
@@ -79,7 +99,8 @@ def _row(scene: str, default: tuple[Path, dict[str, Any]], avx2: tuple[Path, dic
     return {"scene": scene, "default_psnr": round(dp, 4), "avx2_psnr": round(ap, 4),
             "avx2_minus_default": round(ap - dp, 4), "default_val_psnr": full_seed_runs.validation_psnr(d_run),
             "avx2_val_psnr": full_seed_runs.validation_psnr(a_run), "trainer": d_rec["code_digest"][:8],
-            "default_float_setup": d_rec["float_setup"], "avx2_float_setup": a_rec["float_setup"]}
+            "default_float_setup": d_rec["float_setup"], "avx2_float_setup": a_rec["float_setup"],
+            "method": method, "full_run_on": ",".join(n for n, f in (("default", d_full), ("avx2", a_full)) if f)}
 
 
 def _capability(line: str) -> str:
@@ -93,23 +114,27 @@ def main(argv: list[str] | None = None) -> int:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", type=Path, required=True, help="OUT/default and OUT/avx2 hold the runs")
     full_seed_runs.add_arguments(p, "house,forest,food_plate,excavator,rover,chair,plant,brick_toy,machine,room",
-                                 "benchmarks/results/float_setup/per_scene.csv")
+                                 str(DEFAULT_CSV))
     p.add_argument("--default-from", type=Path, help="a tables folder that holds (or will hold) the default side")
+    p.add_argument("--method", default="full", choices=["full", *CANDIDATES],
+                   help="Full, or a rule candidate trained beside it (give it its own --csv)")
     args = p.parse_args(argv)
+    if args.method != "full" and args.csv == DEFAULT_CSV:
+        args.csv = DEFAULT_CSV.with_name(f"per_scene-{args.method}.csv")  # Full's CSV stays Full's
     scenes = full_seed_runs.scenes_of(args, "float_setup")
     if scenes is None:
         return 2
     folders = {"default": args.default_from or args.out / "default", "avx2": args.out / "avx2"}
     if not args.compare_only:
         for setup, tables in folders.items():
-            cmd = tables_command(scenes, args.datasets, args.profile, args.seed, args.workers, tables)
+            cmd = tables_command(scenes, args.datasets, args.profile, args.seed, args.workers, tables, args.method)
             print(f"== float setup {setup}: {' '.join(f'{k}={v}' for k, v in HELD_TO[setup].items())} "
                   f"{' '.join(cmd[1:])}", flush=True)
             done = subprocess.run(cmd, cwd=ROOT, env=setup_environment(setup))
             if done.returncode not in (0, 1):  # 1: tables written, some runs failed
                 return done.returncode
     try:
-        rows = compare(folders["default"], folders["avx2"], args.seed, scenes)
+        rows = compare(folders["default"], folders["avx2"], args.seed, scenes, args.method)
     except ValueError as exc:
         print(f"float_setup: error: {exc}", file=sys.stderr)
         return 2

@@ -33,11 +33,15 @@ def scenes_of(args: argparse.Namespace, prog: str) -> list[str] | None:
     return scenes
 
 
-def tables_command(datasets: dict[str, Path], profile: str, seed: int, workers: int, out: Path) -> list[str]:
-    """The `regenerate-tables` call that trains Full at ``seed`` on each named dataset into ``out``."""
+def tables_command(datasets: dict[str, Path], profile: str, seed: int, workers: int, out: Path,
+                   candidates: tuple[str, ...] = ()) -> list[str]:
+    """The `regenerate-tables` call that trains Full (and the rule ``candidates`` beside it) at
+    ``seed`` on each named dataset into ``out``."""
     cmd = [sys.executable, "-m", "eval.harness_cli", "--profile", profile, "--workers", str(workers),
            "--scenes", ",".join(datasets), "--methods", "full", "--seeds", f"{seed},", "--no-ablations",
            "--out", str(out)]
+    if candidates:
+        cmd += ["--candidates", ",".join(candidates)]
     for name, path in datasets.items():
         cmd += ["--dataset", f"{name}={path}"]
     return cmd

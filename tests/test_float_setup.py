@@ -6,12 +6,14 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from benchmarks.float_setup import compare, main, setup_environment, tables_command
 from contracts.float_setup import HELD_TO, cpu_facts, float_setup, kernel_vector_flags, machine_of
 from eval.harness_cli import build_parser
+from tests.results_builder import write_metrics
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBE = ("import torch; from contracts.float_setup import float_setup; "
@@ -63,13 +65,15 @@ def test_each_side_is_one_valid_regenerate_tables_call() -> None:
     assert args.dataset == ["house=data/standard/house", "room=data/standard/room"]
 
 
-def _run(tables: Path, scene: str, psnr: float, setup: str, digest: str = "d" * 64) -> None:
-    run = tables / "runs" / scene / "full" / "seed0-abc"
+def _run(tables: Path, scene: str, psnr: float, setup: str, digest: str = "d" * 64, variant: str = "full",
+         stages: dict[str, Any] | None = None) -> None:
+    run = tables / "runs" / scene / variant / "seed0-abc"
     run.mkdir(parents=True)
     (run / "train_log.csv").write_text("iteration\n")
-    (run / "metrics.json").write_text(json.dumps({"validation": {"psnr": psnr - 1.0}}))
+    write_metrics(run, scene=scene, method=variant, profile="standard", seed=0, validation={"psnr": psnr - 1.0},
+                  stages=stages or {})
     (run / "harness.json").write_text(json.dumps(
-        {"scene": scene, "variant": "full", "seed": 0, "status": "ok", "metrics": {"psnr": psnr},
+        {"scene": scene, "variant": variant, "seed": 0, "status": "ok", "metrics": {"psnr": psnr},
          "code_digest": digest, "float_setup": f"cpu X (avx2); torch 2.13.0+cpu {setup}; held none; kernel -mavx2"}))
 
 
@@ -115,3 +119,22 @@ def test_each_scene_pairs_its_runs_under_the_trainer_both_sides_share(tmp_path: 
     _run(avx2, "plant", 20.0, "AVX2")
     with pytest.raises(ValueError, match="plant: .* holds trainer ffffffff and .* trainer dddddddd"):
         compare(default, avx2, 0, ["house", "room", "plant"])
+
+
+def test_a_candidate_is_compared_on_its_own_runs_or_on_full_runs_that_stand_for_it(tmp_path: Path) -> None:
+    """--method reads the candidate's runs; on a side where the harness took Full's run for it
+    (carve-where-smoky where Full started from one surface) Full's run is its run, and the row says
+    on which side. Full's own comparison never reads the candidate's runs."""
+    default, avx2 = tmp_path / "default", tmp_path / "avx2"
+    _run(default, "room", 11.0, "AVX512", stages={"surface_union": None})  # one surface: carving is moot
+    _run(avx2, "room", 12.0, "AVX2", stages={"surface_union": {"kept": 10}})
+    _run(avx2, "room", 12.5, "AVX2", variant="carve-where-smoky")
+    _run(default, "house", 30.0, "AVX512", stages={"surface_union": {"kept": 10}})  # no carve run: no row
+    _run(avx2, "house", 30.0, "AVX2", stages={"surface_union": None})
+    rows = compare(default, avx2, 0, ["room", "house"], "carve-where-smoky")
+    assert [(r["scene"], r["method"], r["default_psnr"], r["avx2_psnr"], r["full_run_on"]) for r in rows] == \
+        [("room", "carve-where-smoky", 11.0, 12.5, "default")]
+    assert [(r["scene"], r["avx2_psnr"], r["full_run_on"]) for r in compare(default, avx2, 0, ["room", "house"])] == \
+        [("room", 12.0, ""), ("house", 30.0, "")]
+    cmd = tables_command(["room"], Path("data/standard"), "standard", 0, 2, Path("out/avx2"), "carve-where-smoky")
+    assert build_parser().parse_args(cmd[3:]).candidates == ["carve-where-smoky"]
