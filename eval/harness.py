@@ -397,6 +397,15 @@ def _line(r: RunResult) -> str:
     return f"[FAILED] {head}: {r.error.splitlines()[0] if r.error else 'unknown error'}"
 
 
+def _keep(results: list[RunResult], bar: Any, r: RunResult, advance: bool) -> None:
+    """Keep a run's result and print its line; ``advance`` the bar where no executor does (the
+    executor advances it for the runs it trains)."""
+    results.append(r)
+    bar.write(_line(r))
+    if advance:
+        bar.update(1)
+
+
 def after_full(jobs: list[Job], specs: list[RunSpec], out: Path, training: set[str], results: list[RunResult],
                bar: Any) -> list[Job]:
     """The jobs to submit now: a run that Full's run may stand for (eval/twins.py) waits for the
@@ -420,9 +429,7 @@ def after_full(jobs: list[Job], specs: list[RunSpec], out: Path, training: set[s
             if twin is None:
                 train.append(job)
             else:
-                results.append(twin)
-                bar.write(_line(twin))
-                bar.update(1)
+                _keep(results, bar, twin, advance=True)
         return train
 
     def then(callback: Callable[[Any], Any], full_dir: str) -> Callable[[Any], list[Job]]:
@@ -458,27 +465,21 @@ def execute_runs(cfg: HarnessConfig, ex: Executor, plan: Plan, train_fn: TrainFn
             r = RunResult(spec.scene, spec.variant, spec.seed, "pending" if ds.status == "pending" else "failed",
                           str(run_dir), spec.hash(), ds.path,
                           error=f"dataset ({ds.kind}) {ds.status}: {ds.error.splitlines()[0] if ds.error else ''}")
-            results.append(r)
-            bar.write(_line(r))
-            bar.update(1)
+            _keep(results, bar, r, advance=True)
             continue
         if cached is not None or cfg.finished_only:
             r = cached or RunResult(spec.scene, spec.variant, spec.seed, "pending", str(run_dir), spec.hash(),
                                     spec.dataset, error="not trained yet (--finished-only)")
-            results.append(r)
-            bar.write(_line(r))
-            bar.update(1)
+            _keep(results, bar, r, advance=True)
             continue
 
         def ok(r: RunResult) -> None:
-            results.append(r)
-            bar.write(_line(r))
+            _keep(results, bar, r, advance=False)
 
         def fail(exc: BaseException, spec: RunSpec = spec, run_dir: Path = run_dir) -> None:
             r = RunResult(spec.scene, spec.variant, spec.seed, "failed", str(run_dir), spec.hash(), spec.dataset,
                           error=f"worker crashed: {type(exc).__name__}: {exc}")
-            results.append(r)
-            bar.write(_line(r))
+            _keep(results, bar, r, advance=False)
 
         pending.append((spec, run_dir, prep, ok, fail))
     training = {str(run_dir) for _, run_dir, _, _, _ in pending}
