@@ -117,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
                                  str(DEFAULT_CSV))
     p.add_argument("--default-from", type=Path, help="a tables folder that holds (or will hold) the default side")
     p.add_argument("--method", default="full", choices=["full", *CANDIDATES],
-                   help="Full, or a rule candidate trained beside it (give it its own --csv)")
+                   help="Full, or a rule candidate trained beside it (its CSV: per_scene-METHOD.csv unless --csv names one)")
     args = p.parse_args(argv)
     if args.method != "full" and args.csv == DEFAULT_CSV:
         args.csv = DEFAULT_CSV.with_name(f"per_scene-{args.method}.csv")  # Full's CSV stays Full's
