@@ -30,7 +30,7 @@ from benchmarks import full_seed_runs
 from contracts.float_setup import HELD_TO, ISA_VARIABLES
 from eval.finished_runs import finished_records
 from eval.runs import CANDIDATES
-from eval.twins import run_twin_reason
+from eval.twins import stood_for
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_CSV = Path("benchmarks/results/float_setup/per_scene.csv")
@@ -57,17 +57,18 @@ Side = dict[str, dict[str, tuple[Path, dict[str, Any], bool]]]
 
 def side(tables: Path, seed: int, scenes: list[str], method: str = "full") -> Side:
     """The finished runs of ``method`` at ``seed`` on one side: its own, else Full's run where the
-    harness's rule lets Full's run stand for it (``eval.twins.run_twin_reason``)."""
+    harness's rule lets Full's run stand for it (``eval.twins.stood_for``)."""
+    found: dict[tuple[str, str], dict[str, tuple[Path, dict[str, Any]]]] = {}
+    for run, rec in finished_records(tables, {"full", method}):
+        if rec["seed"] == seed and rec["scene"] in scenes:
+            found.setdefault((rec["scene"], rec["code_digest"]), {})[rec["variant"]] = (run, rec)
     runs: Side = {}
-    for run, rec in finished_records(tables, ["full"] if method == "full" else ["full", method]):
-        if rec["seed"] != seed or rec["scene"] not in scenes:
-            continue
-        held = runs.setdefault(rec["scene"], {})
-        if rec["variant"] == method:
-            held[rec["code_digest"]] = (run, rec, False)
-        elif rec["code_digest"] not in held and run_twin_reason(method, run):
-            held[rec["code_digest"]] = (run, rec, True)
-    return {scene: held for scene, held in runs.items() if held}
+    for (scene, digest), variants in found.items():
+        if method in variants:
+            runs.setdefault(scene, {})[digest] = (*variants[method], False)
+        elif stood_for([method], variants):
+            runs.setdefault(scene, {})[digest] = (*variants["full"], True)
+    return runs
 
 
 def compare(default_tables: Path, avx2_tables: Path, seed: int, scenes: list[str],

@@ -46,7 +46,7 @@ if str(ROOT) not in sys.path:
 from contracts.atomic import write_rows_csv  # noqa: E402
 from contracts.float_setup import machine_of  # noqa: E402
 from eval.finished_runs import finished_runs  # noqa: E402
-from eval.twins import run_twin_reason  # noqa: E402
+from eval.twins import stood_for  # noqa: E402
 
 DENSE = 1.0
 """The optical depth from which a scene counts as dense smoke (the must-hold's split)."""
@@ -78,7 +78,7 @@ def score_rows(tables: Path, datasets: Path, split: str, seed: int, digest: str 
     rows = []
     for scene in sorted(by_scene):
         found = by_scene[scene]
-        twins = [c for c in candidates if c not in found and "full" in found and run_twin_reason(c, found["full"][0])]
+        twins = stood_for(candidates, found)
         found.update({c: found["full"] for c in twins})  # the harness took Full's run for it (eval/twins.py)
         if not required <= set(found):
             continue

@@ -18,7 +18,7 @@ from __future__ import annotations
 import json
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterable
 
 from contracts.results_format import ResultsFormatError, read_metrics, stage3_plan
 from eval.runs import VARIANTS, RunResult, RunSpec
@@ -101,6 +101,15 @@ def run_twin_reason(variant: str, full_dir: Path) -> str | None:
         return None
     config = json.loads((full_dir / "config.json").read_text()) if (full_dir / "config.json").is_file() else None
     return twin_reason(variant, read_metrics(full_dir), full_dir / "metrics.json", config)
+
+
+def stood_for(variants: Iterable[str], found: dict[str, tuple[Path, Any]]) -> list[str]:
+    """The ``variants`` with no finished run of their own in ``found`` (variant -> (run folder,
+    record) of one scene, seed and trainer) that Full's finished run there stands for: how a study
+    reads back the runs the harness took from Full (``full_twins``)."""
+    if "full" not in found:
+        return []
+    return [v for v in variants if v not in found and run_twin_reason(v, found["full"][0])]
 
 
 def twin_source(spec: RunSpec, specs: list[RunSpec]) -> RunSpec | None:
