@@ -4,15 +4,17 @@ room and food_plate).
 
     python -m benchmarks.input_perturbation --out data/input_perturbation [--scenes machine,room,food_plate]
         [--datasets data/standard] [--levels 1] [--noise-seed 1] [--profile standard] [--seed 0] [--workers 2]
-        [--csv benchmarks/results/input_perturbation/per_scene.csv] [--compare-only]
+        [--originals-from data/tables_standard] [--csv benchmarks/results/input_perturbation/per_scene.csv]
+        [--compare-only]
 
 For each scene a copy of its dataset is written under OUT/datasets/SCENE-noisyLEVELS, identical
 but for the smoky RGB frames: each 8-bit value moves up or down by ``--levels`` (the sign drawn per
 value from ``--noise-seed``, clipped at 0 and 255), and `perturbation.json` beside dataset.json says
-so. Then one `regenerate-tables` call trains Full at one seed on the originals and the copies
-(OUT/tables, resumable; the run key holds each dataset's hash, so the two never share a run), and
-the CSV has one row per scene: ``scene, original_psnr, perturbed_psnr``, the difference, and both
-validation PSNRs.
+so. Then `regenerate-tables` trains Full at one seed on the copies (OUT/tables) and on the
+originals (OUT/tables too, or a tables folder that already holds them: ``--originals-from``, read
+before OUT/tables); both are resumable, and the run key holds each dataset's hash, so the two never share a run. The CSV has
+one row per scene and trainer version that finished both: ``scene, original_psnr,
+perturbed_psnr``, the difference, both validation PSNRs, the trainer and the original's folder.
 """
 from __future__ import annotations
 
@@ -29,7 +31,7 @@ import numpy as np
 from benchmarks import full_seed_runs
 from contracts.atomic import write_json
 from contracts.imageio import read_png, write_png
-from eval.finished_runs import finished_runs
+from eval.finished_runs import finished_records
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKY = Path("rgb") / "smoky"
@@ -75,19 +77,29 @@ def perturb_dataset(src: Path, dst: Path, levels: int, noise_seed: int) -> dict[
     return record
 
 
-def compare(tables: Path, scenes: list[str], levels: int, seed: int) -> list[dict[str, Any]]:
-    """One row per scene whose original and perturbed runs both finished (one trainer version)."""
-    _, runs = finished_runs(tables, ["full"])
-    by_name = {rec["scene"]: (run, rec) for run, rec in runs if rec["seed"] == seed}
+def compare(perturbed_tables: Path, original_tables: list[Path], scenes: list[str], levels: int,
+            seed: int) -> list[dict[str, Any]]:
+    """One row per scene and trainer version whose original and perturbed runs both finished (a
+    scene's two runs are compared only under one trainer). The original is looked for in
+    ``original_tables`` in order; the row names the folder it came from."""
+    def by_version(tables: Path) -> dict[tuple[str, str], tuple[Path, dict[str, Any]]]:
+        return {(rec["scene"], rec["code_digest"]): (run, rec) for run, rec in finished_records(tables, ["full"])
+                if rec["seed"] == seed}
+    perturbed = by_version(perturbed_tables)
+    originals: dict[tuple[str, str], tuple[Path, dict[str, Any], Path]] = {}
+    for tables in original_tables:
+        for key, (run, rec) in by_version(tables).items():
+            originals.setdefault(key, (run, rec, tables))
     rows = []
-    for scene in scenes:
-        if scene not in by_name or noisy_name(scene, levels) not in by_name:
+    for (scene, digest), (o_run, o_rec, where) in sorted(originals.items()):
+        if scene not in scenes or (noisy_name(scene, levels), digest) not in perturbed:
             continue
-        (o_run, o_rec), (p_run, p_rec) = by_name[scene], by_name[noisy_name(scene, levels)]
+        p_run, p_rec = perturbed[noisy_name(scene, levels), digest]
         o, p = float(o_rec["metrics"]["psnr"]), float(p_rec["metrics"]["psnr"])
         rows.append({"scene": scene, "original_psnr": round(o, 4), "perturbed_psnr": round(p, 4),
                      "perturbed_minus_original": round(p - o, 4), "original_val_psnr": full_seed_runs.validation_psnr(o_run),
-                     "perturbed_val_psnr": full_seed_runs.validation_psnr(p_run), "levels": levels})
+                     "perturbed_val_psnr": full_seed_runs.validation_psnr(p_run), "levels": levels,
+                     "trainer": digest[:8], "originals_from": str(where)})
     return rows
 
 
@@ -98,6 +110,8 @@ def main(argv: list[str] | None = None) -> int:
     full_seed_runs.add_arguments(p, "machine,room,food_plate", "benchmarks/results/input_perturbation/per_scene.csv")
     p.add_argument("--levels", type=int, default=1, help="8-bit levels each smoky value moves by")
     p.add_argument("--noise-seed", type=int, default=1)
+    p.add_argument("--originals-from", type=Path,
+                   help="a tables folder that holds (or will hold) the runs on the original datasets")
     args = p.parse_args(argv)
     scenes = full_seed_runs.scenes_of(args, "input_perturbation")
     if scenes is None:
@@ -106,8 +120,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"input_perturbation: error: --levels: 1 to 64 8-bit levels, got {args.levels}", file=sys.stderr)
         return 2
     tables = args.out / "tables"
+    originals = args.originals_from or tables
     if not args.compare_only:
-        pairs: dict[str, Path] = {}
+        copies: dict[str, Path] = {}
         for s in scenes:
             copy = args.out / "datasets" / noisy_name(s, args.levels)
             try:
@@ -117,22 +132,24 @@ def main(argv: list[str] | None = None) -> int:
                 return 2
             print(f"{s}: {rec['frames']} smoky frames moved by ±{args.levels} (mean |change| "
                   f"{rec['mean_abs_change_levels']} levels, {rec['clipped_values']} values clipped) in {copy}")
-            pairs[s], pairs[noisy_name(s, args.levels)] = args.datasets / s, copy
-        done = subprocess.run(full_seed_runs.tables_command(pairs, args.profile, args.seed, args.workers, tables),
-                              cwd=ROOT)
-        if done.returncode not in (0, 1):  # 1: tables written, some runs failed
-            return done.returncode
-    try:
-        rows = compare(tables, scenes, args.levels, args.seed)
-    except ValueError as exc:  # no finished run at all
-        print(f"input_perturbation: error: {exc}", file=sys.stderr)
-        return 2
+            copies[noisy_name(s, args.levels)] = copy
+        calls = [({s: args.datasets / s for s in scenes}, originals), (copies, tables)]
+        if originals == tables:  # one call trains both, two workers across them
+            calls = [({**calls[0][0], **copies}, tables)]
+        for datasets, out in calls:
+            done = subprocess.run(full_seed_runs.tables_command(datasets, args.profile, args.seed, args.workers, out),
+                                  cwd=ROOT)
+            if done.returncode not in (0, 1):  # 1: tables written, some runs failed
+                return done.returncode
+    rows = compare(tables, list(dict.fromkeys([originals, tables])), scenes, args.levels, args.seed)
     if not full_seed_runs.write_pairs("input_perturbation", args.csv, rows, ("original", "perturbed"),
                                       "perturbed_minus_original",
-                                      f"{tables}: no scene of {', '.join(scenes)} has both runs finished"):
+                                      f"{tables}: no scene of {', '.join(scenes)} has both runs "
+                                      "finished under one trainer"):
         return 2
     worst = max(abs(r["perturbed_minus_original"]) for r in rows)
-    print(f"largest move {worst:.3f} dB (limit {LIMIT_DB} dB) over {len(rows)} of {len(scenes)} scenes; wrote {args.csv}")
+    print(f"largest move {worst:.3f} dB (limit {LIMIT_DB} dB) over {len(rows)} pairs "
+          f"({len({r['scene'] for r in rows})} of {len(scenes)} scenes); wrote {args.csv}")
     return 0
 
 

@@ -49,17 +49,24 @@ def test_the_harness_call_trains_full_on_both_and_the_rows_pair_them(tmp_path: P
     args = build_parser().parse_args(tables_command(pairs, "standard", 0, 2, Path("o/tables"))[3:])
     assert args.methods == ["full"] and args.scenes == ["room", "room-noisy1"] and not args.ablations
     assert args.dataset == ["room=data/standard/room", "room-noisy1=o/datasets/room-noisy1"]
-    tables = tmp_path / "tables"
-    for scene, psnr in (("room", 14.0), ("room-noisy1", 14.15), ("machine", 20.0)):  # machine's copy unfinished
-        run = tables / "runs" / scene / "full" / "seed0-x"
+    tables, standard = tmp_path / "tables", tmp_path / "standard"
+    runs = ((tables, "room", "c", 14.0), (tables, "room-noisy1", "c", 14.15), (standard, "room", "c", 13.0),
+            (standard, "room", "d", 12.0), (tables, "room-noisy1", "d", 12.5), (tables, "room-noisy1", "e", 11.0),
+            (tables, "machine", "c", 20.0))  # machine's copy unfinished; room's copy under "e" has no original
+    for folder, scene, digest, psnr in runs:
+        run = folder / "runs" / scene / "full" / f"seed0-{digest}"
         run.mkdir(parents=True)
         (run / "train_log.csv").write_text("iteration\n")
         (run / "metrics.json").write_text(json.dumps({"validation": {"psnr": psnr + 1}}))
         (run / "harness.json").write_text(json.dumps({"scene": scene, "variant": "full", "seed": 0, "status": "ok",
-                                                      "code_digest": "c" * 64, "metrics": {"psnr": psnr}}))
-    rows = compare(tables, ["room", "machine"], 1, 0)
-    assert [(r["scene"], r["perturbed_minus_original"], r["perturbed_val_psnr"]) for r in rows] == [
-        ("room", 0.15, 15.15)]
+                                                      "code_digest": digest * 64, "metrics": {"psnr": psnr}}))
+    pairs = [(r["scene"], r["trainer"], r["perturbed_minus_original"], r["perturbed_val_psnr"], r["originals_from"])
+             for r in compare(tables, [tables], ["room", "machine"], 1, 0)]
+    assert pairs == [("room", "c" * 8, 0.15, 15.15, str(tables))]
+    # the originals' folder is read first, each pair under one trainer version
+    pairs = [(r["scene"], r["trainer"], r["perturbed_minus_original"], r["originals_from"])
+             for r in compare(tables, [standard, tables], ["room", "machine"], 1, 0)]
+    assert pairs == [("room", "c" * 8, 1.15, str(standard)), ("room", "d" * 8, 0.5, str(standard))]
 
 
 def test_bad_input_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -71,4 +78,4 @@ def test_bad_input_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str
     assert "--levels: 1 to 64" in capsys.readouterr().err
     assert main(["--out", str(tmp_path / "o"), "--datasets", str(tmp_path / "sets"), "--scenes", "room",
                  "--compare-only"]) == 2
-    assert "no finished run of full" in capsys.readouterr().err
+    assert "no scene of room has both runs finished under one trainer" in capsys.readouterr().err
