@@ -115,13 +115,13 @@ def main(argv: list[str] | None = None) -> int:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", type=Path, required=True, help="OUT/default and OUT/avx2 hold the runs")
     full_seed_runs.add_arguments(p, "house,forest,food_plate,excavator,rover,chair,plant,brick_toy,machine,room",
-                                 str(DEFAULT_CSV))
+                                 None)
     p.add_argument("--default-from", type=Path, help="a tables folder that holds (or will hold) the default side")
     p.add_argument("--method", default="full", choices=["full", *CANDIDATES],
                    help="Full, or a rule candidate trained beside it (its CSV: per_scene-METHOD.csv unless --csv names one)")
     args = p.parse_args(argv)
-    if args.method != "full" and args.csv == DEFAULT_CSV:
-        args.csv = DEFAULT_CSV.with_name(f"per_scene-{args.method}.csv")  # Full's CSV stays Full's
+    if args.csv is None:  # Full's CSV stays Full's
+        args.csv = DEFAULT_CSV if args.method == "full" else DEFAULT_CSV.with_name(f"per_scene-{args.method}.csv")
     scenes = full_seed_runs.scenes_of(args, "float_setup")
     if scenes is None:
         return 2

@@ -12,14 +12,15 @@ from typing import Any
 from contracts.atomic import write_rows_csv
 
 
-def add_arguments(p: argparse.ArgumentParser, scenes: str, csv: str) -> None:
-    """The options every such benchmark takes (its own go beside them)."""
+def add_arguments(p: argparse.ArgumentParser, scenes: str, csv: str | None) -> None:
+    """The options every such benchmark takes (its own go beside them). ``csv`` None: the
+    benchmark picks its CSV after parsing, from its other options, unless ``--csv`` names one."""
     p.add_argument("--scenes", default=scenes)
     p.add_argument("--datasets", type=Path, default=Path("data/standard"))
     p.add_argument("--profile", default="standard")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=2)
-    p.add_argument("--csv", type=Path, default=Path(csv))
+    p.add_argument("--csv", type=Path, default=None if csv is None else Path(csv))
     p.add_argument("--compare-only", action="store_true", help="train nothing; compare what has finished")
 
 

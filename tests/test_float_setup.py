@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 
-from benchmarks.float_setup import compare, main, setup_environment, tables_command
+from benchmarks.float_setup import DEFAULT_CSV, compare, main, setup_environment, tables_command
 from contracts.float_setup import HELD_TO, cpu_facts, float_setup, kernel_vector_flags, machine_of
 from eval.harness_cli import build_parser
 from tests.results_builder import write_metrics
@@ -121,7 +121,8 @@ def test_each_scene_pairs_its_runs_under_the_trainer_both_sides_share(tmp_path: 
         compare(default, avx2, 0, ["house", "room", "plant"])
 
 
-def test_a_candidate_is_compared_on_its_own_runs_or_on_full_runs_that_stand_for_it(tmp_path: Path) -> None:
+def test_a_candidate_is_compared_on_its_own_runs_or_on_full_runs_that_stand_for_it(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """--method reads the candidate's runs; on a side where the harness took Full's run for it
     (carve-where-smoky where Full started from one surface) Full's run is its run, and the row says
     on which side. Full's own comparison never reads the candidate's runs."""
@@ -136,5 +137,13 @@ def test_a_candidate_is_compared_on_its_own_runs_or_on_full_runs_that_stand_for_
         [("room", "carve-where-smoky", 11.0, 12.5, "default")]
     assert [(r["scene"], r["avx2_psnr"], r["full_run_on"]) for r in compare(default, avx2, 0, ["room", "house"])] == \
         [("room", 12.0, ""), ("house", 30.0, "")]
+    datasets = tmp_path / "datasets"
+    (datasets / "room").mkdir(parents=True)
+    (datasets / "room" / "dataset.json").write_text("{}")
+    monkeypatch.chdir(tmp_path)  # a CSV the user names is the one written, even Full's own default path
+    assert main(["--out", str(tmp_path), "--scenes", "room", "--datasets", str(datasets), "--compare-only",
+                 "--method", "carve-where-smoky", "--csv", str(DEFAULT_CSV)]) == 0
+    assert (tmp_path / DEFAULT_CSV).read_text().splitlines()[1].startswith("room,11.0,12.5,")
+    assert not (tmp_path / DEFAULT_CSV.with_name("per_scene-carve-where-smoky.csv")).exists()
     cmd = tables_command(["room"], Path("data/standard"), "standard", 0, 2, Path("out/avx2"), "carve-where-smoky")
     assert build_parser().parse_args(cmd[3:]).candidates == ["carve-where-smoky"]
