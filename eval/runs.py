@@ -138,15 +138,6 @@ CANDIDATES: dict[str, Variant] = {
                         "(the surface issue; surface_diagnostics' surface-pixel PSNRs, with the environment and on "
                         "black, measure the leak)",
                    overrides={"background": "black"}),
-        *(_candidate(f"priors-{name}", f"Full, smoke priors at {share} of the official strength",
-                     note="the smoke priors at a share of the official code's synthetic weights, in this trainer's "
-                          "units (smoke_alpha 1.2; smoke_color 1.5 and mono 2.9 on raw SH values, 19 and 37 on "
-                          "colours; ours are 0.1, 0.05, 0.1), so that the smoke cannot carry the scene's chroma and "
-                          "texture (the surface issue, three points)",
-                     overrides={"loss.smoke_alpha": round(1.2 * k, 4), "loss.smoke_color": round(19.0 * k, 4),
-                                "loss.mono": round(37.0 * k, 4)})
-          for name, share, k in (("official", "all", 1.0), ("quarter", "a quarter", 0.25),
-                                 ("sixteenth", "a sixteenth", 1 / 16))),
         _candidate("densify-by-gradient", "Full, a full cap grows the largest gradients",
                    note="every densification (Stage 2, the smoke, the surface refinement) takes the candidates with "
                         "the largest mean gradient when they outnumber the room under its cap, in place of clones "
