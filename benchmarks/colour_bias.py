@@ -1,7 +1,10 @@
 """The colour cast a de-smoked surface keeps, for finished runs that were scored before the trainer
 measured it (the surface issue's first diagnostic): the mean signed error per channel of the
 surface render against the clean frame, on the test pixels the smoke mask marks; and, where the
-dataset has them, against the shadowed frames (`rgb.shadowed`), which the shadow does not tint.
+dataset has them, against the shadowed frames (`rgb.shadowed`), which the shadow does not tint;
+and on the recoverable part of those pixels alone (some training view sees their surface with
+smoke alpha under 0.1, ``eval.regions``' reach split), where a de-smoking method can know the
+colour at all.
 
     python benchmarks/colour_bias.py [--tables data/tables_standard] [--digest d65d2bcb]
         [--variants full,rgb-only] [--out benchmarks/results/standard/colour_bias]
@@ -13,8 +16,8 @@ loaded at the renders' width as the trainer loads them: the trainer's own functi
 two agree to the 8-bit rounding, under 0.002; tests/test_colour_bias.py). Writes OUT.csv (one row
 per run) and OUT.md: per variant, the per-channel bias on the ten-scene mean (mean ± std over
 seeds) and the largest |bias| of any scene (mean over its seeds), the two numbers the surface
-issue bounds (0.02 and 0.05), and the same against shadowed where every scene has the frames;
-then per scene.
+issue bounds (0.02 and 0.05), and the same against shadowed and on the recoverable pixels, over
+the scenes that have the frames, passes and pixels (the row's scene count); then per scene.
 """
 from __future__ import annotations
 
@@ -34,6 +37,7 @@ from contracts.atomic import write_rows_csv, write_text  # noqa: E402
 from contracts.imageio import image01, read_png  # noqa: E402
 from contracts.recorded_paths import recorded_location  # noqa: E402
 from eval.finished_runs import finished_runs  # noqa: E402
+from eval.regions import reach_masks  # noqa: E402
 from eval.runs import variant_label  # noqa: E402
 from scenes.load import load_scene  # noqa: E402
 from smokeseer.evaluation.scoring import masked_colour_bias  # noqa: E402
@@ -65,10 +69,40 @@ def run_bias(run: Path, scene_cache: dict[tuple[str, int], Any]) -> dict[str, An
         under, _ = masked_colour_bias((img, rgb.shadowed[index[stem]], rgb.masks[index[stem]])
                                       for stem, img in zip(stems, renders))
         shadowed = [round(float(b), 5) for b in (under if under is not None else [np.nan] * 3)]
+    recoverable, share, against = recoverable_bias(run, dataset, stems, renders, rgb, index, scene_cache)
     return {"scene": rec["scene"], "variant": rec["variant"], "seed": rec["seed"], "run": rec["run_dir"],
             **{f"bias_{c}": round(float(b), 5) for c, b in zip(CHANNELS, bias)},
             "max_abs_bias": round(float(np.abs(bias).max()), 5), "smoky_pixels": pixels,
-            **{f"bias_shadowed_{c}": b for c, b in zip(CHANNELS, shadowed)}}
+            **{f"bias_shadowed_{c}": b for c, b in zip(CHANNELS, shadowed)},
+            **{f"bias_recoverable_{c}": b for c, b in zip(CHANNELS, recoverable)},
+            "recoverable_share": share, "recoverable_against": against}
+
+
+def recoverable_bias(run: Path, dataset: str, stems: list[str], renders: list[np.ndarray], rgb: Any,
+                     index: dict[str, int], cache: dict[Any, Any]) -> tuple[list[float | str], float | str, str]:
+    """The cast on the masked pixels some training view sees with thin smoke (``eval.regions``'
+    reach split), against the shadowed frames where the dataset has them, else the clean ones; the
+    share of the masked pixels that are recoverable; and which truth. Under smoke that no training
+    view sees through no method reading the RGB frames can know the colour, so the cast there is
+    the input's, not the method's. Empty where no masked pixel is recoverable (share 0), the
+    dataset lacks the depth and smoke-opacity passes, or the renders are not at its resolution
+    (said on stderr)."""
+    key = ("reach", dataset)
+    if key not in cache:
+        cache[key] = reach_masks(Path(dataset))
+    reach = cache[key]
+    if not reach:
+        return [""] * 3, "", ""
+    if any(reach[s].shape != r.shape[:2] for s, r in zip(stems, renders)):
+        print(f"colour_bias: {run}: renders at {renders[0].shape[1]} px wide, the reach masks at the dataset's "
+              f"{next(iter(reach.values())).shape[1]}: no recoverable split", file=sys.stderr)
+        return [""] * 3, "", ""
+    truth, against = (rgb.shadowed, "shadowed") if rgb.shadowed is not None else (rgb.clean, "clean")
+    masks = [np.where(reach[s], 0.0, rgb.masks[index[s]]) for s in stems]
+    found, pixels = masked_colour_bias((img, truth[index[s]], m) for s, img, m in zip(stems, renders, masks))
+    total = sum(int((rgb.masks[index[s]] > 0.5).sum()) for s in stems)
+    bias: list[float | str] = [round(float(b), 5) for b in found] if found is not None else [""] * 3
+    return bias, (round(pixels / total, 4) if total else ""), against
 
 
 def summary(rows: list[dict[str, Any]], variants: list[str], digest: str) -> str:
@@ -104,24 +138,27 @@ def summary(rows: list[dict[str, Any]], variants: list[str], digest: str) -> str
         mine = [r for r in rows if r["variant"] == v]
         if mine:
             per_scene[v] = summary_row(variant_label(v), mine, "bias_")
-    under: dict[str, dict[str, np.ndarray]] = {}  # against shadowed, the scenes whose dataset has the frames
-    for v in per_scene:
-        mine = [r for r in rows if r["variant"] == v]
-        with_frames = [r for r in mine if r["bias_shadowed_r"] != ""]
-        under[v] = (summary_row(f"{variant_label(v)}, against shadowed", mine, "bias_shadowed_")
-                    if len(with_frames) == len(mine) else scene_means(with_frames, "bias_shadowed_"))
-    columns = [variant_label(v) for v in per_scene] + [f"{variant_label(v)}, against shadowed"
-                                                        for v in per_scene if under[v]]
+    extra: list[tuple[str, dict[str, np.ndarray]]] = []  # the scenes whose dataset has the frames or passes
+    for suffix, prefix in (("against shadowed", "bias_shadowed_"), ("recoverable pixels", "bias_recoverable_")):
+        for v in per_scene:
+            mine = [r for r in rows if r["variant"] == v]
+            found = [r for r in mine if r.get(f"{prefix}r", "") != ""]
+            label = f"{variant_label(v)}, {suffix}"
+            if found:  # the row's scene count says how many have the frames, passes or pixels
+                extra.append((label, summary_row(label, found, prefix)))
+    columns = [variant_label(v) for v in per_scene] + [label for label, _ in extra]
     lines += ["", "Per scene, mean over its seeds (R, G, B); against shadowed: the same pixels against the frames "
               "under the smoke's shadow with no smoke in view (`rgb.shadowed`, where the dataset has it), so "
-              "the shadow is no part of the cast:", "",
+              "the shadow is no part of the cast; recoverable pixels: the masked pixels some training view "
+              "sees with smoke alpha under 0.1 (`eval/regions.py`), against shadowed where the dataset has it, "
+              "so the surface no RGB view reaches is no part of it (the CSV's `recoverable_share`):", "",
               "| scene | " + " | ".join(columns) + " |", "|---|" + "---|" * len(columns)]
 
     def cell(table: dict[str, np.ndarray], scene: str) -> str:
         return ", ".join(f"{b:+.3f}" for b in table[scene]) if scene in table else ""
 
     for s in sorted({s for d in per_scene.values() for s in d}):
-        cells = [cell(per_scene[v], s) for v in per_scene] + [cell(under[v], s) for v in per_scene if under[v]]
+        cells = [cell(per_scene[v], s) for v in per_scene] + [cell(table, s) for _, table in extra]
         lines.append(f"| {s} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 

@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from benchmarks.colour_bias import main, run_bias
-from contracts.imageio import read_png, write_png
+from contracts.imageio import image01, read_png, write_png
+from contracts.unrecoverable import dataset_unrecoverable
+from scenes.load import load_scene
 from smokeseer.cli import main as train
 from tests.test_smokeseer_data import write_splat_dataset
 from tests.test_trainer import TINY
@@ -85,3 +87,36 @@ def test_a_dataset_whose_masks_are_gone_is_one_line_naming_the_file(tmp_path: Pa
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "smoke_mask/0000.png: missing file" in err
     assert not (tmp_path / "o.csv").exists()
+
+
+def test_the_recoverable_cast_leaves_out_what_no_training_view_sees_through(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The recoverable columns are the cast on the masked test pixels outside the dataset's
+    unrecoverable masks (contracts/unrecoverable.py), against the shadowed frames: computed here
+    pixel by pixel from the renders and frames, and the summary gains the rows. A scene with no
+    recoverable pixel has empty cells and share 0, never a NaN in the mean."""
+    dataset = write_splat_dataset(tmp_path / "splat")
+    run = tmp_path / "tables" / "runs" / "splat" / "full" / "seed0-x"
+    assert train([str(dataset), "--out", str(run)] + TINY) == 0
+    _as_harness_run(run, dataset)
+    row = run_bias(run, {})
+    reach = dataset_unrecoverable(dataset)
+    rgb = load_scene(dataset).rgb
+    index = {f.file_stem: i for i, f in enumerate(rgb.frames)}
+    errors, masked = [], 0
+    for stem, unreachable in reach.items():
+        render = image01(read_png(run / "renders" / "surface" / f"{stem}.png")).astype(np.float64)
+        smoky = rgb.masks[index[stem]] > 0.5
+        masked += int(smoky.sum())
+        errors.append(render[smoky & ~unreachable] - rgb.shadowed[index[stem]][smoky & ~unreachable])
+    errors = np.concatenate(errors)
+    assert 0 < len(errors) < masked, "the test needs masked pixels on both sides of the reach split"
+    assert row["recoverable_against"] == "shadowed"
+    assert row["recoverable_share"] == round(len(errors) / masked, 4)
+    np.testing.assert_allclose([row[f"bias_recoverable_{c}"] for c in "rgb"], errors.mean(0), atol=1e-5)
+    out = tmp_path / "colour_bias"
+    assert main(["--tables", str(tmp_path / "tables"), "--variants", "full", "--out", str(out)]) == 0
+    assert "| Ours (Full), recoverable pixels | 0 | 1 |" in out.with_suffix(".md").read_text()
+    monkeypatch.setattr("benchmarks.colour_bias.reach_masks", lambda root: {k: np.ones_like(v) for k, v in reach.items()})
+    none = run_bias(run, {})
+    assert none["recoverable_share"] == 0.0 and [none[f"bias_recoverable_{c}"] for c in "rgb"] == ["", "", ""]
