@@ -93,14 +93,6 @@ CANDIDATES: dict[str, Variant] = {
                         "pixels, under 100 none and 20 % (loss.mask_floor_meeting=trusted; the rules issue's "
                         "cliffs); Stage 3 only",
                    overrides={"loss.mask_floor_meeting": "trusted"}),
-        _candidate("floor-never-clear", "Full, the mask floor on every masked point no other view sees clear",
-                   note="the mask floor acts on every masked pixel whose surface point no other training view sees "
-                        "smoke-free, whether or not the haze lines meet (loss.mask_floor_where=never-clear), in place "
-                        "of reading a scene whose lines do not meet as thin smoke: random_1001 (soot, RGB optical "
-                        "depth 2.35, 59 lines) gets a floor on 4 % of its masked pixels and Full's smoke there is "
-                        "0.26 opaque where the truth is 0.93 (docs/experiments/2026-12-07-smoke-priors-six-scenes.md); "
-                        "Stage 3 only",
-                   overrides={"loss.mask_floor_where": "never-clear"}),
         _candidate("thermal-where-smoky", "Full, the thermal term shapes the surface only under smoke",
                    note="the thermal render term moves each surface Gaussian's position, shape and opacity by the "
                         "share of the RGB training views whose smoke mask covers it, so the coarse thermal frames "
