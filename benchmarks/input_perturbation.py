@@ -12,9 +12,10 @@ but for the smoky RGB frames: each 8-bit value moves up or down by ``--levels`` 
 value from ``--noise-seed``, clipped at 0 and 255), and `perturbation.json` beside dataset.json says
 so. Then `regenerate-tables` trains Full at one seed on the copies (OUT/tables) and on the
 originals (OUT/tables too, or a tables folder that already holds them: ``--originals-from``, read
-before OUT/tables); both are resumable, and the run key holds each dataset's hash, so the two never share a run. The CSV has
-one row per scene and trainer version that finished both: ``scene, original_psnr,
-perturbed_psnr``, the difference, both validation PSNRs, the trainer and the original's folder.
+before OUT/tables); both are resumable, and the run key holds each dataset's hash, so the two
+never share a run. The CSV has one row per scene and trainer version that finished both:
+``scene, original_psnr, perturbed_psnr``, the difference, both validation PSNRs, the trainer and
+the original's folder.
 """
 from __future__ import annotations
 
