@@ -47,7 +47,7 @@ MEAN_LIMIT, SCENE_LIMIT = 0.02, 0.05
 """The surface issue's bounds: |bias| per channel on the mean of the scenes, and on each scene."""
 
 
-def run_bias(run: Path, scene_cache: dict[tuple[str, int], Any]) -> dict[str, Any]:
+def run_bias(run: Path, scene_cache: dict[tuple[str, Any], Any]) -> dict[str, Any]:
     """The run's per-channel signed error on its test views' masked pixels, and their count."""
     rec = json.loads((run / "harness.json").read_text())
     stems = [e["file_stem"] for e in json.loads((run / "metrics.json").read_text())["per_image"]]
@@ -79,7 +79,8 @@ def run_bias(run: Path, scene_cache: dict[tuple[str, int], Any]) -> dict[str, An
 
 
 def recoverable_bias(run: Path, dataset: str, stems: list[str], renders: list[np.ndarray], rgb: Any,
-                     index: dict[str, int], cache: dict[Any, Any]) -> tuple[list[float | str], float | str, str]:
+                     index: dict[str, int],
+                     cache: dict[tuple[str, Any], Any]) -> tuple[list[float | str], float | str, str]:
     """The cast on the masked pixels some training view sees with thin smoke (``eval.regions``'
     reach split), against the shadowed frames where the dataset has them, else the clean ones; the
     share of the masked pixels that are recoverable; and which truth. Under smoke that no training
@@ -174,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
     variants = [v for v in args.variants.split(",") if v]
     try:
         digest, runs = finished_runs(args.tables, variants, args.digest)
-        cache: dict[tuple[str, int], Any] = {}
+        cache: dict[tuple[str, Any], Any] = {}
         rows = [run_bias(run, cache) for run, _ in sorted(runs, key=lambda x: str(x[0]))]
     except (ValueError, FileNotFoundError, KeyError) as exc:
         print(f"colour_bias: error: {exc}", file=sys.stderr)
