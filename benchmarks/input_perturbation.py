@@ -134,9 +134,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{s}: {rec['frames']} smoky frames moved by ±{args.levels} (mean |change| "
                   f"{rec['mean_abs_change_levels']} levels, {rec['clipped_values']} values clipped) in {copy}")
             copies[noisy_name(s, args.levels)] = copy
-        calls = [({s: args.datasets / s for s in scenes}, originals), (copies, tables)]
-        if originals == tables:  # one call trains both, two workers across them
-            calls = [({**calls[0][0], **copies}, tables)]
+        sources = {s: args.datasets / s for s in scenes}
+        calls = ([({**sources, **copies}, tables)] if originals == tables  # one call, two workers across both
+                 else [(sources, originals), (copies, tables)])
         for datasets, out in calls:
             done = subprocess.run(full_seed_runs.tables_command(datasets, args.profile, args.seed, args.workers, out),
                                   cwd=ROOT)
