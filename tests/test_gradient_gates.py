@@ -4,10 +4,7 @@
   Gaussian's position, shape and opacity is that Gaussian's share times the ungated one (checked
   against the ungated render's own gradient), while its thermal value learns in full.
 - background_from=clear-pixels: the environment's gradient is each pixel's weight times what that
-  pixel sends it (checked against the chain rule written out through the composite).
-- stage3.surface_learns_from=clear-pixels: the surface and the environment learn from each pixel
-  by 1 − its mask, the smoke from every pixel in full (checked against the ungated render's
-  backward pass with the upstream gradient weighted by hand)."""
+  pixel sends it (checked against the chain rule written out through the composite)."""
 from __future__ import annotations
 
 import numpy as np
@@ -17,7 +14,6 @@ from smokeseer.config import make_config
 from smokeseer.model.background import EnvironmentBackground
 from smokeseer.model.gaussians import GaussianSet
 from smokeseer.model.scene import SceneModel, add_rgb_sh, init_gaussians, make_smoke, make_view, scaled_gradient
-from smokeseer.train.stage2 import learn_by_clear_pixels
 
 GEOMETRY = ("means", "quats", "log_scales", "opacity")
 
@@ -116,62 +112,3 @@ def test_only_an_rgb_stage2_learning_from_clear_pixels_has_its_own_key() -> None
     assert (key("rgb-only", background_from="clear-pixels", stage1="estimate")
             != key("rgb-only", background_from="clear-pixels"))
     assert key("rgb-only", stage1="estimate") == key("rgb-only")
-
-
-def test_the_surface_learns_from_clear_pixels_and_the_smoke_from_all() -> None:
-    """Stage 3's composite (``stage3.surface_learns_from=clear-pixels``): the image is the ungated
-    one; the surface's and the environment's gradients are those of the ungated render with each
-    pixel's upstream gradient times 1 − mask; the smoke's are the ungated ones. A mask of zeros
-    changes nothing, a mask of ones leaves the surface nothing."""
-    rng = np.random.default_rng(6)
-    tensors = _surface().state_dict()
-    add_rgb_sh(tensors, 1)
-    tensors["sh_dc"] = torch.as_tensor(rng.normal(0, 0.5, tensors["sh_dc"].shape), dtype=torch.float32)
-    surface = GaussianSet(tensors)
-    smoke_points = np.column_stack([rng.uniform(-0.6, 0.6, 20), rng.uniform(-0.4, 0.4, 20), rng.uniform(1.5, 2.0, 20)])
-    smoke = make_smoke(smoke_points, 0.4, 1.0, 0.3, rng, torch.device("cpu"))
-    smoke.params["color"].data = torch.as_tensor(rng.normal(0, 1, (20, 3)), dtype=torch.float32)
-    env = EnvironmentBackground(3, 2, torch.device("cpu"))
-    env.coeffs.data = torch.as_tensor(rng.normal(0, 0.3, env.coeffs.shape), dtype=torch.float32)
-    model = SceneModel(surface, smoke, None, True, torch.zeros(3), 1, background_rgb=env)
-    view = _view()
-    target = torch.as_tensor(rng.uniform(0, 1, (48, 64, 3)), dtype=torch.float32)
-    params = {"surface": surface.params, "smoke": smoke.params, "env": {"coeffs": env.coeffs}}
-
-    def grads(mask: torch.Tensor | None, by_hand: torch.Tensor | None = None
-              ) -> tuple[torch.Tensor, dict[str, dict[str, torch.Tensor]]]:
-        for group in params.values():
-            for t in group.values():
-                t.grad = None
-        image = model.render_rgb(view, degree=1, depth=False).colors[0]
-        if mask is not None:
-            held = model.render_rgb(view, degree=1, depth=False, surface_held=True,
-                                    background_grad=torch.zeros_like(mask)).colors[0]
-            image = learn_by_clear_pixels(image, held, 1.0 - mask)
-        if by_hand is None:
-            (image - target).abs().sum().backward()
-        else:
-            image.backward(torch.sign(image.detach() - target) * by_hand[..., None])
-        return image.detach(), {name: {k: (torch.zeros_like(t) if t.grad is None else t.grad.clone())
-                                       for k, t in group.items()} for name, group in params.items()}
-
-    mask = torch.zeros(48, 64)
-    mask[:, 24:44] = 1.0          # a smoke mask over a band
-    mask[35:, :10] = 0.4          # a soft one in a corner
-    plain_image, plain = grads(None)
-    image, gated = grads(mask)
-    torch.testing.assert_close(image, plain_image, rtol=0, atol=0)
-    _, weighted = grads(None, 1.0 - mask)
-    for name in ("surface", "env"):
-        for key, g in gated[name].items():
-            torch.testing.assert_close(g, weighted[name][key], rtol=1e-4, atol=1e-6)
-    assert not torch.allclose(gated["surface"]["sh_dc"], plain["surface"]["sh_dc"])
-    for key, g in gated["smoke"].items():
-        torch.testing.assert_close(g, plain["smoke"][key], rtol=1e-4, atol=1e-6)
-    assert torch.count_nonzero(plain["smoke"]["color"]) > 0
-    _, none = grads(torch.zeros(48, 64))
-    for name in params:
-        for key, g in none[name].items():
-            torch.testing.assert_close(g, plain[name][key], rtol=1e-5, atol=1e-7)
-    _, all_masked = grads(torch.ones(48, 64))
-    assert all(torch.count_nonzero(g) == 0 for g in all_masked["surface"].values())

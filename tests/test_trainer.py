@@ -198,6 +198,22 @@ def test_the_thermal_gate_trains_and_says_how_much_thermal_shapes_the_surface(sp
     assert 0.0 < float(note.split("mean ")[1].split(" ")[0]) < 1.0
 
 
+def test_the_colour_hold_reads_the_smoke_off_the_images_and_resumes(splat: Path, tmp_path: Path) -> None:
+    """stage3.surface_colour_hold (the step scaling itself: tests/test_colour_hold.py): the run
+    reads each pixel's smoke alpha before Stage 3, its note gives the mean share ρ (in [0, 1]) and
+    how many colours move under a tenth of their rate, and a run resumed from its Stage-3
+    checkpoint ends with the same metrics."""
+    run = tmp_path / "run"
+    args = [str(splat), "--out", str(run)] + BY_SMOKE_COLOUR + ["--set", "stage3.surface_colour_hold=4"]
+    assert main(args) == 0
+    doc = _assert_complete(run)
+    note = next(n for n in doc["stages"]["notes"] if n.startswith("each surface Gaussian's colour moves at (1 − ρ)^4"))
+    assert 0.0 <= float(note.split("mean ρ ")[1].split(",")[0]) <= 1.0
+    (run / "metrics.json").unlink()
+    assert main(args) == 0
+    assert json.loads((run / "metrics.json").read_text())["metrics"] == doc["metrics"]
+
+
 def test_the_thermal_term_renders_sub_pixels_and_says_so(splat: Path, tmp_path: Path) -> None:
     """stage3.thermal_supersample=2 (the averaging itself: tests/test_thermal_supersample.py): the
     run ends ok, and its notes give the size the thermal term renders at, twice the frames'."""

@@ -328,14 +328,13 @@ class SceneModel:
     def render_rgb(self, view: View, surface: bool = True, smoke: bool = True, degree: int | None = None,
                    deform_active: bool = True, surface_depth: bool = False, depth: bool = True,
                    motion: SmokeMotion | None = None, background: bool = True,
-                   background_grad: Tensor | None = None, surface_held: bool = False) -> RasterOutput:
+                   background_grad: Tensor | None = None) -> RasterOutput:
         """RGB = surface ∪ smoke with RGB opacities; with both, smoke alpha comes from the same pass.
         The environment is drawn behind any render that includes the surface (a smoke-only
         view is shown on black), unless ``background`` is false (the evaluation's check of how much
         of a score the environment carries). ``surface_depth``: the surface's own depth and alpha as
         ``rest_depths``/``rest_alphas``, from the same pass; ``depth``: the depth image (both: see
-        ``render``); ``motion``: see ``smoke_at``; ``background_grad``: see ``render``;
-        ``surface_held``: the surface drawn from detached tensors, so that only the smoke learns."""
+        ``render``); ``motion``: see ``smoke_at``; ``background_grad``: see ``render``."""
         if surface_depth and not surface:
             raise ValueError("render_rgb: surface_depth needs the surface in the render")
         degree = self.sh_degree if degree is None else degree
@@ -343,11 +342,7 @@ class SceneModel:
         parts = []
         if surface:
             placed, opacity = self.surface_at(view.time), torch.sigmoid(self.surface["opacity"])
-            coeffs = sh_coeffs(self.surface)
-            if surface_held:
-                placed = Placed(placed.means.detach(), placed.quats.detach(), placed.log_scales.detach())
-                opacity, coeffs = opacity.detach(), coeffs.detach()
-            parts.append((placed, opacity, coeffs))
+            parts.append((placed, opacity, sh_coeffs(self.surface)))
         use_smoke = smoke and self.smoke is not None
         if use_smoke:
             placed, o_rgb, _ = self.smoke_at(view.time, deform_active, view, motion)

@@ -62,8 +62,7 @@ def clear_pixel_weights(cfg: TrainConfig, mod: ModalityData, idx: list[int], dev
     """Per training view ``idx`` of ``mod``, the weight of each pixel's gradient into the learned
     environment: 1 − Stage 1's smoke mask on the RGB frames under ``background_from=clear-pixels``;
     None (every pixel in full) otherwise, on the thermal frames, and where the frames carry no
-    mask (no smoke marked). A render that already learns by clear pixels
-    (``learn_by_clear_pixels``) weights its environment by the same share, and takes none of these."""
+    mask (no smoke marked)."""
     if cfg.background_from != "clear-pixels" or mod.name == "thermal" or mod.masks is None:
         return None
     return clear_weights(mod.masks[idx], device)
@@ -72,14 +71,6 @@ def clear_pixel_weights(cfg: TrainConfig, mod: ModalityData, idx: list[int], dev
 def clear_weights(masks: np.ndarray, device: torch.device) -> torch.Tensor:
     """1 − Stage 1's smoke masks, clipped to [0, 1]: how clear of smoke each pixel is."""
     return 1.0 - torch.as_tensor(np.clip(masks, 0.0, 1.0), dtype=torch.float32, device=device)
-
-
-def learn_by_clear_pixels(live: torch.Tensor, held: torch.Tensor, clear: torch.Tensor) -> torch.Tensor:
-    """The image ``live`` (H, W, C), whose pixels send what it draws their gradient times ``clear``
-    (H, W) and the rest through ``held``: the same frame with those Gaussians detached (Stage 3's
-    surface, ``stage3.surface_learns_from=clear-pixels``). Both are one image, so the result has its
-    bytes."""
-    return held + clear[..., None] * (live - held)
 
 
 def draw_index(generator: torch.Generator, n: int) -> int:

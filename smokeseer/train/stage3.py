@@ -28,18 +28,39 @@ from smokeseer.train.loop import IterationOutput, StageProblem, StageSchedule, r
 from smokeseer.train.losses import (depth_consistency, mask_alignment, monochromaticity, render_loss,
                                     smoke_alpha_variance, smoke_color_variance)
 from smokeseer.train.plan import Stage3Plan
-from smokeseer.train.stage2 import (Stage2Result, clear_pixel_weights, clear_weights, draw_index,
-                                    learn_by_clear_pixels, make_background, views_of)
+from smokeseer.train.stage2 import Stage2Result, clear_pixel_weights, draw_index, make_background, views_of
 from smokeseer.train.surface_union import smoky_share
 from smokeseer.train.util import RunContext, grads_of, state_or_none, step_optimizers
 
 HeldoutPsnr = Callable[[SceneModel, int], dict[str, float | None] | None]
 
 SHARE_REFRESH = 100
-"""With ``stage3.thermal_surface_grad=smoky-views`` each surface Gaussian's smoky-view share is
-recomputed at the start of every block of this many iterations, and whenever densification has
-changed the surface's count (it acts at most once a block): its position moves far less than a
-pixel between."""
+"""Each surface Gaussian's view share (``ViewShare``) is recomputed at the start of every block of
+this many iterations, and whenever densification has changed the surface's count (it acts at most
+once a block): its position moves far less than a pixel between."""
+
+HELD_COLOUR = ("sh_dc", "sh_rest")
+"""The surface's RGB colour, what ``stage3.surface_colour_hold`` holds (its opacity is left free:
+a held opacity could not come back from a reset)."""
+
+
+class ViewShare:
+    """Per surface Gaussian, the mean of per-pixel ``maps`` (RGB training views, H, W) over the views
+    its centre lands in (``smoky_share``; 1 where none does), cached as ``SHARE_REFRESH`` says."""
+
+    def __init__(self, maps: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray) -> None:
+        self.inputs = (maps, viewmats, Ks)
+        self.value: torch.Tensor | None = None
+
+    def at(self, it: int, surface: GaussianSet) -> torch.Tensor:
+        if self.value is None or (it - 1) % SHARE_REFRESH == 0 or len(self.value) != surface.n:
+            means = surface["means"].detach().cpu().numpy().astype(np.float64)
+            share = smoky_share(means, *self.inputs)
+            self.value = torch.as_tensor(share, dtype=torch.float32, device=surface["means"].device)
+        return self.value
+
+
+
 
 
 def build_scene_model(ctx: RunContext, s2: Stage2Result, plan: Stage3Plan,
@@ -146,24 +167,8 @@ class Stage3Problem(StageProblem):
                            if self.masks is not None and plan.floor_pixels is not None else None)
         self.alpha_targets = (torch.as_tensor(plan.alpha_targets, dtype=self.masks.dtype, device=dev)
                               if self.masks is not None and plan.alpha_targets is not None else None)
-        self.surface_weights: torch.Tensor | None = None
-        if cfg.stage3.surface_learns_from == "clear-pixels" and model.smoke is not None:
-            if rgb.masks is None:
-                raise ValueError("stage3.surface_learns_from: clear-pixels reads Stage 1's smoke masks, "
-                                 "and this run's RGB frames have none")
-            self.surface_weights = clear_weights(rgb.masks[rgb_idx], dev)
-            clear = 100 * float(self.surface_weights.mean())
-            note = (f"the surface learns from the pixels Stage 1 marks clear ({clear:.0f} % of the training pixels), "
-                    "the smoke from all (stage3.surface_learns_from=clear-pixels)")
-            plan.notes.append(note)
-            ctx.log_line(f"stage 3: {note}")
-        elif cfg.stage3.surface_learns_from == "clear-pixels":
-            note = "no smoke Gaussians, so every pixel is clear (stage3.surface_learns_from=clear-pixels changes nothing)"
-            plan.notes.append(note)
-            ctx.log_line(f"stage 3: {note}")
-        # the clear-pixel composite already weights the environment by the same share
         self.background_grad = (clear_pixel_weights(cfg, rgb, rgb_idx, dev)
-                                if model.background_rgb is not None and self.surface_weights is None else None)
+                                if model.background_rgb is not None else None)
         self.th_views: list = []
         self.th_imgs = None
         if plan.use_thermal and thermal is not None:
@@ -181,18 +186,28 @@ class Stage3Problem(StageProblem):
         if self.gate_thermal and model.smoke is not None and rgb.masks is None:
             raise ValueError("stage3.thermal_surface_grad: smoky-views reads Stage 1's smoke masks, "
                              "and this run's RGB frames have none")
-        self.share_inputs: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-        self.thermal_share: torch.Tensor | None = None
+        self.thermal_share: ViewShare | None = None
         if self.gate_thermal:
             masks = (rgb.masks[rgb_idx] if model.smoke is not None
                      else np.zeros((len(rgb_idx), *rgb.images.shape[1:3]), dtype=np.float32))
-            self.share_inputs = (masks, *rgb.cameras("train"))
-            share = self._thermal_share(1)
+            self.thermal_share = ViewShare(masks, *rgb.cameras("train"))
+            share = self.thermal_share.at(1, model.surface)
             note = (f"the thermal term moves each surface Gaussian by the share of the RGB training views whose "
                     f"smoke mask covers it: mean {float(share.mean()):.3f} at the start, "
                     f"{100 * float((share == 0).float().mean()):.0f} % not at all"
                     + ("" if model.smoke is not None else " (no smoke: only what no RGB view sees)")
                     + " (stage3.thermal_surface_grad=smoky-views)")
+            plan.notes.append(note)
+            ctx.log_line(f"stage 3: {note}")
+        self.colour_hold: ViewShare | None = None
+        if cfg.stage3.surface_colour_hold > 0 and plan.surface_density is not None:
+            self.colour_hold = ViewShare(plan.surface_density, *rgb.cameras("train"))
+            rho = self.colour_hold.at(1, model.surface)
+            rate = (1.0 - rho) ** cfg.stage3.surface_colour_hold
+            note = (f"each surface Gaussian's colour moves at (1 − ρ)^{cfg.stage3.surface_colour_hold:g} of its rate, "
+                    f"ρ the smoke alpha read off the RGB training views it lands in: mean ρ {float(rho.mean()):.3f}, "
+                    f"{100 * float((rate < 0.1).float().mean()):.0f} % of the colours under a tenth of their rate "
+                    "(stage3.surface_colour_hold)")
             plan.notes.append(note)
             ctx.log_line(f"stage 3: {note}")
         self.depth_on = prior is not None and self.weights["depth"] > 0
@@ -223,19 +238,14 @@ class Stage3Problem(StageProblem):
         out = model.render_rgb(view, degree=degree, deform_active=deform_on,
                                surface_depth=self.depth_on and not self.depth_on_thermal, depth=False, motion=motion,
                                background_grad=None if self.background_grad is None else self.background_grad[k])
-        image = out.colors[0]
-        if self.surface_weights is not None:
-            held = model.render_rgb(view, degree=degree, deform_active=deform_on, depth=False, motion=motion,
-                                    surface_held=True, background_grad=torch.zeros_like(self.surface_weights[k]))
-            image = learn_by_clear_pixels(image, held.colors[0], self.surface_weights[k])
-        terms: dict[str, torch.Tensor] = {"render_rgb": render_loss(image, self.rgb_imgs[k], cfg.loss.dssim)}
+        terms: dict[str, torch.Tensor] = {"render_rgb": render_loss(out.colors[0], self.rgb_imgs[k], cfg.loss.dssim)}
         depth_source = (out, k)
         if self.th_imgs is not None:
             j = draw_index(self.streams["stage3.views.thermal"], len(self.th_views))
             tout = box_filtered(model.render_thermal(self.th_views[j], deform_active=deform_on,
                                                      surface_depth=self.depth_on_thermal, depth=False, motion=motion,
-                                                     surface_grad_share=self._thermal_share(it) if self.gate_thermal
-                                                     else None),
+                                                     surface_grad_share=None if self.thermal_share is None
+                                                     else self.thermal_share.at(it, model.surface)),
                                 cfg.stage3.thermal_supersample)
             terms["render_thermal"] = render_loss(tout.colors[0], self.th_imgs[j], cfg.loss.dssim)
             if self.depth_on_thermal:
@@ -263,17 +273,6 @@ class Stage3Problem(StageProblem):
         share = {"render_rgb": 1.0, "render_thermal": cfg.loss.thermal}
         loss = sum(weights["render"] * share[n] * v if n in share else weights[n] * v for n, v in terms.items())
         return IterationOutput(loss, terms, {"raster": out, "view": view, "index": k, "deform_on": deform_on})
-
-    def _thermal_share(self, it: int) -> torch.Tensor:
-        """Each surface Gaussian's smoky-view share (``smoky_share`` over the RGB training views;
-        without smoke Gaussians every mask is empty), refreshed as ``SHARE_REFRESH`` says."""
-        surface = self.model.surface
-        if self.thermal_share is None or (it - 1) % SHARE_REFRESH == 0 or len(self.thermal_share) != surface.n:
-            means = surface["means"].detach().cpu().numpy().astype(np.float64)
-            assert self.share_inputs is not None
-            share = smoky_share(means, *self.share_inputs)
-            self.thermal_share = torch.as_tensor(share, dtype=torch.float32, device=surface["means"].device)
-        return self.thermal_share
 
     def _depth_term(self, raster: RasterOutput, k: int) -> torch.Tensor:
         """The surface's own depth (from the same pass, see ``model.render``) against
@@ -304,10 +303,17 @@ class Stage3Problem(StageProblem):
         """The position rates decay over Stage 3, the surface's only where it does not continue
         Stage 2's (``stage3.surface_continues``: held at its start)."""
         held = self.cfg.stage3.surface_continues
+        params = self.model.surface.params
+        before = ({k: params[k].detach().clone() for k in HELD_COLOUR if k in params}
+                  if self.colour_hold is not None else None)
         step_optimizers(it, self.cfg.stage3.iterations, self.cfg, self.ctx.extent,
                         [self.smoke_optimizer] if held else [self.surface_optimizer, self.smoke_optimizer],
                         [self.background_optimizer, self.surface_optimizer] if held else [self.background_optimizer],
                         self.deform_optimizer, self.deform_warmup)
+        if before is not None:
+            assert self.colour_hold is not None
+            rate = (1.0 - self.colour_hold.at(it, self.model.surface)) ** self.cfg.stage3.surface_colour_hold
+            hold_steps(params, before, rate)
 
     def after_step(self, it: int, out: IterationOutput) -> None:
         """Density control from the RGB render's screen-space gradients: the smoke's, and the
@@ -347,7 +353,8 @@ class Stage3Problem(StageProblem):
                 "smoke": state_or_none(model.smoke), "smoke_optimizer": state_or_none(self.smoke_optimizer),
                 "deform": state_or_none(model.deform), "deform_optimizer": state_or_none(self.deform_optimizer),
                 "background_optimizer": state_or_none(self.background_optimizer),
-                "thermal_share": self.thermal_share if self.gate_thermal else None,
+                "thermal_share": None if self.thermal_share is None else self.thermal_share.value,
+                "colour_hold": None if self.colour_hold is None else self.colour_hold.value,
                 **{name: bg.state_dict() for name, bg in _backgrounds(model).items()}}
 
     def load_state(self, payload: dict[str, Any]) -> None:
@@ -360,8 +367,10 @@ class Stage3Problem(StageProblem):
         for name, bg in _backgrounds(model).items():
             if payload.get(name) is not None:
                 bg.load_state_dict(payload[name])
-        share = payload.get("thermal_share")
-        self.thermal_share = share.to(dev) if share is not None and self.gate_thermal else None
+        for cache, key in ((self.thermal_share, "thermal_share"), (self.colour_hold, "colour_hold")):
+            if cache is not None:
+                value = payload.get(key)
+                cache.value = None if value is None else value.to(dev)
         self._make_optimizers()
         self.surface_optimizer.load_state_dict(payload["surface_optimizer"])
         for opt, key in ((self.smoke_optimizer, "smoke_optimizer"), (self.deform_optimizer, "deform_optimizer"),
@@ -412,3 +421,13 @@ def train_stage3(ctx: RunContext, model: SceneModel, rgb: ModalityData, thermal:
     run_stage(ctx, problem, StageSchedule(cfg.stage3.iterations, cfg.log_every, cfg.stage3.test_every,
                                           cfg.checkpoint_every, ctx.config_sha))
     return problem.model
+
+
+def hold_steps(params: dict[str, torch.Tensor], before: dict[str, torch.Tensor], rate: torch.Tensor) -> None:
+    """Scale the step each optimiser just took on ``before``'s parameters, per Gaussian, by ``rate``
+    (n,) in [0, 1]: 1 keeps the step, 0 undoes it. A per-Gaussian learning rate that Adam's
+    normalisation cannot undo, as a scaled gradient would be."""
+    with torch.no_grad():
+        for k, old in before.items():
+            r = rate.view(-1, *([1] * (old.dim() - 1)))
+            params[k].copy_(old + r * (params[k] - old))
