@@ -28,7 +28,7 @@ from typing import Any
 
 from benchmarks import full_seed_runs
 from contracts.float_setup import HELD_TO, ISA_VARIABLES
-from eval.finished_runs import finished_records
+from eval.finished_runs import runs_by_version
 from eval.runs import CANDIDATES
 from eval.twins import stood_for
 
@@ -58,12 +58,10 @@ Side = dict[str, dict[str, tuple[Path, dict[str, Any], bool]]]
 def side(tables: Path, seed: int, scenes: list[str], method: str = "full") -> Side:
     """The finished runs of ``method`` at ``seed`` on one side: its own, else Full's run where the
     harness's rule lets Full's run stand for it (``eval.twins.stood_for``)."""
-    found: dict[tuple[str, str], dict[str, tuple[Path, dict[str, Any]]]] = {}
-    for run, rec in finished_records(tables, {"full", method}):
-        if rec["seed"] == seed and rec["scene"] in scenes:
-            found.setdefault((rec["scene"], rec["code_digest"]), {})[rec["variant"]] = (run, rec)
     runs: Side = {}
-    for (scene, digest), variants in found.items():
+    for (scene, digest), variants in runs_by_version(tables, {"full", method}, seed).items():
+        if scene not in scenes:
+            continue
         if method in variants:
             runs.setdefault(scene, {})[digest] = (*variants[method], False)
         elif stood_for([method], variants):

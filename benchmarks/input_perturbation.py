@@ -32,7 +32,7 @@ import numpy as np
 from benchmarks import full_seed_runs
 from contracts.atomic import write_json
 from contracts.imageio import read_png, write_png
-from eval.finished_runs import finished_records
+from eval.finished_runs import runs_by_version
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKY = Path("rgb") / "smoky"
@@ -84,8 +84,7 @@ def compare(perturbed_tables: Path, original_tables: list[Path], scenes: list[st
     scene's two runs are compared only under one trainer). The original is looked for in
     ``original_tables`` in order; the row names the folder it came from."""
     def by_version(tables: Path) -> dict[tuple[str, str], tuple[Path, dict[str, Any]]]:
-        return {(rec["scene"], rec["code_digest"]): (run, rec) for run, rec in finished_records(tables, ["full"])
-                if rec["seed"] == seed}
+        return {key: variants["full"] for key, variants in runs_by_version(tables, ["full"], seed).items()}
     perturbed = by_version(perturbed_tables)
     originals: dict[tuple[str, str], tuple[Path, dict[str, Any], Path]] = {}
     for tables in original_tables:

@@ -26,6 +26,17 @@ def finished_runs(tables: Path, variants: Iterable[str],
     return chosen, [(run_dir, rec) for run_dir, rec in records if rec["code_digest"] == chosen]
 
 
+def runs_by_version(tables: Path, variants: Iterable[str], seed: int
+                    ) -> dict[tuple[str, str], dict[str, tuple[Path, dict[str, Any]]]]:
+    """The finished runs of ``variants`` at ``seed``, by (scene, code digest) and then variant: what
+    a study pairing two folders' runs reads, so that a scene's runs are compared under one trainer."""
+    found: dict[tuple[str, str], dict[str, tuple[Path, dict[str, Any]]]] = {}
+    for run, rec in finished_records(tables, variants):
+        if rec["seed"] == seed:
+            found.setdefault((rec["scene"], rec["code_digest"]), {})[rec["variant"]] = (run, rec)
+    return found
+
+
 def finished_records(tables: Path, variants: Iterable[str]) -> list[tuple[Path, dict[str, Any]]]:
     """[(run folder, harness.json record)] of every finished run of ``variants`` that records its
     code digest, whatever the trainer version (a study pairing runs by version picks its own)."""
