@@ -1,8 +1,9 @@
 """stage3.surface_colour_hold: each step on a surface Gaussian's colour scaled by its rate, after
 the optimiser has taken it. Checked against torch's own Adam: rate 1 is its step to the bit, rate 0
 no step, and between them the straight line; the moments are Adam's in every case, so a colour
-that is released later steps as Adam would. The per-Gaussian share is smoky_share's mean of a
-map over the views a centre lands in, refreshed when the count changes."""
+that is released later steps as Adam would. The per-Gaussian share reads a map over the views a
+centre lands in (smoky_share's mean, or clearest_view's least, what the hold reads), refreshed
+when the count changes."""
 from __future__ import annotations
 
 import numpy as np
@@ -11,6 +12,7 @@ import torch
 from smokeseer.model.gaussians import GaussianSet
 from smokeseer.model.optim import Adam
 from smokeseer.train.stage3 import ViewShare, hold_steps
+from smokeseer.train.surface_union import clearest_view
 
 
 def _colours(seed: int) -> dict[str, torch.Tensor]:
@@ -47,7 +49,7 @@ def test_the_hold_scales_each_gaussians_step_and_leaves_adams_moments_alone() ->
                                    rtol=0, atol=0)
 
 
-def test_the_share_is_the_maps_mean_over_the_views_a_centre_lands_in() -> None:
+def test_the_share_is_the_maps_mean_or_least_over_the_views_a_centre_lands_in() -> None:
     """Two cameras looking along +z, 20 px focal length, 20 x 20 px: a point on the axis lands on
     column 10 of camera 0 and column 8 of camera 1 (moved +0.5 along x; depth 5), row 10 in both; a point far
     to the side lands in neither and reads 1. After a densification the share is recomputed."""
@@ -65,5 +67,7 @@ def test_the_share_is_the_maps_mean_over_the_views_a_centre_lands_in() -> None:
 
     got = share.at(1, surface([[0.0, 0.0, 5.0], [50.0, 0.0, 5.0]]))
     torch.testing.assert_close(got, torch.tensor([0.5, 1.0]))
+    clearest = ViewShare(maps, np.stack([v0, v1]), np.stack([K, K]), reduce=clearest_view)
+    torch.testing.assert_close(clearest.at(1, surface([[0.0, 0.0, 5.0], [50.0, 0.0, 5.0]])), torch.tensor([0.2, 1.0]))
     again = share.at(2, surface([[0.0, 0.0, 5.0], [50.0, 0.0, 5.0], [0.0, 0.0, 5.0]]))
     assert again.shape == (3,)

@@ -200,7 +200,7 @@ def test_the_thermal_gate_trains_and_says_how_much_thermal_shapes_the_surface(sp
 
 def test_the_colour_hold_reads_the_smoke_off_the_images_and_resumes(splat: Path, tmp_path: Path) -> None:
     """stage3.surface_colour_hold (the step scaling itself: tests/test_colour_hold.py): the run
-    reads each pixel's smoke alpha before Stage 3, its note gives the mean share ρ (in [0, 1]) and
+    reads each pixel's smoke alpha before Stage 3, its note gives the mean ρ (in [0, 1]) and
     how many colours move under a tenth of their rate, and a run resumed from its Stage-3
     checkpoint ends with the same metrics."""
     run = tmp_path / "run"

@@ -337,10 +337,11 @@ class Stage3Config:
     """How much the smoke the images show over a surface Gaussian holds its RGB colour at Stage 3's
     start: each step moves its SH colour by (1 − ρ)^this of what the optimiser asks, where ρ is the
     smoke alpha read off the smoky frames before Stage 3 (``mask_floor.estimated_alpha``: a clear
-    view's reading, else the midpoint of the haze-line bounds) averaged over the RGB training views
-    its centre lands in. Under dense smoke no RGB view says what colour the surface is, and a
-    surface free to learn there takes the smoke's darkness; under thin smoke it learns as in the
-    paper. 0: every colour moves in full (the paper)."""
+    view's reading, else the midpoint of the haze-line bounds) at its clearest RGB training view
+    (the least over the views its centre lands in, ``surface_union.clearest_view``). Where every
+    RGB view shows it through dense smoke none says what colour the surface is, and a surface free
+    to learn there takes the smoke's darkness; one that any view sees clear or through thin smoke
+    learns as in the paper. 0: every colour moves in full (the paper)."""
     thermal_supersample: int = 1
     """The thermal render term draws each thermal pixel as this many × this many sub-pixels and
     averages them (``View.supersampled``, ``box_filtered``), as a sensor pixel integrates its area.

@@ -29,7 +29,7 @@ from smokeseer.train.losses import (depth_consistency, mask_alignment, monochrom
                                     smoke_alpha_variance, smoke_color_variance)
 from smokeseer.train.plan import Stage3Plan
 from smokeseer.train.stage2 import Stage2Result, clear_pixel_weights, draw_index, make_background, views_of
-from smokeseer.train.surface_union import smoky_share
+from smokeseer.train.surface_union import clearest_view, smoky_share
 from smokeseer.train.util import RunContext, grads_of, state_or_none, step_optimizers
 
 HeldoutPsnr = Callable[[SceneModel, int], dict[str, float | None] | None]
@@ -45,17 +45,20 @@ a held opacity could not come back from a reset)."""
 
 
 class ViewShare:
-    """Per surface Gaussian, the mean of per-pixel ``maps`` (RGB training views, H, W) over the views
-    its centre lands in (``smoky_share``; 1 where none does), cached as ``SHARE_REFRESH`` says."""
+    """Per surface Gaussian, per-pixel ``maps`` (RGB training views, H, W) read over the views its
+    centre lands in by ``reduce`` (``smoky_share``'s mean, or ``clearest_view``'s least; 1 where no
+    view sees it), cached as ``SHARE_REFRESH`` says."""
 
-    def __init__(self, maps: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray) -> None:
+    def __init__(self, maps: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray,
+                 reduce: Callable[..., np.ndarray] = smoky_share) -> None:
         self.inputs = (maps, viewmats, Ks)
+        self.reduce = reduce
         self.value: torch.Tensor | None = None
 
     def at(self, it: int, surface: GaussianSet) -> torch.Tensor:
         if self.value is None or (it - 1) % SHARE_REFRESH == 0 or len(self.value) != surface.n:
             means = surface["means"].detach().cpu().numpy().astype(np.float64)
-            share = smoky_share(means, *self.inputs)
+            share = self.reduce(means, *self.inputs)
             self.value = torch.as_tensor(share, dtype=torch.float32, device=surface["means"].device)
         return self.value
 
@@ -201,11 +204,11 @@ class Stage3Problem(StageProblem):
             ctx.log_line(f"stage 3: {note}")
         self.colour_hold: ViewShare | None = None
         if cfg.stage3.surface_colour_hold > 0 and plan.surface_density is not None:
-            self.colour_hold = ViewShare(plan.surface_density, *rgb.cameras("train"))
+            self.colour_hold = ViewShare(plan.surface_density, *rgb.cameras("train"), reduce=clearest_view)
             rho = self.colour_hold.at(1, model.surface)
             rate = (1.0 - rho) ** cfg.stage3.surface_colour_hold
             note = (f"each surface Gaussian's colour moves at (1 − ρ)^{cfg.stage3.surface_colour_hold:g} of its rate, "
-                    f"ρ the smoke alpha read off the RGB training views it lands in: mean ρ {float(rho.mean()):.3f}, "
+                    f"ρ the smoke alpha read off its clearest RGB training view: mean ρ {float(rho.mean()):.3f}, "
                     f"{100 * float((rate < 0.1).float().mean()):.0f} % of the colours under a tenth of their rate "
                     "(stage3.surface_colour_hold)")
             plan.notes.append(note)
