@@ -63,9 +63,6 @@ class ViewShare:
         return self.value
 
 
-
-
-
 def build_scene_model(ctx: RunContext, s2: Stage2Result, plan: Stage3Plan,
                       smoke_points: np.ndarray | None, smoke_static: bool,
                       rgb_s2: Stage2Result | None = None, surface: GaussianSet | None = None) -> SceneModel:
