@@ -126,7 +126,7 @@ CANDIDATES: dict[str, Variant] = {
                         "the midpoint of the haze-line bounds), so a surface every view sees through dense smoke "
                         "keeps its start's colour instead of taking the smoke's darkness, and one any view sees "
                         "through thin smoke learns as Full's (stage3.surface_colour_hold=4; "
-                        "docs/experiments/2026-12-07-surface-clear-pixels-six-scenes.md); Stage 3 only",
+                        "docs/experiments/2026-12-07-surface-colour-hold.md); Stage 3 only",
                    overrides={"stage3.surface_colour_hold": 4.0}),
         _candidate("background-clear", "Full, the environment learns from clear pixels only",
                    note="each training pixel's gradient into the RGB environment is weighted by 1 - Stage 1's smoke "

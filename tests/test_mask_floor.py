@@ -119,12 +119,10 @@ def test_estimated_floor_on_unpinned_points_takes_the_middle_of_the_bounds() -> 
     assert not thin[0, :, 2:5].any() and not (thin & ~got).any()
 
 
-def test_the_bound_target_is_what_the_images_prove_and_never_more() -> None:
-    """estimated-bound on the two hand-worked cases above. Pinned (camera 0's columns 7-9, seen clear
-    by camera 1): with the smoke colour the exact alpha 0.1, 0.5, 0.9; without it the lower bound
-    1 / reach, never above the truth. Unpinned (columns 2-4 with the colour): the lower bounds 0.857,
-    0 and 0, each at most the truth (0.9, 0.05, 0.05); without the colour, 0. Uncovered masked pixels
-    take the floor given; unmasked pixels 0."""
+def _pinned_and_unpinned() -> tuple[np.ndarray, ...]:
+    """The two hand-worked cases together: camera 0's columns 7-9 seen clear by camera 1 (alpha 0.1,
+    0.5, 0.9), its columns 2-4 seen by no view clear (as above), grey smoke 0.8, and camera 0's top
+    row not covered by the geometry. (viewmats, Ks, depths, valid, smoke, alpha, masks, frames)."""
     viewmats, Ks, depths, valid = _two_cameras()
     smoke = np.array([0.8, 0.8, 0.8])
     surface = np.full((N, N, 3), 0.1)
@@ -137,6 +135,16 @@ def test_the_bound_target_is_what_the_images_prove_and_never_more() -> None:
     masks = (alpha > 0.02).astype(float)
     frames = _smoky_frames(alpha, surface, smoke)
     valid[0, 0] = False  # camera 0's top row: the geometry does not cover it
+    return viewmats, Ks, depths, valid, smoke, alpha, masks, frames
+
+
+def test_the_bound_target_is_what_the_images_prove_and_never_more() -> None:
+    """estimated-bound on the two hand-worked cases above. Pinned (camera 0's columns 7-9, seen clear
+    by camera 1): with the smoke colour the exact alpha 0.1, 0.5, 0.9; without it the lower bound
+    1 / reach, never above the truth. Unpinned (columns 2-4 with the colour): the lower bounds 0.857,
+    0 and 0, each at most the truth (0.9, 0.05, 0.05); without the colour, 0. Uncovered masked pixels
+    take the floor given; unmasked pixels 0."""
+    viewmats, Ks, depths, valid, smoke, alpha, masks, frames = _pinned_and_unpinned()
     known = estimated_alpha_bound(masks, frames, depths, valid, viewmats, Ks, smoke, 0.4)
     np.testing.assert_allclose(known[0, 1:, 7:10], np.broadcast_to([0.1, 0.5, 0.9], (N - 1, 3)), atol=1e-9)
     np.testing.assert_allclose(known[0, 1:, 2:5], np.broadcast_to([0.857143, 0.0, 0.0], (N - 1, 3)), atol=1e-6)
@@ -237,18 +245,7 @@ def test_the_density_read_takes_the_middle_of_the_bounds_where_no_view_is_clear(
     of their bounds, (0.857143 + 0.9125) / 2, (0 + 0.16875) / 2 and (0 + 0.7625) / 2, between the
     bound target and the upper bound; without the colour, 0. Masked pixels the geometry does not
     cover read 0 (nothing is read there), unmasked pixels 0."""
-    viewmats, Ks, depths, valid = _two_cameras()
-    smoke = np.array([0.8, 0.8, 0.8])
-    surface = np.full((N, N, 3), 0.1)
-    surface[:, 4] = 0.6
-    alpha = np.zeros((2, N, N))
-    alpha[0, :, :10] = 0.6
-    alpha[0, :, 2], alpha[0, :, 3], alpha[0, :, 4] = 0.9, 0.05, 0.05
-    alpha[0, :, 7], alpha[0, :, 8], alpha[0, :, 9] = 0.1, 0.5, 0.9
-    alpha[1, :, :5] = 0.3
-    masks = (alpha > 0.02).astype(float)
-    frames = _smoky_frames(alpha, surface, smoke)
-    valid[0, 0] = False
+    viewmats, Ks, depths, valid, smoke, _, masks, frames = _pinned_and_unpinned()
     read = estimated_alpha(masks, frames, depths, valid, viewmats, Ks, smoke)
     np.testing.assert_allclose(read[0, 1:, 7:10], np.broadcast_to([0.1, 0.5, 0.9], (N - 1, 3)), atol=1e-9)
     np.testing.assert_allclose(read[0, 1:, 2:5], np.broadcast_to([0.884821, 0.084375, 0.38125], (N - 1, 3)),
