@@ -128,13 +128,6 @@ CANDIDATES: dict[str, Variant] = {
                         "through thin smoke learns as Full's (stage3.surface_colour_hold=4; "
                         "docs/experiments/2026-12-07-surface-colour-hold.md); Stage 3 only",
                    overrides={"stage3.surface_colour_hold": 4.0}),
-        _candidate("prune-oversized", "Full, the surface refinement prunes Gaussians wider than a tenth of the scene",
-                   note="at every surface densification step the surface Gaussians whose largest axis exceeds a tenth "
-                        "of the scene extent are pruned (3DGS's world-size test, which 3DGS runs only after its "
-                        "first opacity reset and so the standard profile never ran): random_1010's validation "
-                        "views swing by 3-11 dB on such needles, fitted end-on by the training views "
-                        "(stage3.surface_prune_oversized=true; the surface issue's capacity); Stage 3 only",
-                   overrides={"stage3.surface_prune_oversized": True}),
         _candidate("background-clear", "Full, the environment learns from clear pixels only",
                    note="each training pixel's gradient into the RGB environment is weighted by 1 - Stage 1's smoke "
                         "mask, in the RGB Stage 2 and in Stage 3, so the environment cannot learn the smoke's colour "

@@ -112,26 +112,6 @@ def test_oversized_gaussians_are_pruned_only_after_the_first_reset() -> None:
         assert g.n == 3 - expect
 
 
-def test_prune_wide_prunes_by_world_size_at_every_step_and_leaves_the_screen_test_to_resets() -> None:
-    """The same three Gaussians with ``prune_wide`` and no resets: from the first step, only the one
-    wider than a tenth of the extent goes; the 30-pixel one stays (its test needs a reset)."""
-    cfg = DensifyConfig(start=0.1, stop=1.0, every=1, grad_threshold=1e-3, opacity_reset_every=0.0)
-    for prune_wide, expect, left in ((False, 0, [0.01, 0.2, 0.01]), (True, 1, [0.01, 0.01])):
-        g = _set(3, scale=0.01)
-        g.params["log_scales"].data[1] = math.log(0.2)
-        opt = _with_adam_state(g)
-        strat = DensifyStrategy(cfg, 10, ("opacity",), scene_extent=1.0, prune_wide=prune_wide)
-        strat.accumulate(torch.zeros(3, 2), torch.tensor([2, 2, 30]), width=100, height=100)
-        assert strat.step(1, g, opt, torch.Generator())["pruned"] == expect
-        assert torch.allclose(g["log_scales"].exp().amax(-1), torch.tensor(left), rtol=0.05)  # one Adam step in
-
-
-def test_surface_prune_oversized_needs_the_surface_refinement() -> None:
-    assert make_config("full", "standard", overrides={"stage3.surface_prune_oversized": True}).stage3.surface_prune_oversized
-    with pytest.raises(ValueError, match="stage3.surface_prune_oversized: prunes at the surface refinement's steps"):
-        make_config("full", "quick", overrides={"stage3.surface_prune_oversized": True})
-
-
 def test_opacity_reset_caps_at_one_percent() -> None:
     g = _set(3, 0.01)
     opt = _with_adam_state(g)

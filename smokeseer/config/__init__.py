@@ -275,14 +275,6 @@ class Stage3Config:
     thermal-only Stage 2 surface is as coarse as the thermal images); ``every`` 0 is off. Needs
     ``train_surface_geometry``. On in the standard profile, which has no depth term: with the
     depth term the refined surface collapsed (docs/method.md, "Profiles")."""
-    surface_prune_oversized: bool = False
-    """Surface refinement prunes, at every densification step, the surface Gaussians wider than a
-    tenth of the scene extent, 3DGS's world-size test without its opacity reset (3DGS prunes them
-    only after its first reset, so a schedule without resets never does). A Gaussian that long is
-    fitted by the training views it lies end-on to and can cover a novel view: random_1010's
-    validation view 0008 lost 11 dB to one 2.8-unit needle that its training views see over
-    5 pixels. Its screen-radius test stays off: 20 pixels are a tenth of a 200-pixel frame, where
-    a ground Gaussian near the camera is rightly that wide."""
     surface_densify_max_smoke: float = 0.02
     """Surface refinement counts a view's gradient for a Gaussian only where the smoke covering its
     projected centre (the rendered smoke alpha, or the Stage 1 mask where the run has one) is at
@@ -497,10 +489,6 @@ class TrainConfig:
             raise ValueError(f"stage3.carve_by: {self.stage3.carve_by!r} is not one of {', '.join(CARVE_BY)}")
         if not 0.0 <= self.stage3.carve_tolerance < 1.0:
             raise ValueError(f"stage3.carve_tolerance: must be in [0, 1), got {self.stage3.carve_tolerance}")
-        if self.stage3.surface_prune_oversized and not (self.stage3.surface_densify.every > 0
-                                                        and self.stage3.train_surface_geometry):
-            raise ValueError("stage3.surface_prune_oversized: prunes at the surface refinement's steps; it needs "
-                             "stage3.surface_densify.every > 0 and stage3.train_surface_geometry")
         if not 0.0 < self.stage3.surface_densify_max_smoke <= 1.0:
             raise ValueError("stage3.surface_densify_max_smoke: must be in (0, 1], "
                              f"got {self.stage3.surface_densify_max_smoke}")

@@ -105,15 +105,6 @@ def edit_rows(gset: GaussianSet, opt: Adam, fn) -> None:
         gset.params[name] = new
 
 
-OVERSIZED_SHARE = 0.1
-"""3DGS's world-size test: a Gaussian whose largest axis exceeds this share of the scene extent."""
-
-
-def oversized(gset: GaussianSet, extent: float) -> Tensor:
-    """Which Gaussians fail 3DGS's world-size test."""
-    return gset["log_scales"].detach().exp().amax(-1) > OVERSIZED_SHARE * extent
-
-
 @dataclass
 class DensifyState:
     """Running statistics between densification steps."""
@@ -133,11 +124,8 @@ class DensifyStrategy:
     schedule resolved for a stage of ``iterations``."""
 
     def __init__(self, cfg: DensifyConfig, iterations: int, opacity_keys: tuple[str, ...],
-                 scene_extent: float, prune_wide: bool = False) -> None:
-        """``prune_wide``: prune by world size at every densification step, not only after the
-        first opacity reset (``stage3.surface_prune_oversized``)."""
+                 scene_extent: float) -> None:
         self.cfg = cfg
-        self.prune_wide = prune_wide
         self.window = cfg.window(iterations)
         self.opacity_keys = opacity_keys
         self.extent = scene_extent
@@ -174,7 +162,7 @@ class DensifyStrategy:
         if not self._active(it):
             return report
         if it % c.every == 0 and self.state is not None and self.state.count.numel() == gset.n:
-            report = self._densify_and_prune(gset, opt, generator, *self._prunes_oversized(it))
+            report = self._densify_and_prune(gset, opt, generator, prune_big=self._prunes_big(it))
             self.reset(gset.n, gset["means"].device)
         if self.resets_opacity(it):
             self.reset_opacity(gset, opt)
@@ -189,12 +177,10 @@ class DensifyStrategy:
         reset = self.window.opacity_reset_every
         return self._active(it) and bool(reset) and it % reset == 0
 
-    def _prunes_oversized(self, it: int) -> tuple[bool, bool]:
-        """Whether the step at ``it`` prunes by world size and by screen radius: 3DGS both, only
-        after the first opacity reset; ``prune_wide`` the first at every step."""
+    def _prunes_big(self, it: int) -> bool:
+        """3DGS prunes oversized Gaussians only after the first opacity reset."""
         reset = self.window.opacity_reset_every
-        after_reset = bool(reset) and it > reset
-        return after_reset or self.prune_wide, after_reset
+        return bool(reset) and it > reset
 
     def reset_opacity(self, gset: GaussianSet, opt: Adam) -> None:
         """3DGS: clamp opacities to ≤ 0.01 so floaters must earn their opacity back."""
@@ -206,8 +192,8 @@ class DensifyStrategy:
             return t
         edit_rows(gset, opt, fn)
 
-    def _densify_and_prune(self, gset: GaussianSet, opt: Adam, generator: torch.Generator,
-                           prune_wide: bool, prune_on_screen: bool) -> dict[str, int]:
+    def _densify_and_prune(self, gset: GaussianSet, opt: Adam,
+                           generator: torch.Generator, prune_big: bool) -> dict[str, int]:
         c = self.cfg
         assert self.state is not None
         dev = gset["means"].device
@@ -248,12 +234,11 @@ class DensifyStrategy:
         prune[split_idx] = True
         opac = self._opacity(gset)
         prune |= opac < c.prune_opacity
-        if prune_on_screen:
+        if prune_big:
             radii = torch.cat([self.state.max_radii,
                                torch.zeros(n_after - self.state.max_radii.numel(), device=dev)])
             prune |= radii > c.screen_size_threshold
-        if prune_wide:
-            prune |= oversized(gset, self.extent)
+            prune |= gset["log_scales"].detach().exp().max(-1).values > 0.1 * self.extent
         if prune.all():
             prune[opac.argmax()] = False
         if prune.any():

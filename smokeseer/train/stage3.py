@@ -19,7 +19,7 @@ from smokeseer.config import TrainConfig, at_iteration
 from smokeseer.config.streams import numpy_stream
 from smokeseer.model.deform import DeformNetwork, motion_tensors
 from smokeseer.model.planes import PlaneField
-from smokeseer.model.gaussians import OVERSIZED_SHARE, DensifyStrategy, GaussianSet, make_optimizer, oversized
+from smokeseer.model.gaussians import DensifyStrategy, GaussianSet, make_optimizer
 from smokeseer.model.optim import Adam
 from smokeseer.model.scene import SceneModel, SmokeAnchor, add_rgb_sh, make_smoke
 from smokeseer.raster.output import RasterOutput, box_filtered
@@ -154,16 +154,8 @@ class Stage3Problem(StageProblem):
                                         ctx.extent)
         self.deform_warmup = at_iteration(cfg.stage3.deform_warmup, cfg.stage3.iterations)
         refine = cfg.stage3.train_surface_geometry and cfg.stage3.surface_densify.every > 0
-        self.surface_strategy = (DensifyStrategy(cfg.stage3.surface_densify, cfg.stage3.iterations, ("opacity",), ctx.extent,
-                                                 prune_wide=cfg.stage3.surface_prune_oversized)
+        self.surface_strategy = (DensifyStrategy(cfg.stage3.surface_densify, cfg.stage3.iterations, ("opacity",), ctx.extent)
                                  if refine else None)
-        if cfg.stage3.surface_prune_oversized:  # validate() has made sure the refinement is on
-            wide = int(oversized(model.surface, ctx.extent).sum())
-            note = (f"surface refinement prunes the surface Gaussians wider than {OVERSIZED_SHARE:g} of the scene extent "
-                    f"({OVERSIZED_SHARE * ctx.extent:.3g}) at every densification step: {wide} of {model.surface.n} "
-                    "at the start (stage3.surface_prune_oversized)")
-            plan.notes.append(note)
-            ctx.log_line(f"stage 3: {note}")
         self.streams = {name: ctx.stream(name) for name in ("stage3.views.rgb", "stage3.views.thermal",
                                                              "stage3.splits.smoke", "stage3.splits.surface")}
         rgb_idx = rgb.indices("train")
