@@ -120,14 +120,6 @@ CANDIDATES: dict[str, Variant] = {
                         "restarting both, as the official code continues its schedules "
                         "(stage3.surface_continues=true; the surface issue's continuity)",
                    overrides={"stage3.surface_continues": True}),
-        _candidate("surface-colour-hold", "Full, surface colours held by the smoke read off the images",
-                   note="each surface Gaussian's SH colour moves at (1 - rho)^4 of its rate in Stage 3, rho the smoke "
-                        "alpha the smoky frames give at its clearest RGB training view (a clear view's reading, else "
-                        "the midpoint of the haze-line bounds), so a surface every view sees through dense smoke "
-                        "keeps its start's colour instead of taking the smoke's darkness, and one any view sees "
-                        "through thin smoke learns as Full's (stage3.surface_colour_hold=4; "
-                        "docs/experiments/2026-12-07-surface-colour-hold.md); Stage 3 only",
-                   overrides={"stage3.surface_colour_hold": 4.0}),
         _candidate("background-clear", "Full, the environment learns from clear pixels only",
                    note="each training pixel's gradient into the RGB environment is weighted by 1 - Stage 1's smoke "
                         "mask, in the RGB Stage 2 and in Stage 3, so the environment cannot learn the smoke's colour "

@@ -35,7 +35,7 @@ from smokeseer.stage1.input_checks import input_warnings
 from smokeseer.stage1.pipeline import Stage1Report, run_stage1
 from smokeseer.train.depth_prior import DepthPriorMaps, file_depth_prior, monocular_depth_prior, rendered_depth_prior
 from smokeseer.train.divergence import StageDiverged
-from smokeseer.train.mask_floor import estimated_alpha, estimated_alpha_bound, estimated_dense, never_seen_clear
+from smokeseer.train.mask_floor import estimated_alpha_bound, estimated_dense, never_seen_clear
 from smokeseer.train.plan import Stage3Plan, plan_stage3
 from smokeseer.train.stage2 import train_stage2, views_of
 from smokeseer.train.stage3 import build_scene_model, train_stage3
@@ -264,9 +264,8 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
                              "stage 3 smoke start") if plan.use_smoke else None)
         joins = cfg.stage3.surface_init == "by-smoke-colour" and plan.use_thermal
         rgb_views = views_of(scene.rgb, scene.rgb.indices("train"), dev)
-        hold = cfg.stage3.surface_colour_hold > 0 and plan.use_smoke and plan.use_masks
         rgb_depth = (rendered_depth_prior(s2.gaussians, rgb_views, "rgb")
-                     if plan.smoke_colour == "haze-lines" or plan.mask_floor != "all" or joins or hold else None)
+                     if plan.smoke_colour == "haze-lines" or plan.mask_floor != "all" or joins else None)
         if plan.smoke_colour == "haze-lines":
             smoke_colour = haze_line_smoke_colour(cfg, rgb_depth, scene.rgb)
             ctx.log_line(f"stage 3: smoke colour from haze lines: {smoke_colour.describe()}")
@@ -287,16 +286,9 @@ def _run(prep: PreparedRun, out: Path) -> dict[str, Any]:
             wall["stage2_rgb"] = time.perf_counter() - t_rgb
             plan.notes.append(joined.describe())
             ctx.log_line(f"stage 3: {joined.describe()} (RGB Stage 2 in {wall['stage2_rgb']:.1f} s)")
-        # The floor and the colour hold read the geometry Stage 3 starts from: with two surfaces, the joined one.
+        # The floor reads the geometry Stage 3 starts from: with two surfaces, the joined one.
         floor_depth = ((rendered_depth_prior(joined.surface, rgb_views, "rgb") if joined else rgb_depth)
-                       if plan.mask_floor != "all" or hold else None)
-        if hold:
-            plan.surface_density = surface_density(scene.rgb, floor_depth, smoke_colour, cfg.loss.mask_floor_meeting)
-        elif cfg.stage3.surface_colour_hold > 0:
-            note = ("no smoke Gaussians or no smoke masks, so no colour is held "
-                    "(stage3.surface_colour_hold changes nothing)")
-            plan.notes.append(note)
-            ctx.log_line(f"stage 3: {note}")
+                       if plan.mask_floor != "all" else None)
         if plan.mask_floor != "all":
             masked = scene.rgb.masks[scene.rgb.indices("train")] > 0.5
             if plan.mask_floor == "estimated-bound":
@@ -412,18 +404,6 @@ def alpha_targets(rgb: ModalityData, depth: DepthPriorMaps, floor: float,
     maps, valid = depth.maps.cpu().numpy(), depth.valid.cpu().numpy()
     return by_meeting(lambda colour: estimated_alpha_bound(rgb.masks[train], rgb.images[train], maps, valid,
                                                            *rgb.cameras("train"), colour, floor), estimate, meeting)
-
-
-def surface_density(rgb: ModalityData, depth: DepthPriorMaps, estimate: SmokeColourEstimate | None,
-                    meeting: str) -> np.ndarray:
-    """The smoke alpha read off each training RGB frame's pixels, which ``stage3.surface_colour_hold``
-    holds the surface colours by (``smokeseer.train.mask_floor.estimated_alpha``); the meeting read as
-    ``by_meeting``, as the mask floor reads it."""
-    train = rgb.indices("train")
-    maps, valid = depth.maps.cpu().numpy(), depth.valid.cpu().numpy()
-    return by_meeting(lambda colour: estimated_alpha(rgb.masks[train], rgb.images[train], maps, valid,
-                                                     *rgb.cameras("train"), colour), estimate, meeting
-                      ).astype(np.float32)
 
 
 def mask_floor_note(where: str, meeting: str, estimate: SmokeColourEstimate | None, share: float) -> str:

@@ -10,7 +10,7 @@ from scenes.load import load_scene
 from smokeseer.config import make_config
 from smokeseer.stage1.pipeline import run_stage1
 from smokeseer.train.losses import mask_alignment
-from smokeseer.train.mask_floor import (cube_reach, estimated_alpha, estimated_alpha_bound, estimated_dense,
+from smokeseer.train.mask_floor import (cube_reach, estimated_alpha_bound, estimated_dense,
                                         never_seen_clear)
 from smokeseer.train.plan import plan_stage3
 from tests.test_smokeseer_data import write_splat_dataset
@@ -239,23 +239,6 @@ def test_the_floor_reads_the_meeting_as_the_setting_says() -> None:
     assert by_meeting(rule, unmet, "present").tolist() == by_meeting(rule, unmet, "trusted").tolist() == [1, 0, 0]
 
 
-def test_the_density_read_takes_the_middle_of_the_bounds_where_no_view_is_clear() -> None:
-    """estimated_alpha (what stage3.surface_colour_hold holds colours by) on the hand-worked cases
-    above: pinned columns 7-9 read the exact alpha 0.1, 0.5, 0.9; unpinned columns 2-4 the middle
-    of their bounds, (0.857143 + 0.9125) / 2, (0 + 0.16875) / 2 and (0 + 0.7625) / 2, between the
-    bound target and the upper bound; without the colour, 0. Masked pixels the geometry does not
-    cover read 0 (nothing is read there), unmasked pixels 0."""
-    viewmats, Ks, depths, valid, smoke, _, masks, frames = _pinned_and_unpinned()
-    read = estimated_alpha(masks, frames, depths, valid, viewmats, Ks, smoke)
-    np.testing.assert_allclose(read[0, 1:, 7:10], np.broadcast_to([0.1, 0.5, 0.9], (N - 1, 3)), atol=1e-9)
-    np.testing.assert_allclose(read[0, 1:, 2:5], np.broadcast_to([0.884821, 0.084375, 0.38125], (N - 1, 3)),
-                               atol=1e-6)
-    bound = estimated_alpha_bound(masks, frames, depths, valid, viewmats, Ks, smoke, 0.4)
-    assert (read[0, 1:] >= bound[0, 1:] - 1e-12).all()
-    assert (read[0, 0] == 0).all() and (read[0, :, 10:] == 0).all() and (read[1, :, 5:] == 0).all()
-    assert (estimated_alpha(masks, frames, depths, valid, viewmats, Ks, None)[0, 1:, 2:5] == 0).all()
-
-
 def test_bad_setting_names_the_field() -> None:
     with pytest.raises(ValueError, match="loss.mask_floor_where: 'sometimes' is not one of all, never-clear, estimated-meeting, estimated-bound"):
         make_config("full", "quick", overrides={"loss.mask_floor_where": "sometimes"})
@@ -264,10 +247,6 @@ def test_bad_setting_names_the_field() -> None:
                                                 "stage3.smoke_color": "learned"})
     with pytest.raises(ValueError, match="loss.mask_floor_meeting: 'always' is not one of present, trusted"):
         make_config("full", "quick", overrides={"loss.mask_floor_meeting": "always"})
-    with pytest.raises(ValueError, match=r"stage3.surface_colour_hold: must be in \[0, 16.0\], got -1.0"):
-        make_config("full", "quick", overrides={"stage3.surface_colour_hold": -1.0})
-    with pytest.raises(ValueError, match="stage3.surface_colour_hold: .* needs stage3.smoke_color=haze-lines"):
-        make_config("full", "quick", overrides={"stage3.surface_colour_hold": 4.0, "stage3.smoke_color": "learned"})
 
 
 def test_floor_rule_follows_the_setting_and_needs_masks_and_smoke(tmp_path) -> None:

@@ -188,7 +188,7 @@ def test_the_carve_by_smoke_drops_no_rgb_gaussian_and_says_how_much_it_fades(spl
 
 
 def test_the_thermal_gate_trains_and_says_how_much_thermal_shapes_the_surface(splat: Path, tmp_path: Path) -> None:
-    """stage3.thermal_surface_grad=smoky-views (the gradient itself: tests/test_thermal_surface_grad.py):
+    """stage3.thermal_surface_grad=smoky-views (the gradient itself: tests/test_gradient_gates.py):
     this tiny scene's smoke covers part of every view, so the mean share at the start lies strictly
     between 0 and 1, the note says so, and the run ends ok."""
     run = tmp_path / "run"
@@ -196,22 +196,6 @@ def test_the_thermal_gate_trains_and_says_how_much_thermal_shapes_the_surface(sp
     notes = _assert_complete(run)["stages"]["notes"]
     note = next(n for n in notes if n.startswith("the thermal term moves each surface Gaussian"))
     assert 0.0 < float(note.split("mean ")[1].split(" ")[0]) < 1.0
-
-
-def test_the_colour_hold_reads_the_smoke_off_the_images_and_resumes(splat: Path, tmp_path: Path) -> None:
-    """stage3.surface_colour_hold (the step scaling itself: tests/test_colour_hold.py): the run
-    reads each pixel's smoke alpha before Stage 3, its note gives the mean ρ (in [0, 1]) and
-    how many colours move under a tenth of their rate, and a run resumed from its Stage-3
-    checkpoint ends with the same metrics."""
-    run = tmp_path / "run"
-    args = [str(splat), "--out", str(run)] + BY_SMOKE_COLOUR + ["--set", "stage3.surface_colour_hold=4"]
-    assert main(args) == 0
-    doc = _assert_complete(run)
-    note = next(n for n in doc["stages"]["notes"] if n.startswith("each surface Gaussian's colour moves at (1 − ρ)^4"))
-    assert 0.0 <= float(note.split("mean ρ ")[1].split(",")[0]) <= 1.0
-    (run / "metrics.json").unlink()
-    assert main(args) == 0
-    assert json.loads((run / "metrics.json").read_text())["metrics"] == doc["metrics"]
 
 
 def test_the_thermal_term_renders_sub_pixels_and_says_so(splat: Path, tmp_path: Path) -> None:

@@ -34,9 +34,6 @@ BACKGROUND_FROM: tuple[str, ...] = ("all", "clear-pixels")
 MAX_THERMAL_SUPERSAMPLE = 4
 """Sub-pixels a side of a thermal pixel (``stage3.thermal_supersample``): at 4 the thermal render is
 16 times the work, past which a pixel's Gaussians are already resolved at the RGB's scale."""
-MAX_SURFACE_COLOUR_HOLD = 16.0
-"""The largest power of ``stage3.surface_colour_hold``: at 16 a colour under smoke of alpha 0.05
-already moves at under half its rate."""
 INIT_FROM: tuple[str, ...] = ("random", "images")
 POSE_SOURCES: tuple[str, ...] = ("given", "sfm")
 MASK_FLOOR_WHERE: tuple[str, ...] = ("all", "never-clear", "estimated-meeting", "estimated-bound")
@@ -333,15 +330,6 @@ class Stage3Config:
     (1 where no RGB view sees it), so that the low-resolution thermal frames shape the surface only
     where the RGB cannot see it, and a scene without smoke trains its surface as RGB-only does
     (``smokeseer.train.surface_union.smoky_share``)."""
-    surface_colour_hold: float = 0.0
-    """How much the smoke the images show over a surface Gaussian holds its RGB colour at Stage 3's
-    start: each step moves its SH colour by (1 − ρ)^this of what the optimiser asks, where ρ is the
-    smoke alpha read off the smoky frames before Stage 3 (``mask_floor.estimated_alpha``: a clear
-    view's reading, else the midpoint of the haze-line bounds) at its clearest RGB training view
-    (the least over the views its centre lands in, ``surface_union.clearest_view``). Where every
-    RGB view shows it through dense smoke none says what colour the surface is, and a surface free
-    to learn there takes the smoke's darkness; one that any view sees clear or through thin smoke
-    learns as in the paper. 0: every colour moves in full (the paper)."""
     thermal_supersample: int = 1
     """The thermal render term draws each thermal pixel as this many × this many sub-pixels and
     averages them (``View.supersampled``, ``box_filtered``), as a sensor pixel integrates its area.
@@ -476,12 +464,6 @@ class TrainConfig:
         if self.stage3.thermal_surface_grad not in THERMAL_SURFACE_GRAD:
             raise ValueError(f"stage3.thermal_surface_grad: {self.stage3.thermal_surface_grad!r} is not one of "
                              f"{', '.join(THERMAL_SURFACE_GRAD)}")
-        if not 0.0 <= self.stage3.surface_colour_hold <= MAX_SURFACE_COLOUR_HOLD:
-            raise ValueError(f"stage3.surface_colour_hold: must be in [0, {MAX_SURFACE_COLOUR_HOLD}], "
-                             f"got {self.stage3.surface_colour_hold}")
-        if self.stage3.surface_colour_hold > 0 and self.stage3.smoke_color != "haze-lines":
-            raise ValueError("stage3.surface_colour_hold: reads the smoke alpha off the haze lines; it needs "
-                             "stage3.smoke_color=haze-lines")
         if not 1 <= self.stage3.thermal_supersample <= MAX_THERMAL_SUPERSAMPLE:
             raise ValueError(f"stage3.thermal_supersample: must be 1 to {MAX_THERMAL_SUPERSAMPLE} sub-pixels a side, "
                              f"got {self.stage3.thermal_supersample}")

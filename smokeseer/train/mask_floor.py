@@ -129,21 +129,6 @@ def estimated_dense(masks: np.ndarray, images: np.ndarray, depths: np.ndarray, v
     return out
 
 
-def _alpha_map(masks: np.ndarray, images: np.ndarray, depths: np.ndarray, valid: np.ndarray, viewmats: np.ndarray,
-               Ks: np.ndarray, smoke_colour: np.ndarray | None, uncovered: float, midpoint: bool,
-               tolerance: float) -> np.ndarray:
-    """(frames, H, W) in [0, 1]: each masked pixel's smoke alpha read off the images; a point no view
-    sees clear reads its lower bound, or with ``midpoint`` the middle of its two bounds, where the
-    haze lines meet, else 0; ``uncovered`` where the geometry does not cover a masked pixel; 0 unmasked."""
-    out = np.where((masks > 0.5) & ~valid, float(uncovered), 0.0)
-    for ref, vs, us, pinned, alpha_clear, bounds in _alpha_estimates(masks, images, depths, valid, viewmats, Ks,
-                                                                     smoke_colour, tolerance):
-        unpinned = (np.zeros(len(vs)) if bounds is None
-                    else 0.5 * (bounds[0] + bounds[1]) if midpoint else bounds[0])
-        out[ref, vs, us] = np.clip(np.where(pinned, alpha_clear, unpinned), 0.0, 1.0)
-    return out
-
-
 def estimated_alpha_bound(masks: np.ndarray, images: np.ndarray, depths: np.ndarray, valid: np.ndarray,
                           viewmats: np.ndarray, Ks: np.ndarray, smoke_colour: np.ndarray | None, uncovered: float,
                           tolerance: float = DEPTH_TOLERANCE) -> np.ndarray:
@@ -154,14 +139,9 @@ def estimated_alpha_bound(masks: np.ndarray, images: np.ndarray, depths: np.ndar
     bound of its alpha (as if its clearest view were clear) where the haze lines meet, else 0: nothing
     is proven. Masked pixels the geometry does not cover: ``uncovered`` (the step's floor, as there).
     Unmasked pixels: 0."""
-    return _alpha_map(masks, images, depths, valid, viewmats, Ks, smoke_colour, uncovered, False, tolerance)
-
-
-def estimated_alpha(masks: np.ndarray, images: np.ndarray, depths: np.ndarray, valid: np.ndarray,
-                    viewmats: np.ndarray, Ks: np.ndarray, smoke_colour: np.ndarray | None,
-                    tolerance: float = DEPTH_TOLERANCE) -> np.ndarray:
-    """(frames, H, W) in [0, 1]: the best single reading of each masked pixel's smoke alpha, what
-    ``stage3.surface_colour_hold`` holds a surface colour by. As ``estimated_alpha_bound``, except that
-    a point no view sees clear reads the midpoint of its two bounds (the same reading that decides
-    ``estimated-meeting``'s floor), and that a masked pixel the geometry does not cover reads 0."""
-    return _alpha_map(masks, images, depths, valid, viewmats, Ks, smoke_colour, 0.0, True, tolerance)
+    out = np.where((masks > 0.5) & ~valid, float(uncovered), 0.0)
+    for ref, vs, us, pinned, alpha_clear, bounds in _alpha_estimates(masks, images, depths, valid, viewmats, Ks,
+                                                                     smoke_colour, tolerance):
+        unpinned = np.zeros(len(vs)) if bounds is None else bounds[0]
+        out[ref, vs, us] = np.clip(np.where(pinned, alpha_clear, unpinned), 0.0, 1.0)
+    return out

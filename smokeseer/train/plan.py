@@ -113,10 +113,6 @@ class Stage3Plan:
     alpha_targets: np.ndarray | None = None
     """(training RGB frames, H, W) in [0, 1]: with estimated-bound, the smoke alpha the mask term
     pushes each masked pixel up to (``mask_floor.estimated_alpha_bound``); None otherwise."""
-    surface_density: np.ndarray | None = None
-    """(training RGB frames, H, W) in [0, 1]: with ``stage3.surface_colour_hold``, the smoke alpha
-    read off the images at each pixel (``mask_floor.estimated_alpha``), set once Stage 3's starting
-    geometry is known; None otherwise."""
     thermal_dropped: str | None = None
     """Why the run trains without thermal (metrics.json ``stages.thermal_dropped``); None when it uses it."""
     thermal_warning: RunWarning | None = None

@@ -29,7 +29,7 @@ from smokeseer.train.losses import (depth_consistency, mask_alignment, monochrom
                                     smoke_alpha_variance, smoke_color_variance)
 from smokeseer.train.plan import Stage3Plan
 from smokeseer.train.stage2 import Stage2Result, clear_pixel_weights, draw_index, make_background, views_of
-from smokeseer.train.surface_union import clearest_view, smoky_share
+from smokeseer.train.surface_union import smoky_share
 from smokeseer.train.util import RunContext, grads_of, state_or_none, step_optimizers
 
 HeldoutPsnr = Callable[[SceneModel, int], dict[str, float | None] | None]
@@ -39,27 +39,23 @@ SHARE_REFRESH = 100
 this many iterations, and whenever densification has changed the surface's count (it acts at most
 once a block): its position moves far less than a pixel between."""
 
-HELD_COLOUR = ("sh_dc", "sh_rest")
-"""The surface's RGB colour, what ``stage3.surface_colour_hold`` holds (its opacity is left free:
-a held opacity could not come back from a reset)."""
-
-
 class ViewShare:
-    """Per surface Gaussian, per-pixel ``maps`` (RGB training views, H, W) read over the views its
-    centre lands in by ``reduce`` (``smoky_share``'s mean, or ``clearest_view``'s least; 1 where no
-    view sees it), cached as ``SHARE_REFRESH`` says."""
+    """Per surface Gaussian, the share of the RGB training views whose Stage-1 mask covers its centre
+    (``smoky_share``; 1 where no view sees it), cached as ``SHARE_REFRESH`` says (once per
+    iteration: the start's note and iteration 1 read the same positions)."""
 
-    def __init__(self, maps: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray,
-                 reduce: Callable[..., np.ndarray] = smoky_share) -> None:
-        self.inputs = (maps, viewmats, Ks)
-        self.reduce = reduce
+    def __init__(self, masks: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray) -> None:
+        self.inputs = (masks, viewmats, Ks)
         self.value: torch.Tensor | None = None
+        self.read_at: int | None = None
 
     def at(self, it: int, surface: GaussianSet) -> torch.Tensor:
-        if self.value is None or (it - 1) % SHARE_REFRESH == 0 or len(self.value) != surface.n:
+        block_start = (it - 1) % SHARE_REFRESH == 0 and it != self.read_at
+        if self.value is None or block_start or len(self.value) != surface.n:
             means = surface["means"].detach().cpu().numpy().astype(np.float64)
-            share = self.reduce(means, *self.inputs)
+            share = smoky_share(means, *self.inputs)
             self.value = torch.as_tensor(share, dtype=torch.float32, device=surface["means"].device)
+            self.read_at = it
         return self.value
 
 
@@ -199,17 +195,6 @@ class Stage3Problem(StageProblem):
                     + " (stage3.thermal_surface_grad=smoky-views)")
             plan.notes.append(note)
             ctx.log_line(f"stage 3: {note}")
-        self.colour_hold: ViewShare | None = None
-        if cfg.stage3.surface_colour_hold > 0 and plan.surface_density is not None:
-            self.colour_hold = ViewShare(plan.surface_density, *rgb.cameras("train"), reduce=clearest_view)
-            rho = self.colour_hold.at(1, model.surface)
-            rate = (1.0 - rho) ** cfg.stage3.surface_colour_hold
-            note = (f"each surface Gaussian's colour moves at (1 − ρ)^{cfg.stage3.surface_colour_hold:g} of its rate, "
-                    f"ρ the smoke alpha read off its clearest RGB training view: mean ρ {float(rho.mean()):.3f}, "
-                    f"{100 * float((rate < 0.1).float().mean()):.0f} % of the colours under a tenth of their rate "
-                    "(stage3.surface_colour_hold)")
-            plan.notes.append(note)
-            ctx.log_line(f"stage 3: {note}")
         self.depth_on = prior is not None and self.weights["depth"] > 0
         self.depth_on_thermal = self.depth_on and prior.camera == "thermal"
         if self.depth_on_thermal and self.th_imgs is None:
@@ -303,17 +288,10 @@ class Stage3Problem(StageProblem):
         """The position rates decay over Stage 3, the surface's only where it does not continue
         Stage 2's (``stage3.surface_continues``: held at its start)."""
         held = self.cfg.stage3.surface_continues
-        params = self.model.surface.params
-        before = ({k: params[k].detach().clone() for k in HELD_COLOUR if k in params}
-                  if self.colour_hold is not None else None)
         step_optimizers(it, self.cfg.stage3.iterations, self.cfg, self.ctx.extent,
                         [self.smoke_optimizer] if held else [self.surface_optimizer, self.smoke_optimizer],
                         [self.background_optimizer, self.surface_optimizer] if held else [self.background_optimizer],
                         self.deform_optimizer, self.deform_warmup)
-        if before is not None:
-            assert self.colour_hold is not None
-            rate = (1.0 - self.colour_hold.at(it, self.model.surface)) ** self.cfg.stage3.surface_colour_hold
-            hold_steps(params, before, rate)
 
     def after_step(self, it: int, out: IterationOutput) -> None:
         """Density control from the RGB render's screen-space gradients: the smoke's, and the
@@ -354,7 +332,6 @@ class Stage3Problem(StageProblem):
                 "deform": state_or_none(model.deform), "deform_optimizer": state_or_none(self.deform_optimizer),
                 "background_optimizer": state_or_none(self.background_optimizer),
                 "thermal_share": None if self.thermal_share is None else self.thermal_share.value,
-                "colour_hold": None if self.colour_hold is None else self.colour_hold.value,
                 **{name: bg.state_dict() for name, bg in _backgrounds(model).items()}}
 
     def load_state(self, payload: dict[str, Any]) -> None:
@@ -367,10 +344,9 @@ class Stage3Problem(StageProblem):
         for name, bg in _backgrounds(model).items():
             if payload.get(name) is not None:
                 bg.load_state_dict(payload[name])
-        for cache, key in ((self.thermal_share, "thermal_share"), (self.colour_hold, "colour_hold")):
-            if cache is not None:
-                value = payload.get(key)
-                cache.value = None if value is None else value.to(dev)
+        if self.thermal_share is not None:
+            value = payload.get("thermal_share")
+            self.thermal_share.value = None if value is None else value.to(dev)
         self._make_optimizers()
         self.surface_optimizer.load_state_dict(payload["surface_optimizer"])
         for opt, key in ((self.smoke_optimizer, "smoke_optimizer"), (self.deform_optimizer, "deform_optimizer"),
@@ -421,13 +397,3 @@ def train_stage3(ctx: RunContext, model: SceneModel, rgb: ModalityData, thermal:
     run_stage(ctx, problem, StageSchedule(cfg.stage3.iterations, cfg.log_every, cfg.stage3.test_every,
                                           cfg.checkpoint_every, ctx.config_sha))
     return problem.model
-
-
-def hold_steps(params: dict[str, torch.Tensor], before: dict[str, torch.Tensor], rate: torch.Tensor) -> None:
-    """Scale the step each optimiser just took on ``before``'s parameters, per Gaussian, by ``rate``
-    (n,) in [0, 1]: 1 keeps the step, 0 undoes it. A per-Gaussian learning rate that Adam's
-    normalisation cannot undo, as a scaled gradient would be."""
-    with torch.no_grad():
-        for k, old in before.items():
-            r = rate.view(-1, *([1] * (old.dim() - 1)))
-            params[k].copy_(old + r * (params[k] - old))

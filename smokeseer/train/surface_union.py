@@ -134,16 +134,6 @@ def smoky_share(means: np.ndarray, masks: np.ndarray, viewmats: np.ndarray, Ks: 
     return np.where(seen > 0, masked / np.maximum(seen, 1.0), 1.0)
 
 
-def clearest_view(means: np.ndarray, maps: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray) -> np.ndarray:
-    """Per point, the least of the clipped ``maps`` (per-pixel smoke alpha at the cameras ``viewmats``,
-    ``Ks``) over the views whose image its centre lands in: the smoke of its clearest view (no
-    occlusion test, as ``smoky_share``). Points no view sees get 1."""
-    least = np.ones(len(means))
-    for f, idx, iu, iv, _ in _landings(means, viewmats, Ks, maps.shape):
-        least[idx] = np.minimum(least[idx], np.clip(maps[f, iv, iu], 0.0, 1.0))
-    return least
-
-
 def in_holes(means: np.ndarray, opaque: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray,
              share: float) -> np.ndarray:
     """Which points to keep: those whose centre lands on a pixel where ``opaque`` (the carved RGB
