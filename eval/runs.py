@@ -115,11 +115,6 @@ CANDIDATES: dict[str, Variant] = {
                         "(stage3.carve_by=depth-and-smoke; clean plant carved 40 % of its RGB Gaussians, and carving "
                         "none gained 0.41 dB, docs/experiments/2026-12-06-thermal-pixel-area.md); Stage 3 only",
                    overrides={"stage3.carve_by": "depth-and-smoke"}),
-        _candidate("surface-continues", "Full, Stage 3 carries on Stage 2's surface schedules",
-                   note="the surface keeps every SH degree and Stage 2's last position rate into Stage 3 instead of "
-                        "restarting both, as the official code continues its schedules "
-                        "(stage3.surface_continues=true; the surface issue's continuity)",
-                   overrides={"stage3.surface_continues": True}),
         _candidate("background-clear", "Full, the environment learns from clear pixels only",
                    note="each training pixel's gradient into the RGB environment is weighted by 1 - Stage 1's smoke "
                         "mask, in the RGB Stage 2 and in Stage 3, so the environment cannot learn the smoke's colour "

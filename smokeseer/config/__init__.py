@@ -317,12 +317,6 @@ class Stage3Config:
     partly learned colour: machine's estimate (channel mean 0.35) with the RGB Stage 2 at a quarter
     of its opacities fell from 13.7 to 9.4 dB at iteration 250, and with the thermal start and the
     colour at trust 0.75 it ended level (docs/experiments/2026-12-02-colour-ramp.md)."""
-    surface_continues: bool = False
-    """Stage 3 carries on Stage 2's schedules for the surface instead of restarting them: the RGB
-    render uses every SH degree from the first iteration, and the surface's position learning rate
-    stays at the rate where Stage 2's ended (``lr.means_final``) rather than decaying again from
-    ``lr.means_init`` (the smoke's still does). The official code continues both; a restart moves
-    a converged RGB surface and hides its view-dependent colour for the first SH steps."""
     thermal_surface_grad: str = "all"
     """Which surface Gaussians the thermal render term may move (position, shape, opacity; their
     thermal values always learn). "all": every one (the paper). "smoky-views": each one's gradient

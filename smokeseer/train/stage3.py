@@ -113,11 +113,10 @@ def _backgrounds(model: SceneModel) -> dict[str, torch.nn.Module]:
 
 
 def _surface_lrs(cfg: TrainConfig, g: GaussianSet, extent: float) -> dict[str, float]:
-    """The surface's rates; with ``stage3.surface_continues`` its position's is Stage 2's last."""
+    """The surface's rates: Stage 2's, its position's decaying again from ``lr.means_init``."""
     lr = cfg.lr
     geo = 1.0 if cfg.stage3.train_surface_geometry else 0.0
-    means = lr.means_final if cfg.stage3.surface_continues else lr.means_init
-    table = {"means": means * extent * geo, "quats": lr.quats * geo,
+    table = {"means": lr.means_init * extent * geo, "quats": lr.quats * geo,
              "log_scales": lr.scales * geo, "opacity": lr.opacity * geo,
              "thermal": lr.thermal, "sh_dc": lr.sh_dc, "sh_rest": lr.sh_rest}
     return {k: table[k] for k in g.params}
@@ -214,8 +213,7 @@ class Stage3Problem(StageProblem):
     def forward(self, it: int) -> IterationOutput:
         cfg, model, weights = self.cfg, self.model, self.weights
         deform_on = it > self.deform_warmup
-        degree = (cfg.sh_degree if cfg.stage3.surface_continues
-                  else min(cfg.sh_degree, (it - 1) // max(cfg.sh_increase_every, 1)))
+        degree = min(cfg.sh_degree, (it - 1) // max(cfg.sh_increase_every, 1))
         k = draw_index(self.streams["stage3.views.rgb"], len(self.rgb_views))
         view = self.rgb_views[k]
         motion = model.smoke_motion(deform_on, cfg.deform.shared_position,
@@ -285,12 +283,9 @@ class Stage3Problem(StageProblem):
         return named
 
     def optimizer_step(self, it: int) -> None:
-        """The position rates decay over Stage 3, the surface's only where it does not continue
-        Stage 2's (``stage3.surface_continues``: held at its start)."""
-        held = self.cfg.stage3.surface_continues
+        """The position rates of both sets decay over Stage 3 from ``lr.means_init``."""
         step_optimizers(it, self.cfg.stage3.iterations, self.cfg, self.ctx.extent,
-                        [self.smoke_optimizer] if held else [self.surface_optimizer, self.smoke_optimizer],
-                        [self.background_optimizer, self.surface_optimizer] if held else [self.background_optimizer],
+                        [self.surface_optimizer, self.smoke_optimizer], [self.background_optimizer],
                         self.deform_optimizer, self.deform_warmup)
 
     def after_step(self, it: int, out: IterationOutput) -> None:
