@@ -115,18 +115,6 @@ CANDIDATES: dict[str, Variant] = {
                         "(stage3.carve_by=depth-and-smoke; clean plant carved 40 % of its RGB Gaussians, and carving "
                         "none gained 0.41 dB, docs/experiments/2026-12-06-thermal-pixel-area.md); Stage 3 only",
                    overrides={"stage3.carve_by": "depth-and-smoke"}),
-        _candidate("background-clear", "Full, the environment learns from clear pixels only",
-                   note="each training pixel's gradient into the RGB environment is weighted by 1 - Stage 1's smoke "
-                        "mask, in the RGB Stage 2 and in Stage 3, so the environment cannot learn the smoke's colour "
-                        "and show it behind the de-smoked surface (background_from=clear-pixels; the surface issue); "
-                        "its RGB Stage 2 is its own",
-                   overrides={"background_from": "clear-pixels"}),
-        _candidate("background-black", "Full, no environment behind the surface",
-                   note="no learned environment behind any render (background=black, as the official code): a "
-                        "surface that is not opaque can no longer show an environment that fits the smoke through it "
-                        "(the surface issue; surface_diagnostics' surface-pixel PSNRs, with the environment and on "
-                        "black, measure the leak)",
-                   overrides={"background": "black"}),
         _candidate("densify-by-gradient", "Full, a full cap grows the largest gradients",
                    note="every densification (Stage 2, the smoke, the surface refinement) takes the candidates with "
                         "the largest mean gradient when they outnumber the room under its cap, in place of clones "
